@@ -1,0 +1,72 @@
+/* Direct lighting from packed lights; the same formulas as pipeline/math/lights.py
+ * (see its docstring for the row layout, units and equations). */
+#ifndef PRT_LIGHTS_H
+#define PRT_LIGHTS_H
+
+#include "sampling.h"
+
+#define LIGHT_FLOATS 20
+#define LIGHT_POINT 0
+#define LIGHT_SPOT 1
+#define LIGHT_DIRECTIONAL 2
+#define LIGHT_QUAD 3
+
+inline float3 light_vec(__global const float* row, int at) {
+    return (float3)(row[at], row[at + 1], row[at + 2]);
+}
+
+inline float smoothstep_f(float e0, float e1, float x) {
+    float t = clamp((x - e0) / (e1 - e0), 0.0f, 1.0f);
+    return t * t * (3.0f - 2.0f * t);
+}
+
+/* Irradiance-like factor of light `index` at point p with normal n: the sum that
+ * multiplies f * RGB in the docstring's equations. vis points at the pixel's
+ * visibility row. */
+inline float light_geometry(__global const float* row, uint index, uint pixel, float3 p,
+                            float3 n, __global const uchar* vis) {
+    int kind = (int)row[0];
+    int off = (int)row[17];
+    if (kind == LIGHT_DIRECTIONAL) {
+        float c = fmax(0.0f, -dot(n, light_vec(row, 4)));
+        return vis[off] ? c : 0.0f;
+    }
+    if (kind == LIGHT_QUAD) {
+        int count = (int)row[15];
+        uint m = (uint)round(sqrt((float)count));
+        float3 corner = light_vec(row, 1), eu = light_vec(row, 4), ev = light_vec(row, 7);
+        float3 nq = cross(eu, ev);
+        float area = length(nq);
+        nq = nq / area;
+        float sum = 0.0f;
+        for (int s = 0; s < count; ++s) {
+            if (!vis[off + s]) continue;
+            float2 uv = stratified_square(pixel, index, (uint)s, m);
+            float3 d = corner + uv.x * eu + uv.y * ev - p;
+            float r2 = dot(d, d);
+            float3 l = d / sqrt(r2);
+            sum += fmax(0.0f, dot(n, l)) * fmax(0.0f, -dot(nq, l)) / r2;
+        }
+        return sum * area / (float)count;
+    }
+    float3 d = light_vec(row, 1) - p;
+    float r2 = dot(d, d);
+    float3 l = d / sqrt(r2);
+    float g = vis[off] ? fmax(0.0f, dot(n, l)) / r2 : 0.0f;
+    if (kind == LIGHT_SPOT) g *= smoothstep_f(row[13], row[14], -dot(l, light_vec(row, 4)));
+    return g;
+}
+
+/* Radiance seen directly on the front of quad lights' emitting objects. */
+inline float3 quad_emission(__global const float* lights, int nlights, int object, float3 view) {
+    float3 e = (float3)(0.0f);
+    for (int i = 0; i < nlights; ++i) {
+        __global const float* row = lights + i * LIGHT_FLOATS;
+        if ((int)row[0] == LIGHT_QUAD && (int)row[16] == object && object >= 0 &&
+            dot(view, cross(light_vec(row, 4), light_vec(row, 7))) < 0.0f)
+            e += light_vec(row, 10);
+    }
+    return e;
+}
+
+#endif

@@ -1,0 +1,116 @@
+"""OpenCL: the one place that owns devices, contexts, queues and program builds.
+
+Kernels live in ``kernels/`` and are loaded by file name, built with ``-I kernels/`` and
+sorted ``-D`` defines, and cached per (source hash of the folder's .cl/.h files, options,
+device). The device is PoCL's CPU device by default; ``PRT_CL_DEVICE`` selects another:
+``cpu``, ``gpu``, or ``PLATFORM_SUBSTRING[:DEVICE_INDEX]`` (e.g. ``NVIDIA:0``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import PrtError
+
+
+def kernel_dir() -> Path:
+    """The kernels folder, from a checkout or an installed wheel."""
+    checkout = Path(__file__).resolve().parent.parent / "kernels"
+    if checkout.is_dir():
+        return checkout
+    from importlib.resources import files
+
+    return Path(str(files("pipeline.kernels")))
+
+
+@cache
+def device() -> Any:
+    """The selected OpenCL device (see module docstring)."""
+    import pyopencl as cl
+
+    choice = os.environ.get("PRT_CL_DEVICE", "cpu")
+    platforms = cl.get_platforms()
+    if choice in ("cpu", "gpu"):
+        kind = cl.device_type.CPU if choice == "cpu" else cl.device_type.GPU
+        found = [d for p in platforms for d in p.get_devices() if d.type & kind]
+        # Prefer PoCL for the CPU: it is the device the project ships with.
+        found.sort(key=lambda d: "Portable" not in d.platform.name)
+    else:
+        name, _, index = choice.partition(":")
+        found = [d for p in platforms if name.lower() in p.name.lower()
+                 for d in p.get_devices()]
+        found = found[int(index or 0):]
+    if not found:
+        names = ", ".join(f"{p.name}: {[d.name for d in p.get_devices()]}" for p in platforms)
+        raise PrtError(None, f"PRT_CL_DEVICE={choice!r}: no such OpenCL device (have {names})")
+    return found[0]
+
+
+@cache
+def context() -> Any:
+    import pyopencl as cl
+
+    return cl.Context([device()])
+
+
+@cache
+def queue() -> Any:
+    """An in-order queue with profiling, so kernel times come from events."""
+    import pyopencl as cl
+
+    return cl.CommandQueue(context(), properties=cl.command_queue_properties.PROFILING_ENABLE)
+
+
+def _source_hash(folder: Path) -> str:
+    h = hashlib.sha256()
+    for path in sorted(folder.glob("*.[ch]*")):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+_PROGRAMS: dict[tuple[str, str, tuple[str, ...], str], Any] = {}
+
+
+def program(name: str, defines: dict[str, Any] | None = None) -> Any:
+    """The built program of ``kernels/<name>`` with ``-D`` defines, cached."""
+    import pyopencl as cl
+
+    folder = kernel_dir()
+    path = folder / name
+    if not path.is_file():
+        raise PrtError(path, "kernel source not found")
+    options = ("-I", str(folder), *(f"-D{k}={v}" for k, v in sorted((defines or {}).items())))
+    dev = device()
+    key = (name, _source_hash(folder), options,
+           f"{dev.platform.name}|{dev.name}|{dev.driver_version}")
+    if key not in _PROGRAMS:
+        os.environ.setdefault("PYOPENCL_COMPILER_OUTPUT", "0")
+        try:
+            _PROGRAMS[key] = cl.Program(context(), path.read_text()).build(options=list(options))
+        except cl.RuntimeError as exc:
+            raise PrtError(path, f"OpenCL build failed: {exc}") from None
+    return _PROGRAMS[key]
+
+
+_KERNELS: dict[tuple, Any] = {}
+
+
+def kernel(file: str, name: str, defines: dict[str, Any] | None = None) -> Any:
+    """The kernel ``name`` of ``kernels/<file>``, retrieved once per built program."""
+    import pyopencl as cl
+
+    prog = program(file, defines)
+    key = (id(prog), name)
+    if key not in _KERNELS:
+        _KERNELS[key] = cl.Kernel(prog, name)
+    return _KERNELS[key]
+
+
+def event_ms(event: Any) -> float:
+    """Milliseconds between an event's start and end (profiling clock)."""
+    return (event.profile.end - event.profile.start) * 1e-6

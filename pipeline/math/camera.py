@@ -1,0 +1,41 @@
+"""Pinhole camera rays.
+
+The camera frame is right-handed: ``forward`` points from the eye to ``look_at``,
+``right = forward × up`` (normalised), ``true_up = right × forward``. Pixel (row i,
+column j) looks through its centre; row 0 is the top of the image. ``fov`` is the
+vertical field of view in degrees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def camera_frame(position, look_at, up) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit (right, true_up, forward) vectors, float64."""
+    forward = np.asarray(look_at, float) - np.asarray(position, float)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(up, float))
+    norm = np.linalg.norm(right)
+    if norm < 1e-12:
+        raise ValueError("camera up is parallel to the view direction")
+    right /= norm
+    return right, np.cross(right, forward), forward
+
+
+def camera_rays(position, look_at, up, fov: float, width: int, height: int,
+                region: tuple[int, int, int, int] | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and unit directions, each (rows, cols, 3) float32, for the pixel
+    ``region`` = (y0, y1, x0, x1) (default: the whole image)."""
+    y0, y1, x0, x1 = region or (0, height, 0, width)
+    right, true_up, forward = camera_frame(position, look_at, up)
+    half_h = np.tan(np.radians(fov) / 2.0)
+    half_w = half_h * width / height
+    cols = (2.0 * (np.arange(x0, x1) + 0.5) / width - 1.0) * half_w
+    rows = (1.0 - 2.0 * (np.arange(y0, y1) + 0.5) / height) * half_h
+    d = (forward[None, None, :] + cols[None, :, None] * right[None, None, :]
+         + rows[:, None, None] * true_up[None, None, :])
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    origins = np.broadcast_to(np.asarray(position, float), d.shape)
+    return origins.astype(np.float32), d.astype(np.float32)

@@ -1,0 +1,26 @@
+"""Renderers: each reads baked artifacts and produces a :class:`Frame`; none imports stages."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Frame:
+    """A rendered image: ``rgb`` (height, width, 3) float32 linear radiance, row 0 on
+    top, and wall-clock ``timings`` in milliseconds (``setup_ms``, ``kernel_ms``, ...)."""
+
+    method: str
+    rgb: np.ndarray
+    timings: dict[str, float]
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def height(self) -> int:
+        return int(self.rgb.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.rgb.shape[1])

@@ -1,0 +1,124 @@
+"""Stage ``geometry``: every object's mesh in world space, validated, repaired and merged.
+
+Per object (one chunk each):
+  * vertices transformed by the object's 4×4 matrix; a mirroring transform (negative
+    determinant) reverses face winding so normals keep pointing outward;
+  * a vertex used by a face with a non-finite coordinate is an error (the mesh is
+    broken; nothing sensible can be drawn); unused non-finite vertices are dropped;
+  * degenerate faces (repeated indices or area below 1e-12 of the squared bounding-box
+    diagonal) are dropped;
+  * vertex normals are area-weighted face normals (mesh files' normals are not kept);
+    a vertex whose normal cancels out takes the normal of one of its faces.
+The assembled artifact concatenates objects in scene order (schema ``geometry``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.errors import PrtError
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+
+DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    name = ctx.chunk.object
+    raw = ctx.meshes[name]
+    section = ctx.scene[f"objects.{name}.transform"]
+    matrix = np.asarray(section, dtype=np.float64)
+    vertices, faces, uv = raw.vertices, raw.faces, raw.uv
+
+    bad_vertex = ~np.isfinite(vertices).all(axis=1)
+    if uv is not None:
+        bad_vertex |= ~np.isfinite(uv).all(axis=1)
+    used = np.zeros(len(vertices), bool)
+    used[faces.ravel()] = True
+    if (bad_vertex & used).any():
+        first = int(np.flatnonzero(bad_vertex & used)[0])
+        raise PrtError(raw.source, f"{int((bad_vertex & used).sum())} vertices used by faces "
+                       f"have non-finite coordinates (first: vertex {first})")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise PrtError(raw.source, "faces index vertices that do not exist")
+
+    world = vertices @ matrix[:3, :3].T + matrix[:3, 3]
+    if np.linalg.det(matrix[:3, :3]) < 0:
+        faces = faces[:, ::-1]
+    a, b, c = (world[faces[:, i]] for i in range(3))
+    face_cross = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(face_cross, axis=1)
+    finite_world = world[used & ~bad_vertex]
+    diag2 = float(np.sum((finite_world.max(0) - finite_world.min(0)) ** 2))
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | \
+        (faces[:, 0] == faces[:, 2])
+    degenerate = repeated | (0.5 * area2 <= DEGENERATE_AREA * max(diag2, 1e-300))
+    faces, face_cross = faces[~degenerate], face_cross[~degenerate]
+    if len(faces) == 0:
+        raise PrtError(raw.source, "every face of the mesh is degenerate")
+
+    # Keep only vertices that faces use, in their original order.
+    keep = np.zeros(len(world), bool)
+    keep[faces.ravel()] = True
+    remap = np.cumsum(keep) - 1
+    faces, world = remap[faces], world[keep]
+    uv = np.zeros((len(world), 2)) if uv is None else uv[keep]
+
+    normals = np.zeros_like(world)
+    for i in range(3):
+        np.add.at(normals, faces[:, i], face_cross)
+    length = np.linalg.norm(normals, axis=1)
+    cancelled = length < 1e-20 * max(diag2, 1e-300)
+    if cancelled.any():
+        face_unit = face_cross / np.linalg.norm(face_cross, axis=1, keepdims=True)
+        owner = np.zeros(len(world), np.int64)
+        owner[faces.ravel()] = np.repeat(np.arange(len(faces)), 3)
+        normals[cancelled] = face_unit[owner[cancelled]]
+        length = np.linalg.norm(normals, axis=1)
+    normals /= length[:, None]
+
+    return {
+        "vertices": world.astype(np.float32),
+        "normals": normals.astype(np.float32),
+        "uv": uv.astype(np.float32),
+        "faces": faces.astype(np.int32),
+        "repairs": np.array([int(degenerate.sum()), int((bad_vertex & ~used).sum()),
+                             int(cancelled.sum())], dtype=np.int64),
+    }
+
+
+def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+    material_names = list(ctx.scene["material_table"])
+    object_names = [chunk.object for chunk, _ in pieces]
+    offsets_v = np.cumsum([0] + [len(p["vertices"]) for _, p in pieces])
+    offsets_f = np.cumsum([0] + [len(p["faces"]) for _, p in pieces])
+    faces = np.concatenate([p["faces"] + offsets_v[i] for i, (_, p) in enumerate(pieces)])
+    vertices = np.concatenate([p["vertices"] for _, p in pieces])
+    ranges = np.stack([offsets_v[:-1], offsets_v[1:], offsets_f[:-1], offsets_f[1:]], axis=1)
+    materials = [material_names.index(ctx.scene[f"objects.{name}.material"])
+                 for name in object_names]
+    repairs = {
+        name: dict(zip(("degenerate_faces_dropped", "unused_nonfinite_vertices_dropped",
+                        "normals_from_face"), map(int, p["repairs"]), strict=True))
+        for (_, p), name in zip(pieces, object_names, strict=True)
+    }
+    return Output(
+        arrays={
+            "vertices": vertices,
+            "normals": np.concatenate([p["normals"] for _, p in pieces]),
+            "uv": np.concatenate([p["uv"] for _, p in pieces]),
+            "faces": faces.astype(np.int32),
+            "face_object": np.repeat(np.arange(len(pieces), dtype=np.int32),
+                                     np.diff(offsets_f)),
+            "object_ranges": ranges.astype(np.int64),
+            "object_material": np.asarray(materials, dtype=np.int32),
+        },
+        attrs={
+            "object_names": object_names,
+            "material_names": material_names,
+            "bbox_min": vertices.min(axis=0).astype(float).tolist(),
+            "bbox_max": vertices.max(axis=0).astype(float).tolist(),
+            "repairs": repairs,
+        },
+        sizes={"vertex_chunk": int(ctx.params["geometry.vertex_chunk"]),
+               "face_chunk": int(ctx.params["geometry.vertex_chunk"])},
+    )

@@ -1,0 +1,239 @@
+"""Zarr artifact storage: work directories, atomic writes, provenance and checked reads.
+
+Layout of a work directory (default ``./.prt/<scene name>/``)::
+
+    <stage>.zarr/            the stage's artifact: a zarr v3 group conforming to its schema
+    .chunks/<stage>/<chunk>/ cached per-chunk results of chunked stages (zarr groups)
+    .tmp/                    writes in progress; renamed into place only when complete
+    .lock                    held by the one run that may write here
+
+Every group carries a provenance record in its attributes under ``prt`` (format
+:data:`RECORD_FORMAT`): kind, schema version, stage, key, the parts the key was made of,
+seconds spent and software versions. :func:`read_record` reads it from ``zarr.json``
+without opening arrays, so freshness checks stay cheap.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import itertools
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import PrtError
+from pipeline.schema import Schema, load_schema
+
+RECORD_FORMAT = 1
+
+
+class Workdir:
+    """A work directory holding one scene's artifacts."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root).absolute()
+
+    def artifact(self, name: str) -> Path:
+        return self.root / f"{name}.zarr"
+
+    def piece(self, stage: str, chunk: str) -> Path:
+        return self.root / ".chunks" / stage / chunk
+
+    def pieces(self, stage: str) -> Path:
+        return self.root / ".chunks" / stage
+
+    @property
+    def tmp(self) -> Path:
+        return self.root / ".tmp"
+
+    def ensure_writable(self) -> None:
+        """Create the folder (and .tmp) or raise PrtError saying why it cannot be used."""
+        try:
+            self.tmp.mkdir(parents=True, exist_ok=True)
+            probe = self.tmp / f"probe-{uuid.uuid4().hex}"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            raise PrtError(self.root, f"work directory is not writable ({exc.strerror})") \
+                from None
+
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[None]:
+        """Hold an exclusive lock for a run; fail clearly if another run holds it."""
+        self.ensure_writable()
+        with open(self.root / ".lock", "a+") as handle:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise PrtError(self.root, "another prt run is using this work directory") \
+                    from None
+            # A run killed earlier may have left half-written temporaries; nothing else
+            # can be writing now, so they are safe to drop.
+            for leftover in self.tmp.iterdir():
+                shutil.rmtree(leftover, ignore_errors=True)
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def software_versions() -> dict[str, str]:
+    """Versions of the libraries whose behaviour shapes artifact contents."""
+    import platform
+
+    import zarr
+
+    import pipeline
+
+    versions = {"python": platform.python_version(), "numpy": np.__version__,
+                "zarr": zarr.__version__, "prt": pipeline.__version__}
+    for name in ("trimesh", "embreex", "scipy"):
+        with contextlib.suppress(Exception):
+            versions[name] = __import__(name).__version__
+    return versions
+
+
+def write_group(workdir: Workdir, path: Path, arrays: dict[str, np.ndarray],
+                attrs: dict[str, Any], chunks: dict[str, tuple[int, ...]],
+                dims: dict[str, tuple[str, ...]]) -> None:
+    """Write a zarr v3 group to a temporary folder, then move it onto ``path``.
+
+    The previous group at ``path`` stays valid until the new one is complete; a run
+    killed in between leaves either the old group, the new one, or none (never a partial
+    one), and a missing group is simply rebuilt by the next run.
+    """
+    import zarr
+
+    tmp = workdir.tmp / f"{path.name}-{uuid.uuid4().hex}"
+    group = zarr.open_group(store=str(tmp), mode="w", zarr_format=3)
+    for name, data in arrays.items():
+        data = np.ascontiguousarray(data)
+        arr = group.create_array(name, shape=data.shape, dtype=data.dtype,
+                                 chunks=chunks.get(name, data.shape or (1,)),
+                                 dimension_names=dims.get(name), fill_value=0)
+        if data.size:
+            arr[...] = data
+    group.attrs.update(attrs)
+    _replace_dir(tmp, path, workdir.tmp)
+
+
+def _replace_dir(src: Path, dst: Path, trash_root: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.exists():
+        trash = trash_root / f"old-{uuid.uuid4().hex}"
+        os.rename(dst, trash)
+        os.rename(src, dst)
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        os.rename(src, dst)
+
+
+def write_artifact(workdir: Workdir, path: Path, schema: Schema, arrays: dict[str, np.ndarray],
+                   attrs: dict[str, Any], record: dict[str, Any],
+                   sizes: dict[str, int]) -> None:
+    """Check ``arrays``/``attrs`` against ``schema`` and write them with ``record``."""
+    schema.check_arrays(arrays, attrs, str(path))
+    chunks = {n: s.chunk_shape(arrays[n].shape, sizes) for n, s in schema.arrays.items()}
+    dims = {n: s.dims for n, s in schema.arrays.items()}
+    header = {"format": RECORD_FORMAT, "kind": schema.kind, "schema_version": schema.version}
+    write_group(workdir, path, arrays, {**attrs, "prt": {**header, **record}}, chunks, dims)
+
+
+def read_record(path: Path) -> dict[str, Any] | None:
+    """The ``prt`` provenance record of a group, or None if the group is absent.
+
+    Raises PrtError if ``zarr.json`` exists but cannot be parsed."""
+    meta = path / "zarr.json"
+    try:
+        doc = json.loads(meta.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise PrtError(meta, f"unreadable artifact metadata ({exc})") from None
+    record = doc.get("attributes", {}).get("prt")
+    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
+        raise PrtError(path, f"no prt provenance record of format {RECORD_FORMAT}")
+    return record
+
+
+class Artifact:
+    """A read-only zarr group: checked header, lazily readable arrays."""
+
+    def __init__(self, path: Path, group: Any, record: dict[str, Any]) -> None:
+        self.path = path
+        self.group = group
+        self.record = record
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        return dict(self.group.attrs)
+
+    @property
+    def names(self) -> list[str]:
+        return sorted(name for name, _ in self.group.arrays())
+
+    def array(self, name: str) -> Any:
+        """The zarr array (lazy); raise PrtError if absent."""
+        try:
+            return self.group[name]
+        except KeyError:
+            raise PrtError(self.path, f"has no array {name!r}") from None
+
+    def read(self, name: str, region: tuple[slice, ...] | None = None) -> np.ndarray:
+        """Read an array (or a region of it) into memory, naming a corrupt chunk file."""
+        arr = self.array(name)
+        try:
+            return np.asarray(arr[...] if region is None else arr[region])
+        except Exception as exc:  # codec errors come in many types
+            bad = _find_bad_chunk(arr) or name
+            raise PrtError(self.path / bad, f"corrupt or truncated chunk "
+                           f"({type(exc).__name__}: {exc}); re-bake with `prt run --force "
+                           f"{self.record.get('stage', 'STAGE')}`") from None
+
+    def read_all(self) -> dict[str, np.ndarray]:
+        return {name: self.read(name) for name in self.names}
+
+
+def _find_bad_chunk(arr: Any) -> str | None:
+    """The relative path of the first chunk of ``arr`` that fails to decode."""
+    grid = [range(-(-s // c)) for s, c in zip(arr.shape, arr.chunks, strict=True)]
+    for index in itertools.product(*grid):
+        region = tuple(slice(i * c, (i + 1) * c) for i, c in zip(index, arr.chunks, strict=True))
+        try:
+            arr[region]
+        except Exception:
+            return "/".join([arr.basename, "c", *map(str, index)])
+    return None
+
+
+def open_group(path: Path) -> Artifact:
+    """Open any prt group (artifact or cached chunk) for reading."""
+    import zarr
+
+    record = read_record(path)
+    if record is None:
+        raise PrtError(path, "artifact not found; run `prt run` first")
+    try:
+        group = zarr.open_group(store=str(path), mode="r", zarr_format=3)
+    except Exception as exc:
+        raise PrtError(path, f"cannot open zarr group ({exc})") from None
+    return Artifact(path, group, record)
+
+
+def open_artifact(path: Path, kind: str | None = None) -> Artifact:
+    """Open an artifact and check its kind and schema version against data_schema/."""
+    artifact = open_group(path)
+    record = artifact.record
+    stored_kind = record.get("kind")
+    schema = load_schema(kind or stored_kind) if (kind or stored_kind) else None
+    if schema is None:
+        raise PrtError(path, "record names no artifact kind")
+    schema.check_header(stored_kind, record.get("schema_version"), str(path))
+    return artifact
