@@ -25,7 +25,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -133,10 +133,14 @@ class Scene:
     settings: dict[str, Any]
     raw: dict[str, Any]
 
-    @property
-    def material_names(self) -> list[str]:
-        """Material names in file order; a material's id is its index here."""
-        return list(self.materials)
+    def with_image_size(self, width: int, height: int) -> Scene:
+        """The same scene rendered at ``width`` × ``height`` pixels."""
+        if width < 1 or height < 1:
+            raise PrtError(self.path, f"image size {width}x{height}: width and height must "
+                           "be positive")
+        camera = replace(self.camera, width=width, height=height)
+        raw = {**self.raw, "camera": {**self.raw["camera"], "width": width, "height": height}}
+        return replace(self, camera=camera, raw=raw)
 
     def section(self, dotted: str) -> Any:
         """The canonical value at a dotted path (``camera``, ``objects.floor.material``,
@@ -388,6 +392,8 @@ def _light(chk: _Checker, index: int, spec: Any, objects: dict) -> tuple[Light, 
             p[key] = chk.number(value, at, 0.0, 1.0)
         elif key == "samples":
             p[key] = chk.integer(value, at, 1)
+            if math.isqrt(p[key]) ** 2 != p[key]:
+                raise chk.fail(at, f"expected a square number (4, 9, 16, ...), found {value}")
         elif key == "object":
             if value not in objects:
                 raise chk.fail(at, f"unknown object {value!r}")

@@ -10,6 +10,7 @@ names one of the array's own dimensions means "that whole dimension"; any other 
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from functools import cache
 from importlib.resources import files
@@ -101,20 +102,22 @@ class Schema:
                            "`prt run --force STAGE` or `prt clean`")
 
 
-def schema_dir() -> Path:
-    """The data_schema folder, from a checkout or an installed wheel."""
+def schema_dirs() -> list[Path]:
+    """The project's data_schema folder (checkout or installed wheel), then the folders
+    listed in ``PRT_SCHEMA_PATH`` (os.pathsep-separated) for plug-in stages."""
     checkout = Path(__file__).resolve().parent.parent / "data_schema"
-    if checkout.is_dir():
-        return checkout
-    return Path(str(files("pipeline.data_schema")))
+    dirs = [checkout if checkout.is_dir() else Path(str(files("pipeline.data_schema")))]
+    extra = os.environ.get("PRT_SCHEMA_PATH", "")
+    return dirs + [Path(p) for p in extra.split(os.pathsep) if p]
 
 
 @cache
 def load_schema(kind: str) -> Schema:
-    """Parse and check ``data_schema/<kind>.yaml``."""
-    path = schema_dir() / f"{kind}.yaml"
-    if not path.is_file():
-        raise PrtError(path, f"no schema for artifact kind {kind!r}")
+    """Parse and check ``<schema dir>/<kind>.yaml`` (first folder that has it)."""
+    candidates = [d / f"{kind}.yaml" for d in schema_dirs()]
+    path = next((c for c in candidates if c.is_file()), None)
+    if path is None:
+        raise PrtError(candidates[0], f"no schema for artifact kind {kind!r}")
     doc = yaml.safe_load(path.read_text())
     try:
         arrays = {

@@ -110,17 +110,17 @@ def shade_direct(position: np.ndarray, normal: np.ndarray, pixel: np.ndarray,
         q = light_sample_points(packed, i, pixel).astype(np.float64)
         d = q - p[:, None, :]
         r2 = np.sum(d * d, axis=-1)
-        l = d / np.sqrt(r2)[..., None]
-        cos = np.maximum(0.0, np.einsum("nk,nsk->ns", n, l))
+        to_light = d / np.sqrt(r2)[..., None]
+        cos = np.maximum(0.0, np.einsum("nk,nsk->ns", n, to_light))
         if kind == TYPE_CODES["quad"]:
             nq = np.cross(row[4:7], row[7:10])
             area = np.linalg.norm(nq)
-            cos_l = np.maximum(0.0, -(l @ (nq / area)))
+            cos_l = np.maximum(0.0, -(to_light @ (nq / area)))
             g = np.sum(cos * cos_l / r2 * vis, axis=1) * area / count
         else:
             g = (cos / r2 * vis)[:, 0]
             if kind == TYPE_CODES["spot"]:
-                g = g * smoothstep(row[13], row[14], -(l[:, 0] @ row[4:7]))
+                g = g * smoothstep(row[13], row[14], -(to_light[:, 0] @ row[4:7]))
         out += f * row[10:13] * g[:, None]
     return out
 

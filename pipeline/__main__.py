@@ -1,0 +1,5 @@
+"""``python -m pipeline`` is ``prt``."""
+
+from pipeline.cli import main
+
+main()

@@ -1,0 +1,189 @@
+"""The ``prt`` command line. Each command parses its options, calls one entry of
+:mod:`pipeline.job`, and prints. Input problems print one line ``error: FILE: PROBLEM``
+and exit with status 2."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from pipeline.errors import PrtError
+
+SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
+WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
+                       help="Work directory for artifacts [default: ./.prt/<scene name>].")
+STAGES = click.option("--stages", "stagefile", type=click.Path(path_type=Path), default=None,
+                      help="Stage file [default: the project's stages.yaml].")
+QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
+JOBS = click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+                    help="Chunks computed in parallel (worker processes).")
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """'WxH' -> (W, H); PrtError unless both are positive integers."""
+    if text is None:
+        return None
+    w, sep, h = text.lower().partition("x")
+    try:
+        width, height = int(w), int(h)
+    except ValueError:
+        width = height = 0
+    if not sep or width < 1 or height < 1:
+        raise PrtError("--size", f"{text!r}: expected WIDTHxHEIGHT with positive integers")
+    return width, height
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="prt-pipeline")
+def cli() -> None:
+    """Bake precomputed light transport for a scene and render relit frames.
+
+    SCENE is a scene YAML file; it defaults to the embedded Cornell box."""
+
+
+@cli.command("run")
+@SCENE
+@click.option("--until", metavar="STAGE", help="Stop after STAGE (and skip rendering).")
+@click.option("--force", metavar="STAGE", multiple=True, help="Re-run STAGE even if fresh.")
+@click.option("--frames", type=click.Path(path_type=Path), default=None,
+              help="Folder for the rendered frames [default: ./frames/<scene name>].")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+@WORKDIR
+@STAGES
+@JOBS
+@QUIET
+def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, quiet) -> None:
+    """Bake every stale stage, then render the scene's frames."""
+    from pipeline import job
+
+    sc = job.open_scene(scene)
+    wd = job.workdir_for(sc, workdir)
+    frames = frames or Path("frames") / sc.name
+    report, rendered = job.main_job(sc, wd, frames, until, tuple(force), jobs, quiet,
+                                    stagefile)
+    if as_json:
+        click.echo(json.dumps({
+            "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
+                        "reused_chunks": r.reused_chunks, "seconds": round(r.seconds, 4),
+                        "reason": r.reason} for r in report],
+            "frame": None if rendered is None else str(rendered.exr)}))
+        return
+    ran = [r for r in report if r.action == "ran"]
+    for r in report:
+        if r.action == "ran":
+            reused = f", {len(r.reused_chunks)} reused" if r.reused_chunks else ""
+            click.echo(f"  {r.name:<12} ran {len(r.ran_chunks)} chunk(s){reused} in "
+                       f"{r.seconds:.2f} s  ({r.reason})")
+        else:
+            click.echo(f"  {r.name:<12} fresh, skipped")
+    if not ran:
+        click.echo(f"All {len(report)} stages fresh: nothing to bake.")
+    if rendered is not None:
+        state = "up to date" if rendered.frame is None else "rendered"
+        click.echo(f"Frame {state}: {rendered.exr} (preview {rendered.png})")
+
+
+@cli.command("status")
+@SCENE
+@click.option("--json", "as_json", is_flag=True, help="Print {\"stages\": [...]} as JSON.")
+@WORKDIR
+@STAGES
+def status_cmd(scene, as_json, workdir, stagefile) -> None:
+    """Show whether each stage is fresh, stale or missing, and why."""
+    from pipeline import job
+
+    sc = job.open_scene(scene)
+    plans = job.status(sc, job.workdir_for(sc, workdir), stagefile)
+    rows = [{"name": p.spec.name, "state": p.state, "reason": p.reason} for p in plans]
+    if as_json:
+        click.echo(json.dumps({"stages": rows}))
+        return
+    for row in rows:
+        reason = f"  ({row['reason']})" if row["reason"] else ""
+        click.echo(f"  {row['name']:<12} {row['state']}{reason}")
+
+
+@cli.command("inspect")
+@click.argument("path", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
+def inspect_cmd(path, as_json) -> None:
+    """Describe an artifact: schema, arrays, chunks, storage and statistics."""
+    from pipeline import job
+
+    info = job.inspect_artifact(path)
+    if as_json:
+        click.echo(json.dumps(info))
+        return
+    click.echo(f"{info['path']}: kind {info['kind']} v{info['schema_version']}, stage "
+               f"{info['stage']}, key {str(info['key'])[:12]}")
+    for name, a in info["arrays"].items():
+        stats = ("" if a["min"] is None else
+                 f" min {a['min']:.4g} max {a['max']:.4g} mean {a['mean']:.4g}")
+        click.echo(f"  {name:<16} {a['dtype']:<8} {str(tuple(a['shape'])):<18} dims "
+                   f"{a['dims']} chunks {tuple(a['chunks'])} {a['stored_bytes']} B stored "
+                   f"(x{a['compression_ratio']}){stats} NaN {a['nan_count']}")
+
+
+@cli.command("render")
+@SCENE
+@click.option("--method", type=click.Choice(["direct"]), default="direct", show_default=True,
+              help="Rendering method.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Output EXR (linear); an sRGB PNG preview is written beside it.")
+@click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print one JSON line with timings (ms) and the image size.")
+@WORKDIR
+@JOBS
+@QUIET
+def render_cmd(scene, method, out, size, as_json, workdir, jobs, quiet) -> None:
+    """Render one frame (baking first whatever the method needs)."""
+    from pipeline import job
+
+    sc = job.open_scene(scene, parse_size(size))
+    result = job.render(sc, job.workdir_for(sc, workdir), method, out, jobs=jobs, quiet=quiet)
+    frame = result.frame
+    if as_json:
+        click.echo(json.dumps({"method": method, "width": frame.width, "height": frame.height,
+                               **{k: round(v, 3) for k, v in frame.timings.items()},
+                               "exr": str(result.exr), "png": str(result.png)}))
+        return
+    for note in frame.notes:
+        click.echo(f"note: {note}", err=True)
+    t = frame.timings
+    click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}; setup "
+               f"{t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
+
+
+@cli.command("clean")
+@SCENE
+@WORKDIR
+def clean_cmd(scene, workdir) -> None:
+    """Delete the scene's work directory (all baked artifacts)."""
+    from pipeline import job
+
+    sc = job.open_scene(scene)
+    wd = job.workdir_for(sc, workdir)
+    freed = job.clean(wd)
+    click.echo(f"Removed {wd.root} ({freed / 1e6:.1f} MB)")
+
+
+def main() -> None:
+    """Entry point: run the CLI, turning input errors into one line and status 2."""
+    try:
+        cli.main(standalone_mode=False)
+    except PrtError as exc:
+        click.echo(f"error: {exc.one_line()}", err=True)
+        sys.exit(2)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        click.echo("interrupted; finished chunks are kept", err=True)
+        sys.exit(130)

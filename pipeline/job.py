@@ -1,0 +1,163 @@
+"""What the CLI commands do: bake, report status, render frames, inspect and clean.
+
+Each function here is one floor-4 entry that a CLI command calls; it wires scenes,
+the runner and the renderers together and returns plain results for the CLI to print.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import PrtError
+from pipeline.executors import make_executor
+from pipeline.keys import digest, module_source_hash
+from pipeline.render import Frame
+from pipeline.runner import StagePlan, StageRun, plan, run
+from pipeline.scene import Scene, default_scene_path, load_scene
+from pipeline.stagefile import load_stagefile
+from pipeline.store import Workdir
+
+# Rendering methods: name -> (module, function, the stage whose artifact it needs).
+METHODS = {"direct": ("pipeline.render.direct", "render_direct", "gbuffer")}
+
+
+def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> Scene:
+    """The scene at ``path`` (default: the embedded Cornell box), optionally resized."""
+    scene = load_scene(path or default_scene_path())
+    return scene.with_image_size(*size) if size else scene
+
+
+def workdir_for(scene: Scene, workdir: str | Path | None) -> Workdir:
+    """``workdir`` or the default ``./.prt/<scene name>``."""
+    return Workdir(workdir or Path(".prt") / scene.name)
+
+
+def bake(scene: Scene, workdir: Workdir, until: str | None = None,
+         force: tuple[str, ...] = (), jobs: int = 1, quiet: bool = False,
+         stagefile: str | Path | None = None) -> list[StageRun]:
+    """Run every stale stage (or those ``until`` needs)."""
+    return run(scene, load_stagefile(stagefile), workdir, until=until, force=force,
+               executor=make_executor(jobs), progress=not quiet)
+
+
+def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
+           ) -> list[StagePlan]:
+    """Every stage's state (fresh, stale or missing) and why, without running anything."""
+    return plan(scene, load_stagefile(stagefile), workdir)
+
+
+@dataclass
+class RenderResult:
+    """A rendered (or already up-to-date) frame and where it was written."""
+
+    exr: Path
+    png: Path
+    frame: Frame | None  # None when the frame on disk was already up to date
+    baked: list[StageRun]
+
+
+def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1,
+           quiet: bool = False, reuse: bool = False) -> RenderResult:
+    """Bake what ``method`` needs, render one frame, write ``out`` (EXR) and a PNG beside.
+
+    With ``reuse``, a frame whose inputs (artifact keys, lights, materials, camera, code)
+    are unchanged since it was written is not rendered again."""
+    import importlib
+
+    if method not in METHODS:
+        raise PrtError(None, f"unknown method {method!r} (methods: {', '.join(METHODS)})")
+    module_name, function, needs = METHODS[method]
+    if out.suffix.lower() != ".exr":
+        raise PrtError(out, "output must be an .exr file")
+    baked = bake(scene, workdir, until=needs, jobs=jobs, quiet=quiet)
+    png, meta = out.with_suffix(".png"), out.with_suffix(".json")
+    key = digest({"method": method, "code": module_source_hash(module_name),
+                  "artifacts": [p.key for p in status(scene, workdir)],
+                  "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}})
+    if reuse and out.is_file() and png.is_file() and _stored_key(meta) == key:
+        return RenderResult(out, png, None, baked)
+    from pipeline.images import write_exr, write_png
+
+    frame = getattr(importlib.import_module(module_name), function)(scene, workdir)
+    write_exr(out, frame.rgb)
+    write_png(png, frame.rgb)
+    meta.write_text(json.dumps({"key": key, "method": method, **frame.timings}, indent=1))
+    return RenderResult(out, png, frame, baked)
+
+
+def _stored_key(meta: Path) -> str | None:
+    try:
+        return json.loads(meta.read_text()).get("key")
+    except (OSError, ValueError):
+        return None
+
+
+def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
+             force: tuple[str, ...], jobs: int, quiet: bool,
+             stagefile: str | Path | None = None
+             ) -> tuple[list[StageRun], RenderResult | None]:
+    """``prt run``: bake every stale stage, then (unless ``until``, or with a custom
+    stage file) bring the scene's frames in ``frames`` up to date."""
+    report = bake(scene, workdir, until=until, force=force, jobs=jobs, quiet=quiet,
+                  stagefile=stagefile)
+    if until or stagefile:
+        return report, None
+    result = render(scene, workdir, "direct", frames / f"{scene.name}_direct.exr",
+                    jobs=jobs, quiet=quiet, reuse=True)
+    return report, result
+
+
+def clean(workdir: Workdir) -> int:
+    """Delete a work directory; returns the bytes freed."""
+    root = workdir.root
+    if not root.exists():
+        return 0
+    if not (root / ".lock").exists() and not any(root.glob("*.zarr")):
+        raise PrtError(root, "does not look like a prt work directory; not deleting it")
+    freed = sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+    with workdir.lock():
+        for child in root.iterdir():
+            if child.name != ".lock":
+                shutil.rmtree(child) if child.is_dir() else child.unlink()
+    (root / ".lock").unlink(missing_ok=True)
+    return freed
+
+
+def inspect_artifact(path: Path) -> dict[str, Any]:
+    """Schema kind and version, and per array its shape, dtype, chunks, stored bytes and
+    statistics (min, max, mean over finite values; NaN count)."""
+    import numpy as np
+
+    from pipeline.store import open_artifact, open_group
+
+    path = Path(path)
+    artifact = open_group(path)
+    if artifact.record.get("kind") != "chunk":
+        artifact = open_artifact(path)
+    arrays = {}
+    for name in artifact.names:
+        arr = artifact.array(name)
+        data = artifact.read(name)
+        stored = sum(p.stat().st_size for p in (path / name).rglob("*") if p.is_file())
+        numeric = data.astype(np.float64) if data.size else np.zeros(1)
+        finite = numeric[np.isfinite(numeric)]
+        arrays[name] = {
+            "shape": list(data.shape), "dtype": str(data.dtype), "chunks": list(arr.chunks),
+            "dims": list(arr.metadata.dimension_names or []),
+            "stored_bytes": stored, "bytes": int(data.nbytes),
+            "compression_ratio": round(data.nbytes / stored, 2) if stored else None,
+            "min": float(finite.min()) if finite.size else None,
+            "max": float(finite.max()) if finite.size else None,
+            "mean": float(finite.mean()) if finite.size else None,
+            "nan_count": int(np.isnan(numeric).sum()) if data.size else 0,
+        }
+    record = artifact.record
+    return {"path": str(path), "kind": record.get("kind"),
+            "schema_version": record.get("schema_version"), "stage": record.get("stage"),
+            "key": record.get("key"), "seconds": record.get("seconds"),
+            "software": record.get("software"), "arrays": arrays}
+
