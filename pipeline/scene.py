@@ -144,8 +144,9 @@ class Scene:
 
     def section(self, dotted: str) -> Any:
         """The canonical value at a dotted path (``camera``, ``objects.floor.material``,
-        ``materials.white``). A mesh path is replaced by ``{path, sha256}`` of its
-        content so that editing the file changes the value. Missing paths give ``None``."""
+        ``materials.white``). File paths (``mesh``, ``file``) are replaced by the SHA-256
+        of the file's content: editing the file changes the value, moving the scene and
+        its files elsewhere does not. Missing paths give ``None``."""
         node: Any = self.raw
         for part in dotted.split("."):
             if not isinstance(node, dict) or part not in node:
@@ -158,8 +159,8 @@ def _with_file_hashes(node: Any) -> Any:
     if isinstance(node, dict):
         out = {}
         for key, value in node.items():
-            if key == "mesh" and isinstance(value, str):
-                out[key] = {"path": value, "sha256": file_sha256(Path(value))}
+            if key in ("mesh", "file") and isinstance(value, str):
+                out[key] = {"sha256": file_sha256(Path(value))}
             else:
                 out[key] = _with_file_hashes(value)
         return out

@@ -1,0 +1,145 @@
+"""Incremental re-bake: exactly the stages and chunks whose declared inputs changed run."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from helpers import TESTS, small_scene_dict, write_scene
+
+from pipeline.runner import plan, run
+from pipeline.scene import load_scene
+from pipeline.stagefile import load_stagefile
+from pipeline.store import Workdir, open_artifact
+
+STAGEFILE = TESTS / "toy" / "stages.yaml"
+
+
+TILES = [f"y{y:05d}_x{x:05d}" for y in (0, 8, 16) for x in (0, 8, 16)]
+
+
+def ran(report) -> dict[str, list[str]]:
+    """stage -> chunk ids that ran, for the stages that ran."""
+    return {r.name: r.ran_chunks for r in report if r.action == "ran"}
+
+
+@pytest.fixture()
+def baked(tmp_path):
+    """A tiny scene baked once with the toy stage graph; returns (doc, workdir, folder)."""
+    doc = small_scene_dict()
+    workdir = Workdir(tmp_path / "work")
+    bake(doc, tmp_path, workdir)
+    return doc, workdir, tmp_path
+
+
+def bake(doc, folder, workdir, **kwargs):
+    scene = load_scene(write_scene(folder, doc))
+    return run(scene, load_stagefile(STAGEFILE), workdir, progress=False, **kwargs)
+
+
+def test_second_run_executes_nothing(baked):
+    """Running twice: the second run skips every stage."""
+    doc, workdir, folder = baked
+    report = bake(doc, folder, workdir)
+    assert ran(report) == {}
+    assert {r.action for r in report} == {"skipped"}
+
+
+def test_first_run_runs_every_chunk(tmp_path):
+    """A fresh work directory runs every chunk of every stage."""
+    report = bake(small_scene_dict(), tmp_path, Workdir(tmp_path / "w"))
+    assert ran(report) == {
+        "geometry": ["floor", "box", "ball"],
+        "gbuffer": TILES,
+        "per_object": ["floor", "box", "ball"],
+        "total": ["all"],
+        "tiles": TILES,
+    }
+
+
+def test_declared_param_reruns_declaring_stage_and_dependents(baked):
+    """toy.scale is declared by per_object: it and its dependents (total, then tiles)
+    run; geometry and gbuffer do not."""
+    doc, workdir, folder = baked
+    doc = copy.deepcopy(doc)
+    doc["settings"] = {"toy.scale": 3.0}
+    assert ran(bake(doc, folder, workdir)) == {"per_object": ["floor", "box", "ball"],
+                                              "total": ["all"], "tiles": TILES}
+
+
+def test_param_of_leaf_stage_reruns_only_it(baked):
+    """toy.sleep is declared only by tiles, which nothing depends on."""
+    doc, workdir, folder = baked
+    doc = copy.deepcopy(doc)
+    doc["settings"] = {"toy.sleep": 0.001}
+    assert ran(bake(doc, folder, workdir)) == {"tiles": TILES}
+
+
+def test_material_edit_reruns_only_chunks_reading_it(baked):
+    """Editing the red material re-runs the box's chunk of per_object (and its dependents
+    total and tiles); geometry and the G-buffer do not read material contents."""
+    doc, workdir, folder = baked
+    doc = copy.deepcopy(doc)
+    doc["materials"]["red"]["albedo"] = [0.9, 0.1, 0.1]
+    report = bake(doc, folder, workdir)
+    assert ran(report) == {"per_object": ["box"], "total": ["all"], "tiles": TILES}
+    per_object = [r for r in report if r.name == "per_object"][0]
+    assert per_object.reused_chunks == ["floor", "ball"]
+    value = open_artifact(workdir.artifact("per_object")).read("value")
+    np.testing.assert_allclose(value[1], np.array([0.9, 0.1, 0.1]) * 2.0, rtol=1e-6)
+
+
+def test_object_transform_edit_reruns_its_geometry_chunk(baked):
+    """Moving the ball re-runs its geometry chunk and every G-buffer tile (any pixel may
+    see the moved ball), but not the other objects' geometry chunks."""
+    doc, workdir, folder = baked
+    doc = copy.deepcopy(doc)
+    doc["objects"]["ball"]["transform"] = {"translate": [0.7, 0.35, 0.2]}
+    result = ran(bake(doc, folder, workdir))
+    assert result["geometry"] == ["ball"]
+    assert len(result["gbuffer"]) == 9
+    assert set(result) == {"geometry", "gbuffer"}
+
+
+@pytest.mark.parametrize("edit", ["unused_param", "light"])
+def test_undeclared_key_reruns_nothing(baked, edit):
+    """A param no stage declares, or a light (read only at render time), re-runs nothing."""
+    doc, workdir, folder = baked
+    doc = copy.deepcopy(doc)
+    if edit == "unused_param":
+        doc["settings"] = {"toy.unused": 7}
+    else:
+        doc["lights"][0]["position"] = [2.0, 2.0, 2.0]
+    assert ran(bake(doc, folder, workdir)) == {}
+
+
+def test_status_names_the_change(baked):
+    """Status reports which declared param changed, without running anything."""
+    doc, workdir, folder = baked
+    doc = copy.deepcopy(doc)
+    doc["settings"] = {"toy.scale": 3.0}
+    scene = load_scene(write_scene(folder, doc))
+    states = {p.spec.name: (p.state, p.reason)
+              for p in plan(scene, load_stagefile(STAGEFILE), workdir)}
+    assert states["per_object"] == ("stale", "param toy.scale changed (2.0 -> 3.0)")
+    assert states["total"] == ("stale", "input per_object changed")
+    assert states["tiles"] == ("stale", "input total changed")
+    assert states["geometry"] == ("fresh", "")
+
+
+def test_force_reruns_only_the_forced_stage(baked):
+    """--force re-runs every chunk of that stage; its outputs are identical."""
+    doc, workdir, folder = baked
+    before = open_artifact(workdir.artifact("per_object")).read_all()
+    report = bake(doc, folder, workdir, force=("per_object",))
+    assert ran(report) == {"per_object": ["floor", "box", "ball"]}
+    after = open_artifact(workdir.artifact("per_object")).read_all()
+    for name in before:
+        assert before[name].tobytes() == after[name].tobytes()
+
+
+def test_until_runs_only_upstream(tmp_path):
+    """--until gbuffer runs geometry and gbuffer only."""
+    report = bake(small_scene_dict(), tmp_path, Workdir(tmp_path / "w"), until="gbuffer")
+    assert set(ran(report)) == {"geometry", "gbuffer"}
