@@ -1,0 +1,90 @@
+"""The prt command line: summaries, JSON outputs, inspect, help text."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from helpers import small_scene_dict, write_scene
+
+
+def prt(*args, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pipeline", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    """A tiny scene run once through `prt run`: (scene, workdir, frames, first result)."""
+    tmp = tmp_path_factory.mktemp("cli")
+    scene = write_scene(tmp, small_scene_dict(size=16))
+    first = prt("run", scene, "--workdir", tmp / "w", "--frames", tmp / "f", "-q", cwd=tmp)
+    assert first.returncode == 0, first.stderr
+    return scene, tmp / "w", tmp / "f", first
+
+
+def test_run_summary_then_noop(baked):
+    """The first run lists the stages it ran and the frame; the second runs nothing."""
+    scene, workdir, frames, first = baked
+    assert "geometry" in first.stdout and "ran" in first.stdout
+    assert f"{frames / 'tiny_direct.exr'}" in first.stdout
+    again = prt("run", scene, "--workdir", workdir, "--frames", frames, "-q")
+    assert again.returncode == 0
+    assert "All 2 stages fresh: nothing to bake." in again.stdout
+    assert "Frame up to date" in again.stdout
+    report = json.loads(prt("run", scene, "--workdir", workdir, "--frames", frames, "--json",
+                            "-q").stdout)
+    assert [s["action"] for s in report["stages"]] == ["skipped", "skipped"]
+
+
+def test_status_json(baked):
+    """`prt status --json` lists every stage with state and reason."""
+    scene, workdir, _, _ = baked
+    out = json.loads(prt("status", scene, "--workdir", workdir, "--json").stdout)
+    assert out == {"stages": [{"name": "geometry", "state": "fresh", "reason": ""},
+                              {"name": "gbuffer", "state": "fresh", "reason": ""}]}
+
+
+def test_inspect_reports_schema_and_arrays(baked):
+    """`prt inspect --json` gives kind, version, dims, chunks, bytes and statistics."""
+    _, workdir, _, _ = baked
+    info = json.loads(prt("inspect", workdir / "gbuffer.zarr", "--json").stdout)
+    assert (info["kind"], info["schema_version"]) == ("gbuffer", 1)
+    normal = info["arrays"]["normal"]
+    assert normal["shape"] == [16, 16, 3] and normal["dims"] == ["y", "x", "xyz"]
+    assert normal["dtype"] == "float32" and normal["stored_bytes"] > 0
+    assert -1.0 <= normal["min"] <= normal["max"] <= 1.0 and normal["nan_count"] == 0
+    text = prt("inspect", workdir / "geometry.zarr")
+    assert text.returncode == 0 and "object_ranges" in text.stdout
+
+
+def test_render_json_and_size(baked, tmp_path):
+    """`prt render --json` prints one JSON line with timings and the requested size."""
+    scene, workdir, _, _ = baked
+    out = tmp_path / "frame.exr"
+    result = prt("render", scene, "--workdir", tmp_path / "w2", "--out", out, "--size", "20x12",
+                 "--json", "-q")
+    assert result.returncode == 0, result.stderr
+    line = json.loads(result.stdout)
+    assert (line["width"], line["height"], line["method"]) == (20, 12, "direct")
+    assert line["setup_ms"] > 0 and line["kernel_ms"] > 0
+    assert out.is_file() and out.with_suffix(".png").is_file()
+
+
+@pytest.mark.parametrize("command", ["", "run", "status", "inspect", "render", "clean"])
+def test_help_everywhere(command):
+    """Every command has help text."""
+    result = prt(*([command] if command else []), "--help")
+    assert result.returncode == 0 and "Usage:" in result.stdout and len(result.stdout) > 200
+
+
+def test_clean_removes_workdir(tmp_path):
+    """`prt clean` deletes the scene's artifacts."""
+    scene = write_scene(tmp_path, small_scene_dict(size=8))
+    assert prt("run", scene, "--workdir", tmp_path / "w", "--until", "geometry", "-q"
+               ).returncode == 0
+    assert (tmp_path / "w" / "geometry.zarr").is_dir()
+    result = prt("clean", scene, "--workdir", tmp_path / "w")
+    assert result.returncode == 0 and not (tmp_path / "w" / "geometry.zarr").exists()
