@@ -9,6 +9,9 @@ whichever ran them, because each task's randomness is seeded from its own key.
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Protocol
@@ -29,15 +32,31 @@ class InProcessExecutor:
             yield fn(task)
 
 
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: on Linux, ask the kernel to kill this worker when the run that
+    started it dies (even by SIGKILL), so that no orphan keeps computing; exit at once if
+    that run died while this worker was starting."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 class LocalPoolExecutor:
-    """``jobs`` worker processes on this machine (spawned, so no state leaks in)."""
+    """``jobs`` worker processes on this machine (spawned, so no state leaks in; they die
+    with the run that started them)."""
 
     def __init__(self, jobs: int) -> None:
         self.jobs = jobs
 
     def map_unordered(self, fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Any]:
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(self.jobs, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(self.jobs, mp_context=ctx,
+                                 initializer=_die_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             pending = {pool.submit(fn, task) for task in tasks}
             try:
                 while pending:

@@ -116,7 +116,8 @@ def write_group(workdir: Workdir, path: Path, arrays: dict[str, np.ndarray],
     for name, data in arrays.items():
         data = np.ascontiguousarray(data)
         arr = group.create_array(name, shape=data.shape, dtype=data.dtype,
-                                 chunks=chunks.get(name, data.shape or (1,)),
+                                 chunks=chunks.get(name, tuple(max(1, n) for n in data.shape)
+                                                   or (1,)),
                                  dimension_names=dims.get(name), fill_value=0)
         if data.size:
             arr[...] = data

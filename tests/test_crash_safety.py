@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
 from pipeline.executors import LocalPoolExecutor
@@ -32,9 +33,11 @@ def cli(*args: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path):
-    """SIGKILL while the tiles stage runs: earlier artifacts stay valid, the next run
-    reuses the finished chunks, and the result equals an uninterrupted run's."""
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path, jobs):
+    """SIGKILL (of a serial run, or of the parent of a 2-process pool) while the tiles
+    stage runs: earlier artifacts stay valid, the next run reuses the finished chunks,
+    and the result equals an uninterrupted serial run's."""
     doc = small_scene_dict()
     doc["settings"] = {"toy.sleep": 0.3}
     scene_path = write_scene(tmp_path, doc)
@@ -45,7 +48,7 @@ def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path):
 
     killed = Workdir(tmp_path / "killed")
     args = ("run", str(scene_path), "--stages", str(STAGEFILE), "--workdir", str(killed.root),
-            "-q")
+            "--jobs", jobs, "-q")
     proc = cli(*args)
     pieces = killed.pieces("tiles")
     deadline = time.monotonic() + 120
@@ -56,6 +59,7 @@ def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path):
     assert proc.poll() is None, f"run ended before it could be killed: {proc.communicate()}"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
+    time.sleep(0.5)  # let the kernel deliver SIGKILL to pool workers too (PDEATHSIG)
     finished_before_kill = sorted(p.name for p in pieces.iterdir())
     assert 3 <= len(finished_before_kill) < 9
 
