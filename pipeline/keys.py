@@ -39,5 +39,13 @@ def module_source_hash(module: str) -> str:
     return hashlib.sha256(Path(spec.origin).read_bytes()).hexdigest()
 
 
+_FILE_HASHES: dict[tuple[str, int, int], str] = {}
+
+
 def file_hash(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    """SHA-256 of a file's bytes, cached per (path, size, mtime)."""
+    st = path.stat()
+    cache_key = (str(path), st.st_size, st.st_mtime_ns)
+    if cache_key not in _FILE_HASHES:
+        _FILE_HASHES[cache_key] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return _FILE_HASHES[cache_key]

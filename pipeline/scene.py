@@ -22,7 +22,6 @@ section path, which is what stage keys hash.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 from dataclasses import dataclass, field, replace
@@ -32,6 +31,7 @@ from typing import Any
 import yaml
 
 from pipeline.errors import PrtError
+from pipeline.keys import file_hash
 
 SCENE_FORMAT = "prt-scene/1"
 
@@ -160,25 +160,13 @@ def _with_file_hashes(node: Any) -> Any:
         out = {}
         for key, value in node.items():
             if key in ("mesh", "file") and isinstance(value, str):
-                out[key] = {"sha256": file_sha256(Path(value))}
+                out[key] = {"sha256": file_hash(Path(value))}
             else:
                 out[key] = _with_file_hashes(value)
         return out
     if isinstance(node, list):
         return [_with_file_hashes(v) for v in node]
     return node
-
-
-_FILE_HASHES: dict[tuple[str, int, int], str] = {}
-
-
-def file_sha256(path: Path) -> str:
-    """SHA-256 of a file's bytes, cached per (path, size, mtime)."""
-    st = path.stat()
-    cache_key = (str(path), st.st_size, st.st_mtime_ns)
-    if cache_key not in _FILE_HASHES:
-        _FILE_HASHES[cache_key] = hashlib.sha256(path.read_bytes()).hexdigest()
-    return _FILE_HASHES[cache_key]
 
 
 # --------------------------------------------------------------------------- validation
