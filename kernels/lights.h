@@ -3,6 +3,7 @@
 #ifndef PRT_LIGHTS_H
 #define PRT_LIGHTS_H
 
+#include "brdf.h"
 #include "sampling.h"
 
 #define LIGHT_FLOATS 20
@@ -20,16 +21,20 @@ inline float smoothstep_f(float e0, float e1, float x) {
     return t * t * (3.0f - 2.0f * t);
 }
 
-/* Irradiance-like factor of light `index` at point p with normal n: the sum that
- * multiplies f * RGB in the docstring's equations. vis points at the pixel's
- * visibility row. */
-inline float light_geometry(__global const float* row, uint index, uint pixel, float3 p,
-                            float3 n, __global const uchar* vis) {
+/* Radiance reflected at p towards the viewer by light `row`, without the light's RGB:
+ * the sum over its samples of f(wi, wo) * geometry term (see pipeline/math/lights.py).
+ * n, t: unit normal and tangent; wo: unit direction to the viewer in the local frame;
+ * mat: the material row (brdf.h); vis: the pixel's visibility row. */
+inline float3 light_reflected(__global const float* row, uint index, uint pixel, float3 p,
+                              float3 n, float3 t, float3 wo, __global const float* mat,
+                              __global const uchar* vis) {
     int kind = (int)row[0];
     int off = (int)row[17];
     if (kind == LIGHT_DIRECTIONAL) {
-        float c = fmax(0.0f, -dot(n, light_vec(row, 4)));
-        return vis[off] ? c : 0.0f;
+        float3 l = -light_vec(row, 4);
+        float c = dot(n, l);
+        return vis[off] && c > 0.0f ? brdf_eval(mat, to_local(l, n, t), wo) * c
+                                    : (float3)(0.0f);
     }
     if (kind == LIGHT_QUAD) {
         int count = (int)row[15];
@@ -38,23 +43,25 @@ inline float light_geometry(__global const float* row, uint index, uint pixel, f
         float3 nq = cross(eu, ev);
         float area = length(nq);
         nq = nq / area;
-        float sum = 0.0f;
+        float3 sum = (float3)(0.0f);
         for (int s = 0; s < count; ++s) {
             if (!vis[off + s]) continue;
             float2 uv = stratified_square(pixel, index, (uint)s, m);
             float3 d = corner + uv.x * eu + uv.y * ev - p;
             float r2 = dot(d, d);
             float3 l = d / sqrt(r2);
-            sum += fmax(0.0f, dot(n, l)) * fmax(0.0f, -dot(nq, l)) / r2;
+            float g = fmax(0.0f, dot(n, l)) * fmax(0.0f, -dot(nq, l)) / r2;
+            if (g > 0.0f) sum += brdf_eval(mat, to_local(l, n, t), wo) * g;
         }
-        return sum * area / (float)count;
+        return sum * (area / (float)count);
     }
+    if (!vis[off]) return (float3)(0.0f);
     float3 d = light_vec(row, 1) - p;
     float r2 = dot(d, d);
     float3 l = d / sqrt(r2);
-    float g = vis[off] ? fmax(0.0f, dot(n, l)) / r2 : 0.0f;
+    float g = fmax(0.0f, dot(n, l)) / r2;
     if (kind == LIGHT_SPOT) g *= smoothstep_f(row[13], row[14], -dot(l, light_vec(row, 4)));
-    return g;
+    return g > 0.0f ? brdf_eval(mat, to_local(l, n, t), wo) * g : (float3)(0.0f);
 }
 
 /* Radiance seen directly on the front of quad lights' emitting objects. */

@@ -6,6 +6,10 @@ A scene file (format ``prt-scene/1``) holds these top-level sections::
     name: cornell_box
     camera:   {position, look_at, up, fov (vertical, degrees), width, height}
     materials: {NAME: {model, albedo, ...model parameters}}
+               # glossy models: specular (ρs, scalar or RGB), gamma, gamma_range [min, max]
+               # (the PCA basis covers it), optional pca_tolerance; ward_anisotropic:
+               # alpha_ratio (αy/αx); lafortune: cxy, cz; cook_torrance and
+               # ashikhmin_shirley: f0 or ior (see pipeline/math/brdf.py)
     objects:   {NAME: {mesh: PATH | primitive: {...}, transform: {...}, material: NAME}}
     lights:    [{type: point|spot|directional|quad|environment, ...}]
     settings:  {PARAM.KEY: value}   # overrides of stage parameter defaults
@@ -46,7 +50,7 @@ MATERIAL_MODELS = (
     "ashikhmin_shirley",
 )
 # Parameters each model accepts beyond the common ``model`` and ``albedo``.
-_GLOSSY_KEYS = {"specular", "gamma", "gamma_range"}
+_GLOSSY_KEYS = {"specular", "gamma", "gamma_range", "pca_tolerance"}
 MODEL_KEYS: dict[str, set[str]] = {
     "lambert": set(),
     "blinn_phong": _GLOSSY_KEYS,
@@ -302,8 +306,15 @@ def _material(chk: _Checker, name: str, spec: Any) -> tuple[Material, dict]:
         params = {"gamma": gamma, "gamma_range": [lo, hi],
                   "specular": list(chk.vector(spec.get("specular", 0.5), f"{where}.specular",
                                               3, 0.0, 1.0))}
-        for key in sorted(set(spec) & {"alpha_ratio", "cxy", "cz", "f0", "ior"}):
-            params[key] = chk.number(spec[key], f"{where}.{key}")
+        bounds = {"alpha_ratio": (1e-3, 1e3), "cxy": (-1e3, 1e3), "cz": (-1e3, 1e3),
+                  "f0": (0.0, 1.0), "ior": (1.0, 10.0), "pca_tolerance": (1e-9, 0.5)}
+        for key in sorted(set(spec) & set(bounds)):
+            params[key] = chk.number(spec[key], f"{where}.{key}", *bounds[key])
+        if "f0" in params and "ior" in params:
+            raise chk.fail(where, "give either f0 or ior (F0 = ((ior-1)/(ior+1))^2), not both")
+        if model == "lafortune" and max(abs(params.get("cxy", -1.0)),
+                                        abs(params.get("cz", 1.0))) == 0.0:
+            raise chk.fail(where, "cxy and cz cannot both be zero")
     canonical = {"model": model, "albedo": list(albedo), **params}
     return Material(name, model, albedo, params), canonical
 

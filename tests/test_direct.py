@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 
+from pipeline.math.brdf import evaluate_world, scene_brdfs
 from pipeline.math.lights import pack_lights, quad_emission, shade_direct
 from pipeline.math.sampling import lowbias32, stratified_square
 from pipeline.raytrace import RayTracer
@@ -32,18 +34,23 @@ def numpy_direct(scene, workdir):
     pos = gbuf.read("position").reshape(-1, 3)
     nrm = gbuf.read("normal").reshape(-1, 3)
     obj = gbuf.read("object_id").reshape(-1)
+    tan = gbuf.read("tangent").reshape(-1, 3)
     mat = gbuf.read("material_id").reshape(-1)
-    albedo = np.array([scene.materials[m].albedo for m in geo.attrs["material_names"]])
+    brdfs = scene_brdfs(scene, geo.attrs["material_names"])
     packed = pack_lights([(lt.type, lt.params) for lt in scene.lights],
                          {n: i for i, n in enumerate(geo.attrs["object_names"])})
     hit = np.flatnonzero(mat >= 0)
     diag = float(np.linalg.norm(np.subtract(geo.attrs["bbox_max"], geo.attrs["bbox_min"])))
     vis = light_visibility(RayTracer(geo.read("vertices"), geo.read("faces")), pos[hit],
                            nrm[hit], hit, packed, diag)
-    out = np.zeros_like(pos, dtype=np.float64)
-    out[hit] = shade_direct(pos[hit], nrm[hit], hit, albedo[mat[hit]], packed, vis)
     view = pos[hit] - np.asarray(scene.camera.position)
     view /= np.linalg.norm(view, axis=1, keepdims=True)
+
+    def brdf(wi):
+        return evaluate_world(wi, -view, nrm[hit], tan[hit], mat[hit], brdfs)
+
+    out = np.zeros_like(pos, dtype=np.float64)
+    out[hit] = shade_direct(pos[hit], nrm[hit], hit, brdf, packed, vis)
     out[hit] += quad_emission(obj[hit], view, packed)
     return out.reshape(gbuf.read("position").shape), vis
 
@@ -136,15 +143,16 @@ def cornell(tmp_path_factory):
 
 
 def test_cornell_direct_has_no_colour_bleeding(cornell):
-    """Direct light only: every lit white surface has the chromaticity of light × white
-    albedo (red and green walls cannot tint it), and the luminaire shows its radiance."""
+    """Direct light only: every lit white Lambertian surface has the chromaticity of
+    light × white albedo (red and green walls cannot tint it), and the luminaire shows
+    its radiance."""
     scene, workdir, frame = cornell
     gbuf = open_artifact(workdir.artifact("gbuffer"))
     names = open_artifact(workdir.artifact("geometry")).attrs["object_names"]
     obj = gbuf.read("object_id")
     le = np.array(scene.lights[0].params["radiance"])
     white = np.array(scene.materials["white"].albedo)
-    lit = np.isin(obj, [names.index(n) for n in ("floor", "back", "ceiling")]) & \
+    lit = np.isin(obj, [names.index(n) for n in ("back", "ceiling")]) & \
         (frame.rgb.sum(-1) > 1e-3)
     ratio = frame.rgb[lit] / (le * white)
     np.testing.assert_allclose(ratio / ratio[:, :1], 1.0, rtol=1e-4)
@@ -179,3 +187,30 @@ def test_cornell_boxes_cast_shadows(cornell):
                             (d[blocked] / dist[blocked, None]).astype(np.float32))
     owners = {names[i] for i in geo.read("face_object")[hits.prim[hits.prim >= 0]]}
     assert {"largebox", "smallbox"} <= owners
+
+
+def test_cornell_floor_shows_its_glossy_highlight(cornell):
+    """The glossy Blinn-Phong floor reflects the luminaire: against the same frame with
+    ρs = 0, the floor gains light only (never loses it), and the gain is largest at the
+    front of the floor, nearest the mirror direction (the light's mirror image lies in
+    front of the box, out of view)."""
+    scene, workdir, frame = cornell
+    floor_material = scene.materials["glossy_floor"]
+    matte = dataclasses.replace(floor_material,
+                                params={**floor_material.params, "specular": [0, 0, 0]})
+    matte_frame = render_direct(dataclasses.replace(
+        scene, materials={**scene.materials, "glossy_floor": matte}), workdir)
+    names = open_artifact(workdir.artifact("geometry")).attrs["object_names"]
+    floor = open_artifact(workdir.artifact("gbuffer")).read("object_id") == \
+        names.index("floor")
+    gain = (frame.rgb - matte_frame.rgb).sum(-1)
+    assert np.all(gain[floor] >= -1e-6 * frame.rgb.max())
+    rows = np.flatnonzero(floor.any(axis=1))
+    front, back = rows[-4:], rows[:4]
+
+    def mean_gain(r):
+        sel = floor[r]
+        return gain[r][sel].mean() / matte_frame.rgb.sum(-1)[r][sel].mean()
+
+    assert mean_gain(front) > 0.2  # measured 0.26 at 64 × 64
+    assert mean_gain(front) > 10 * mean_gain(back)  # measured 0.001 at the back

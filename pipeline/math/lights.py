@@ -15,12 +15,13 @@ Lights are packed as rows of :data:`LIGHT_FLOATS` float32 values::
     [16]     emitting object id (quad), -1 if none
     [17]     offset of the light's samples in a pixel's visibility row
 
-Radiance leaving a surface point x with unit normal n and BRDF f (Lambert: albedo/π)::
+Radiance leaving a surface point x with unit normal n towards the viewer, with BRDF
+f(l) = f(l, ω_view) (pipeline/math/brdf.py)::
 
-    point:       f · I · max(0, n·l) / r² · V
+    point:       f(l) · I · max(0, n·l) / r² · V
     spot:        the same × smoothstep(cos_outer, cos_inner, −l·axis)
-    directional: f · E · max(0, −n·d) · V
-    quad:        f · L_e · (A / N) Σ_s max(0, n·l_s) max(0, −n_q·l_s) / r_s² · V_s
+    directional: f(−d) · E · max(0, −n·d) · V
+    quad:        L_e · (A / N) Σ_s f(l_s) max(0, n·l_s) max(0, −n_q·l_s) / r_s² · V_s
 
 with l the unit vector from x to the light (sample), r its distance, n_q the quad's unit
 normal edge_u × edge_v, A its area and V ∈ {0, 1} the visibility found by shadow rays.
@@ -29,6 +30,7 @@ normal edge_u × edge_v, A its area and V ∈ {0, 1} the visibility found by sha
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -93,35 +95,33 @@ def smoothstep(e0: np.ndarray, e1: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def shade_direct(position: np.ndarray, normal: np.ndarray, pixel: np.ndarray,
-                 diffuse: np.ndarray, packed: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-    """Outgoing radiance (N, 3) of Lambertian points: ``position``, ``normal`` (N, 3),
-    ``pixel`` ids (N,), ``diffuse`` albedo (N, 3), ``visibility`` (N, total_samples)."""
+                 brdf: Callable[[np.ndarray], np.ndarray], packed: np.ndarray,
+                 visibility: np.ndarray) -> np.ndarray:
+    """Outgoing radiance (N, 3) of points ``position``, ``normal`` (N, 3), ``pixel`` ids
+    (N,), ``visibility`` (N, total_samples). ``brdf`` maps unit world directions towards
+    the light (N, S, 3) to BRDF values (N, S, 3) of each point towards its viewer."""
     p = position.astype(np.float64)
     n = normal.astype(np.float64)
-    f = diffuse.astype(np.float64) / np.pi
     out = np.zeros_like(p)
     for i, row in enumerate(packed.astype(np.float64)):
         kind, off, count = int(row[0]), int(row[17]), int(row[15])
         vis = visibility[:, off:off + count].astype(np.float64)
         if kind == TYPE_CODES["directional"]:
-            cos = np.maximum(0.0, -(n @ row[4:7]))
-            out += f * row[10:13] * (cos * vis[:, 0])[:, None]
-            continue
-        q = light_sample_points(packed, i, pixel).astype(np.float64)
-        d = q - p[:, None, :]
-        r2 = np.sum(d * d, axis=-1)
-        to_light = d / np.sqrt(r2)[..., None]
-        cos = np.maximum(0.0, np.einsum("nk,nsk->ns", n, to_light))
-        if kind == TYPE_CODES["quad"]:
-            nq = np.cross(row[4:7], row[7:10])
-            area = np.linalg.norm(nq)
-            cos_l = np.maximum(0.0, -(to_light @ (nq / area)))
-            g = np.sum(cos * cos_l / r2 * vis, axis=1) * area / count
+            to_light = np.broadcast_to(-row[4:7], (len(p), 1, 3))
+            g = np.maximum(0.0, n @ -row[4:7])[:, None] * vis
         else:
-            g = (cos / r2 * vis)[:, 0]
-            if kind == TYPE_CODES["spot"]:
-                g = g * smoothstep(row[13], row[14], -(to_light[:, 0] @ row[4:7]))
-        out += f * row[10:13] * g[:, None]
+            q = light_sample_points(packed, i, pixel).astype(np.float64)
+            d = q - p[:, None, :]
+            r2 = np.sum(d * d, axis=-1)
+            to_light = d / np.sqrt(r2)[..., None]
+            g = np.maximum(0.0, np.einsum("nk,nsk->ns", n, to_light)) / r2 * vis
+            if kind == TYPE_CODES["quad"]:
+                nq = np.cross(row[4:7], row[7:10])
+                area = np.linalg.norm(nq)
+                g = g * np.maximum(0.0, -(to_light @ (nq / area))) * area / count
+            elif kind == TYPE_CODES["spot"]:
+                g = g * smoothstep(row[13], row[14], -(to_light @ row[4:7]))
+        out += row[10:13] * np.sum(brdf(to_light) * g[..., None], axis=1)
     return out
 
 

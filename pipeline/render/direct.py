@@ -2,9 +2,9 @@
 
 Per frame: load the G-buffer and geometry artifacts, build the Embree scene, trace shadow
 rays to every light sample (point, spot, directional; quad lights with stratified
-samples), then shade every pixel on the OpenCL device with Lambertian BRDFs (diffuse
-albedo / π). Emitting quads show their radiance. Environment lights are not part of this
-method.
+samples), then shade every pixel on the OpenCL device with its material's analytic BRDF
+(pipeline/math/brdf.py, kernels/brdf.h) at the material's γ. Emitting quads show their
+radiance. Environment lights are not part of this method.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from pipeline import cl
+from pipeline.math.brdf import pack_materials, scene_brdfs
 from pipeline.math.lights import pack_lights, total_samples
 from pipeline.raytrace import RayTracer
 from pipeline.render import Frame
@@ -35,8 +36,8 @@ def render_direct(scene: Scene, workdir: Workdir) -> Frame:
     object_id = gbuf.read("object_id").reshape(-1)
     material_id = gbuf.read("material_id").reshape(-1)
     object_names = geo.attrs["object_names"]
-    albedo = np.asarray([scene.materials[m].albedo for m in geo.attrs["material_names"]],
-                        np.float32)
+    tangent = gbuf.read("tangent").reshape(-1, 3)
+    materials = pack_materials(scene_brdfs(scene, geo.attrs["material_names"]))
     lights = [(light.type, light.params) for light in scene.lights if light.type != "environment"]
     notes = ["environment lights are ignored by method direct"] \
         if len(lights) < len(scene.lights) else []
@@ -63,7 +64,8 @@ def render_direct(scene: Scene, workdir: Workdir) -> Frame:
     out_buf = pcl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     light_rows = packed if len(packed) else np.zeros((1, packed.shape[1]), np.float32)
     camera = np.array([*scene.camera.position, 0.0], np.float32)
-    args = [buf(position), buf(normal), buf(object_id), buf(material_id), buf(albedo),
+    args = [buf(position), buf(normal), buf(tangent), buf(object_id), buf(material_id),
+            buf(materials),
             buf(light_rows), np.int32(len(packed)), buf(visibility),
             np.int32(visibility.shape[1]), camera, np.int32(h * w), out_buf]
     t3 = time.perf_counter()

@@ -1,0 +1,105 @@
+/* Analytic BRDFs: the same models and formulas as pipeline/math/brdf.py (see its
+ * docstring for frames, units, the Fresnel and G terms and the normalizations).
+ *
+ * Directions are in the local frame (x tangent, y = n × t, z normal), wi towards the
+ * light, wo towards the viewer. A material is a row of MATERIAL_FLOATS floats:
+ *   [0] model code   [1..3] kd (diffuse albedo)   [4..6] rho_s (specular colour)
+ *   [7] gamma        [8] alpha_ratio (anisotropic Ward: alpha_y = ratio * gamma)
+ *   [9] cxy [10] cz (Lafortune)   [11] F0 (Schlick)
+ *
+ * Float precision: lobes are written so that float32 rounding is not raised to the
+ * power gamma. With s = wi + wo (the unnormalised half vector), tan^2(delta) =
+ * |s_xy|^2 / s_z^2 carries a relative error of a few ulps, and cos^gamma(delta) =
+ * exp(-gamma/2 * log1p(tan^2 delta)). Lafortune's lobe base is summed in double where
+ * the device has it (1 - x loses all digits in float when x is near 1).
+ */
+#ifndef PRT_BRDF_H
+#define PRT_BRDF_H
+
+#ifdef cl_khr_fp64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+
+#define MATERIAL_FLOATS 16
+#define MODEL_LAMBERT 0
+#define MODEL_BLINN_PHONG 1
+#define MODEL_WARD 2
+#define MODEL_WARD_DUER 3
+#define MODEL_WARD_ANISOTROPIC 4
+#define MODEL_LAFORTUNE 5
+#define MODEL_COOK_TORRANCE 6
+#define MODEL_ASHIKHMIN_SHIRLEY 7
+
+#define BRDF_PI 3.14159265358979f
+
+inline float schlick_fresnel(float f0, float v_dot_h) {
+    float m = 1.0f - clamp(v_dot_h, 0.0f, 1.0f);
+    float m2 = m * m;
+    return f0 + (1.0f - f0) * m2 * m2 * m;
+}
+
+/* 1 - x for Lafortune's normalised lobe base x = (cxy (lx vx + ly vy) + cz lz vz) / max|C|. */
+inline float lafortune_one_minus_x(__global const float* mat, float3 wi, float3 wo) {
+#ifdef cl_khr_fp64
+    double base = (double)mat[9] * ((double)wi.x * wo.x + (double)wi.y * wo.y)
+                  + (double)mat[10] * ((double)wi.z * wo.z);
+    return (float)(1.0 - base / fmax(fabs((double)mat[9]), fabs((double)mat[10])));
+#else
+    return 1.0f - (mat[9] * (wi.x * wo.x + wi.y * wo.y) + mat[10] * wi.z * wo.z)
+                  / fmax(fabs(mat[9]), fabs(mat[10]));
+#endif
+}
+
+/* The glossy part f_F * f_E of the material's model (without rho_s), in 1/sr. */
+inline float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
+    int model = (int)mat[0];
+    float nl = wi.z, nv = wo.z;
+    if (model == MODEL_LAMBERT || nl <= 0.0f || nv <= 0.0f) return 0.0f;
+    float g = mat[7];
+    if (model == MODEL_LAFORTUNE) {
+        float u = lafortune_one_minus_x(mat, wi, wo);          /* 1 - x */
+        if (u >= 1.0f) return 0.0f;                            /* x <= 0 */
+        return (g + 2.0f) / (2.0f * BRDF_PI) * exp(g * log1p(-fmax(u, 0.0f)));
+    }
+    float3 s = wi + wo;
+    float sxy2 = s.x * s.x + s.y * s.y;
+    float tan2 = sxy2 / (s.z * s.z);
+    float slen = sqrt(sxy2 + s.z * s.z);
+    if (model == MODEL_BLINN_PHONG)
+        return (g + 2.0f) / (2.0f * BRDF_PI) * exp(-0.5f * g * log1p(tan2));
+    if (model == MODEL_WARD || model == MODEL_WARD_DUER || model == MODEL_WARD_ANISOTROPIC) {
+        float ax = g, ay = model == MODEL_WARD_ANISOTROPIC ? mat[8] * g : g;
+        float e = (s.x * s.x / (ax * ax) + s.y * s.y / (ay * ay)) / (s.z * s.z);
+        float lobe = exp(-e) / (4.0f * BRDF_PI * ax * ay);
+        return model == MODEL_WARD_DUER ? lobe / (nl * nv) : lobe * rsqrt(nl * nv);
+    }
+    float vh = dot(wo, s) / slen;
+    float fresnel = schlick_fresnel(mat[11], vh);
+    if (model == MODEL_COOK_TORRANCE) {
+        float lobe = exp(-tan2 / (g * g));
+        if (lobe == 0.0f) return 0.0f;
+        float nh = s.z / slen;
+        float geom = fmin(1.0f, fmin(2.0f * nh * nv / vh, 2.0f * nh * nl / vh));
+        float sec2 = 1.0f + tan2;                              /* 1 / cos^2(delta) */
+        return lobe / (BRDF_PI * g * g) * geom * fresnel * sec2 * sec2 / (nl * nv);
+    }
+    if (model == MODEL_ASHIKHMIN_SHIRLEY)
+        return (g + 1.0f) / (8.0f * BRDF_PI) * exp(-0.5f * g * log1p(tan2)) * fresnel
+               / (vh * fmax(nl, nv));
+    return 0.0f;
+}
+
+/* The full BRDF kd / pi + rho_s * f_F * f_E (RGB, 1/sr); zero below either horizon. */
+inline float3 brdf_eval(__global const float* mat, float3 wi, float3 wo) {
+    if (wi.z <= 0.0f || wo.z <= 0.0f) return (float3)(0.0f);
+    float3 kd = (float3)(mat[1], mat[2], mat[3]);
+    float3 ks = (float3)(mat[4], mat[5], mat[6]);
+    return kd * (1.0f / BRDF_PI) + ks * brdf_glossy(mat, wi, wo);
+}
+
+/* World vector v in the frame (t, n x t, n). */
+inline float3 to_local(float3 v, float3 n, float3 t) {
+    return (float3)(dot(v, t), dot(v, cross(n, t)), dot(v, n));
+}
+
+#endif
