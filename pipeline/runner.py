@@ -98,8 +98,13 @@ def stage_params(stagefile: StageFile, scene: Scene) -> dict[str, Any]:
     return {**stagefile.params, **scene.settings}
 
 
-def resolve_sections(spec: StageSpec, scene: Scene, obj: str | None) -> dict[str, Any]:
-    """Declared scene sections with ``*`` bound to ``obj`` (or to every name)."""
+def resolve_sections(spec: StageSpec, scene: Scene, chunk: Chunk | None) -> dict[str, Any]:
+    """Declared scene sections with ``*`` bound to the chunk's object or material (or,
+    without a chunk, to every name)."""
+    obj = chunk.object if chunk else None
+    material = chunk.material if chunk else None
+    if obj:
+        material = scene.objects[obj].material
     out: dict[str, Any] = {}
     for pattern in spec.scene:
         if "*" not in pattern:
@@ -109,7 +114,7 @@ def resolve_sections(spec: StageSpec, scene: Scene, obj: str | None) -> dict[str
         if head == "objects":
             names = [obj] if obj else list(scene.objects)
         elif head == "materials":
-            names = [scene.objects[obj].material] if obj else list(scene.materials)
+            names = [material] if material else list(scene.materials)
         else:
             raise PrtError(None, f"stage {spec.name}: scene section {pattern!r}: '*' is only "
                            "allowed after objects or materials")
@@ -148,6 +153,8 @@ def code_version(spec: StageSpec) -> str:
 def stage_chunks(spec: StageSpec, scene: Scene, params: dict[str, Any]) -> list[Chunk]:
     if spec.chunking == "object":
         return [Chunk(name, object=name) for name in scene.objects]
+    if spec.chunking == "material":
+        return [Chunk(name, material=name) for name in scene.materials]
     if spec.chunking == "tile":
         tile = params[spec.tile_param]
         if not isinstance(tile, int) or tile < 1:
@@ -170,8 +177,9 @@ def plan(scene: Scene, stagefile: StageFile, workdir: Workdir,
         params = {k: params_all[k] for k in spec.params}
         inputs = {dep: plans[dep].key for dep in spec.inputs}
         chunks = stage_chunks(spec, scene, params)
-        shared = None if spec.chunking == "object" else resolve_sections(spec, scene, None)
-        sections = {c.id: shared if shared is not None else resolve_sections(spec, scene, c.object)
+        per_chunk = spec.chunking in ("object", "material")
+        shared = None if per_chunk else resolve_sections(spec, scene, None)
+        sections = {c.id: resolve_sections(spec, scene, c) if per_chunk else shared
                     for c in chunks}
         base = {"stage": name, "code": code_version(spec),
                 "schema_version": load_schema(spec.output).version,

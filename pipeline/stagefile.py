@@ -14,11 +14,12 @@ Format ``prt-stages/1``::
         params: [gbuffer.tile]   # parameter keys it reads
         kernels: []              # kernels/ files whose source is part of its code version
         output: gbuffer          # schema kind of the artifact it writes
-        chunks: none | object | {by: tile, size: PARAM}
+        chunks: none | object | material | {by: tile, size: PARAM}
 
 Scene sections may hold ``*``: in a stage chunked by object, ``objects.*.X`` is the chunk's
-own object and ``materials.*`` its material; otherwise ``*`` stands for every object or
-material.
+own object and ``materials.*`` its material; in a stage chunked by material (one chunk per
+scene material, in the scene's order), ``materials.*`` is the chunk's material; otherwise
+``*`` stands for every object or material.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import yaml
 from pipeline.errors import PrtError
 
 STAGEFILE_FORMAT = "prt-stages/1"
-CHUNKINGS = ("none", "object", "tile")
+CHUNKINGS = ("none", "object", "material", "tile")
 
 
 @dataclass(frozen=True)

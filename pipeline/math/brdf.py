@@ -118,11 +118,9 @@ def _gaussian_lobe(gamma, cos_delta, scale):
 class BlinnPhong:
     """f = ρs (γ + 2)/(2π) cos^γ δ. f_F = 1, f_E = (γ + 2)/(2π) cos^γ δ, x = δ."""
 
-    coordinate_names = ("delta",)
-
     @staticmethod
     def edited(gamma, x, p: BrdfParams):
-        return _cos_power_lobe(gamma, np.cos(x[..., 0]), (gamma + 2.0) / (2.0 * np.pi))
+        return _cos_power_lobe(gamma, np.cos(x), (gamma + 2.0) / (2.0 * np.pi))
 
     @staticmethod
     def fixed(wi, wo, h, p: BrdfParams):
@@ -133,11 +131,9 @@ class Ward:
     """Isotropic Ward: f = ρs / √(N·L N·V) · exp(−tan²δ/γ²)/(4πγ²), γ the roughness α.
     f_F = 1/√(N·L N·V), f_E = exp(−tan²δ/γ²)/(4πγ²), x = δ."""
 
-    coordinate_names = ("delta",)
-
     @staticmethod
     def edited(gamma, x, p: BrdfParams):
-        return _gaussian_lobe(gamma, np.cos(x[..., 0]), 1.0 / (4.0 * np.pi * gamma * gamma))
+        return _gaussian_lobe(gamma, np.cos(x), 1.0 / (4.0 * np.pi * gamma * gamma))
 
     @staticmethod
     def fixed(wi, wo, h, p: BrdfParams):
@@ -156,18 +152,14 @@ class WardDuer(Ward):
 class WardAnisotropic:
     """Anisotropic Ward (paper 004 Fig. 11) with αx = γ, αy = r·γ (r = ``alpha_ratio``):
     f = ρs / √(N·L N·V) · exp(−tan²δ (cos²φ/αx² + sin²φ/αy²)) / (4π αx αy), φ the
-    azimuth of H from the tangent. f_F = 1/√(N·L N·V), f_E the rest, x = (δ, φ) with φ
-    folded into [0, π/2] (f_E is even in φ and in π − φ)."""
-
-    coordinate_names = ("delta", "phi")
+    azimuth of H from the tangent. f_F = 1/√(N·L N·V). The exponent is tan²δ_e / γ² with
+    the effective angle δ_e = arctan(tan δ · √(cos²φ + sin²φ/r²)) ∈ [0, π/2], so the edited
+    term is the 1D family f_E = exp(−tan²δ_e/γ²)/(4π r γ²) and x = δ_e."""
 
     @staticmethod
     def edited(gamma, x, p: BrdfParams):
-        ax, ay = gamma, p.alpha_ratio * gamma
-        phi = x[..., 1]
-        exponent = tan2(np.clip(np.cos(x[..., 0]), 0.0, 1.0)) * (
-            np.cos(phi) ** 2 / (ax * ax) + np.sin(phi) ** 2 / (ay * ay))
-        return np.exp(-exponent) / (4.0 * np.pi * ax * ay)
+        return _gaussian_lobe(gamma, np.cos(x),
+                              1.0 / (4.0 * np.pi * p.alpha_ratio * gamma * gamma))
 
     fixed = Ward.fixed
 
@@ -178,11 +170,9 @@ class Lafortune:
     Cz = 1 is the Phong lobe (R·V)^γ). Table 3 prints max(Cx, Cy, Cz) without bars; with
     negative Cxy only max|C| keeps x ≤ 1, as §4 writes. f_F = 1, f_E = (γ + 2)/(2π) x^γ."""
 
-    coordinate_names = ("x",)
-
     @staticmethod
     def edited(gamma, x, p: BrdfParams):
-        return _cos_power_lobe(gamma, x[..., 0], (gamma + 2.0) / (2.0 * np.pi))
+        return _cos_power_lobe(gamma, x, (gamma + 2.0) / (2.0 * np.pi))
 
     @staticmethod
     def fixed(wi, wo, h, p: BrdfParams):
@@ -194,11 +184,9 @@ class CookTorrance:
     D = exp(−tan²δ/γ²) / (γ² cos⁴δ), γ the rms slope m. f_F = G F / (N·L N·V cos⁴δ),
     f_E = exp(−tan²δ/γ²)/(πγ²), x = δ."""
 
-    coordinate_names = ("delta",)
-
     @staticmethod
     def edited(gamma, x, p: BrdfParams):
-        return _gaussian_lobe(gamma, np.cos(x[..., 0]), 1.0 / (np.pi * gamma * gamma))
+        return _gaussian_lobe(gamma, np.cos(x), 1.0 / (np.pi * gamma * gamma))
 
     @staticmethod
     def fixed(wi, wo, h, p: BrdfParams):
@@ -213,11 +201,9 @@ class AshikhminShirley:
     ((V·H) max(N·L, N·V)) · F. f_F = F / ((V·H) max(N·L, N·V)),
     f_E = (γ + 1)/(8π) cos^γ δ, x = δ."""
 
-    coordinate_names = ("delta",)
-
     @staticmethod
     def edited(gamma, x, p: BrdfParams):
-        return _cos_power_lobe(gamma, np.cos(x[..., 0]), (gamma + 1.0) / (8.0 * np.pi))
+        return _cos_power_lobe(gamma, np.cos(x), (gamma + 1.0) / (8.0 * np.pi))
 
     @staticmethod
     def fixed(wi, wo, h, p: BrdfParams):
@@ -241,18 +227,17 @@ MODELS = {
 
 
 def coordinate(wi: np.ndarray, wo: np.ndarray, p: BrdfParams) -> np.ndarray:
-    """The model's PCA coordinate x(ωi, ωo), shape (..., 1) or (..., 2) (anisotropic
-    Ward: δ, φ). δ = arccos(N·H) in [0, π/2]."""
+    """The model's PCA coordinate x(ωi, ωo), shape (...,): δ = arccos(N·H) ∈ [0, π/2];
+    Lafortune's normalised lobe base ∈ [0, 1]; the anisotropic Ward's effective δ_e."""
     if p.model == "lafortune":
         c = np.array([p.cxy, p.cxy, p.cz])
         lobe = np.sum(c * wi * wo, axis=-1) / max(abs(p.cxy), abs(p.cz))
-        return np.clip(lobe, 0.0, 1.0)[..., None]
-    h = half_vector(wi, wo)
-    delta = np.arccos(np.clip(h[..., 2], -1.0, 1.0))
+        return np.clip(lobe, 0.0, 1.0)
+    s = wi + wo
+    sxy2 = s[..., 0] ** 2 + s[..., 1] ** 2
     if p.model == "ward_anisotropic":
-        phi = np.arctan2(np.abs(h[..., 1]), np.abs(h[..., 0]))
-        return np.stack([delta, phi], axis=-1)
-    return delta[..., None]
+        sxy2 = s[..., 0] ** 2 + s[..., 1] ** 2 / p.alpha_ratio ** 2
+    return np.arctan2(np.sqrt(sxy2), np.maximum(s[..., 2], 0.0))
 
 
 def fixed_term(wi: np.ndarray, wo: np.ndarray, p: BrdfParams) -> np.ndarray:
@@ -264,7 +249,7 @@ def fixed_term(wi: np.ndarray, wo: np.ndarray, p: BrdfParams) -> np.ndarray:
 
 
 def edited_term(gamma: Any, x: np.ndarray, p: BrdfParams) -> np.ndarray:
-    """f_E(γ, x); ``x`` (..., d) as from :func:`coordinate`; γ broadcasts against x[..., 0]."""
+    """f_E(γ, x); ``x`` as from :func:`coordinate`; γ broadcasts against x."""
     return MODELS[p.model].edited(np.asarray(gamma, np.float64), np.asarray(x, np.float64), p)
 
 

@@ -26,16 +26,19 @@ from pipeline.store import Artifact
 REGISTRY = {
     "geometry": "pipeline.stages.geometry",
     "gbuffer": "pipeline.stages.gbuffer",
+    "brdf_basis": "pipeline.stages.brdf_basis",
 }
 
 
 @dataclass(frozen=True)
 class Chunk:
     """One unit of work: ``id`` is stable across runs; ``object`` is set for object
-    chunks, ``region`` = (y0, y1, x0, x1) in pixels for tile chunks."""
+    chunks, ``material`` for material chunks, ``region`` = (y0, y1, x0, x1) in pixels for
+    tile chunks."""
 
     id: str
     object: str | None = None
+    material: str | None = None
     region: tuple[int, int, int, int] | None = None
 
 

@@ -1,0 +1,120 @@
+"""PCA linearization of a BRDF's edited term (paper 000 §4).
+
+Sampling. γ takes ``gamma_samples`` evenly spaced values over [γmin, γmax]; the PCA
+coordinate x (pipeline/math/brdf.py: δ = ∠(N, H) for most models, the effective δ_e for
+the anisotropic Ward, Lafortune's normalised lobe base) takes ``coordinate_samples``
+evenly spaced values over its domain: δ ∈ [0, π/2], Lafortune x ∈ [ε, 1 − ε] with
+ε = 1e-3. The measure is uniform in x (the paper's choice; it weights the lobe's peak more
+than solid angle would).
+
+Basis. P (k' × h) stacks p_i = f_E(γ_i, x_1..h); b0 is the mean row; the SVD
+P − b0 = U S Vᵀ gives the orthonormal basis rows b_1..b_k = the first k rows of Vᵀ;
+H = (B'ᵀB')⁻¹B'ᵀ (= B'ᵀ's pseudo-inverse, B' = [b_1 … b_k]); c(γ) = H (p(γ) − b0).
+
+Error. RMS(γ, k) = ‖b0 + B'c(γ) − p(γ)‖₂ / √h, the root-mean-square over the x grid
+(absolute, in 1/sr), and the relative RMS = RMS / (‖p(γ)‖₂ / √h). Both are tabulated for
+k = 0..max_k on a test grid of 4 (k' − 1) + 1 values of γ (the samples and three values
+between each pair). k is the smallest count whose worst relative RMS over the test grid
+is at most the tolerance, capped at max_k.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.errors import PrtError
+from pipeline.math.brdf import BrdfParams, edited_term
+
+LAFORTUNE_EPSILON = 1e-3
+TEST_OVERSAMPLING = 4
+
+
+def coordinate_domain(model: str) -> tuple[float, float]:
+    """The interval sampled for the model's PCA coordinate."""
+    if model == "lafortune":
+        return LAFORTUNE_EPSILON, 1.0 - LAFORTUNE_EPSILON
+    return 0.0, 0.5 * np.pi
+
+
+@dataclass(frozen=True)
+class BrdfBasis:
+    """A linearized edited term. Shapes: ``grid`` (h,), ``gamma_samples`` (k',),
+    ``mean`` b0 (h,), ``basis`` (max_k, h) orthonormal rows b_1.., ``projection`` H
+    (max_k, h), ``singular_values`` (k',), ``gamma_test`` (t,), ``rms`` and
+    ``rel_rms`` (max_k + 1, t) for k = 0..max_k; ``k`` the chosen count."""
+
+    params: BrdfParams
+    gamma_range: tuple[float, float]
+    grid: np.ndarray
+    gamma_samples: np.ndarray
+    mean: np.ndarray
+    basis: np.ndarray
+    projection: np.ndarray
+    singular_values: np.ndarray
+    gamma_test: np.ndarray
+    rms: np.ndarray
+    rel_rms: np.ndarray
+    k: int
+    tolerance: float
+
+    def check_gamma(self, gamma: float, what: str = "gamma") -> None:
+        """A clear error when γ lies outside the baked range (no extrapolation)."""
+        lo, hi = self.gamma_range
+        if not lo <= gamma <= hi:
+            raise PrtError(None, f"{what} = {gamma:g} is outside the baked PCA range "
+                           f"[{lo:g}, {hi:g}] of this {self.params.model} material; widen "
+                           "its gamma_range and re-bake")
+
+    def coefficients(self, gamma: float, k: int | None = None) -> np.ndarray:
+        """c(γ) = H (p(γ) − b0), shape (k,) (default: the chosen k)."""
+        self.check_gamma(gamma)
+        k = self.k if k is None else k
+        p = edited_term(gamma, self.grid, self.params)
+        return self.projection[:k] @ (p - self.mean)
+
+    def reconstruct(self, gamma: float, x: np.ndarray, k: int | None = None,
+                    clamp: bool = True) -> np.ndarray:
+        """f_E(γ, x) ≈ b0(x) + Σ c_j(γ) b_j(x) at coordinates ``x`` (linear interpolation
+        of the tabulated basis). Negative values (ringing of the truncated basis in the
+        lobe's tail) are clamped to 0 unless ``clamp`` is false."""
+        k = self.k if k is None else k
+        c = self.coefficients(gamma, k)
+        table = self.mean + c @ self.basis[:k]
+        values = np.interp(x, self.grid, table)
+        return np.maximum(values, 0.0) if clamp else values
+
+
+def build_basis(params: BrdfParams, gamma_range: tuple[float, float], tolerance: float,
+                max_k: int, gamma_samples: int = 256, coordinate_samples: int = 1024
+                ) -> BrdfBasis:
+    """Sample, decompose and tabulate the error of ``params.model``'s edited term."""
+    lo, hi = gamma_range
+    grid = np.linspace(*coordinate_domain(params.model), coordinate_samples)
+    gammas = np.linspace(lo, hi, gamma_samples)
+    samples = edited_term(gammas[:, None], grid[None, :], params)
+    mean = samples.mean(axis=0)
+    _, sv, vt = np.linalg.svd(samples - mean, full_matrices=False)
+    kmax = min(max_k, len(sv))
+    basis = np.zeros((max_k, coordinate_samples))
+    basis[:kmax] = vt[:kmax]
+    projection = np.zeros_like(basis)
+    projection[:kmax] = np.linalg.pinv(vt[:kmax].T)
+
+    gamma_test = np.linspace(lo, hi, TEST_OVERSAMPLING * (gamma_samples - 1) + 1)
+    test = edited_term(gamma_test[:, None], grid[None, :], params) - mean
+    coeff = test @ basis.T
+    rms = np.empty((max_k + 1, len(gamma_test)))
+    residual = test.copy()
+    for k in range(max_k + 1):
+        if k:
+            residual -= np.outer(coeff[:, k - 1], basis[k - 1])
+        rms[k] = np.sqrt(np.mean(residual * residual, axis=1))
+    norm = np.sqrt(np.mean((test + mean) ** 2, axis=1))
+    rel_rms = rms / norm[None, :]
+    worst = rel_rms.max(axis=1)
+    under = np.flatnonzero(worst <= tolerance)
+    k = int(under[0]) if len(under) else max_k
+    return BrdfBasis(params, (float(lo), float(hi)), grid, gammas, mean, basis, projection,
+                     sv, gamma_test, rms, rel_rms, k, tolerance)

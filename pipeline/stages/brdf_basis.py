@@ -1,0 +1,85 @@
+"""Stage ``brdf_basis``: the PCA basis of each material's edited BRDF term (one chunk per
+material; paper 000 §4, pipeline/math/brdf_pca.py). Schema ``brdf_basis``.
+
+A chunk's key holds only what shapes the edited term family: the material's model,
+gamma_range, alpha_ratio (anisotropic Ward) and pca_tolerance, and the sampling params.
+Editing γ, the albedos, ρs or the Fresnel F0 re-bakes nothing here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pipeline.math.brdf import BrdfParams
+from pipeline.math.brdf_pca import BrdfBasis, build_basis
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.store import Artifact
+
+_FIELDS = ("grid", "gamma_samples", "mean", "basis", "projection", "singular_values",
+           "gamma_test", "rms", "rel_rms")
+
+
+def _material_section(ctx: AssembleContext, name: str, key: str) -> Any:
+    return ctx.scene.get(f"materials.{name}.{key}")
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    name = ctx.chunk.material
+    model = _material_section(ctx, name, "model")
+    max_k = int(ctx.params["brdf_basis.max_k"])
+    h = int(ctx.params["brdf_basis.coordinate_samples"])
+    n_gamma = int(ctx.params["brdf_basis.gamma_samples"])
+    if model == "lambert":
+        n_test = 4 * (n_gamma - 1) + 1
+        return {"grid": np.zeros(h), "gamma_samples": np.zeros(n_gamma), "mean": np.zeros(h),
+                "basis": np.zeros((max_k, h)), "projection": np.zeros((max_k, h)),
+                "singular_values": np.zeros(n_gamma), "gamma_test": np.zeros(n_test),
+                "rms": np.zeros((max_k + 1, n_test)), "rel_rms": np.zeros((max_k + 1, n_test)),
+                "k": np.zeros(1, np.int32), "reached": np.ones(1, bool)}
+    lo, hi = _material_section(ctx, name, "gamma_range")
+    tolerance = _tolerance(ctx, name)
+    params = BrdfParams(model, (0.0, 0.0, 0.0), gamma=lo,
+                        alpha_ratio=_material_section(ctx, name, "alpha_ratio") or 1.0)
+    basis = build_basis(params, (lo, hi), tolerance, max_k, n_gamma, h)
+    arrays = {f: getattr(basis, f) for f in _FIELDS}
+    reached = basis.rel_rms[basis.k].max() <= tolerance
+    return {**arrays, "k": np.array([basis.k], np.int32), "reached": np.array([reached])}
+
+
+def _tolerance(ctx: AssembleContext, name: str) -> float:
+    own = _material_section(ctx, name, "pca_tolerance")
+    return float(own if own is not None else ctx.params["brdf_basis.tolerance"])
+
+
+def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+    names = [chunk.material for chunk, _ in pieces]
+    arrays = {f: np.stack([a[f] for _, a in pieces]) for f in _FIELDS}
+    arrays["k"] = np.concatenate([a["k"] for _, a in pieces]).astype(np.int32)
+    models = [_material_section(ctx, n, "model") for n in names]
+    return Output(arrays, attrs={
+        "material_names": names,
+        "models": models,
+        "gamma_ranges": [_material_section(ctx, n, "gamma_range") for n in names],
+        "tolerances": [None if m == "lambert" else _tolerance(ctx, n)
+                       for n, m in zip(names, models, strict=True)],
+        "reached": [bool(a["reached"][0]) for _, a in pieces],
+        "max_k": int(ctx.params["brdf_basis.max_k"]),
+    })
+
+
+def read_basis(artifact: Artifact, material: str, params: BrdfParams) -> BrdfBasis | None:
+    """The basis of ``material`` from a brdf_basis artifact (``None`` for Lambertian
+    materials); ``params`` are the material's current BRDF parameters."""
+    names = artifact.attrs["material_names"]
+    if material not in names:
+        raise KeyError(material)
+    i = names.index(material)
+    k = int(artifact.read("k")[i])
+    if artifact.attrs["models"][i] == "lambert":
+        return None
+    fields = {f: artifact.read(f)[i] for f in _FIELDS}
+    lo, hi = artifact.attrs["gamma_ranges"][i]
+    return BrdfBasis(params=params, gamma_range=(lo, hi), k=k,
+                     tolerance=artifact.attrs["tolerances"][i], **fields)
