@@ -134,16 +134,21 @@ def inspect_cmd(path, as_json) -> None:
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Output EXR (linear); an sRGB PNG preview is written beside it.")
 @click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
+@click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
+              help="Run-time material edit (repeatable): NAME a material or object, KEY "
+                   "gamma, specular or albedo, VALUE a number or r,g,b; gamma must lie in "
+                   "the material's baked gamma_range.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON line with timings (ms) and the image size.")
 @WORKDIR
 @JOBS
 @QUIET
-def render_cmd(scene, method, out, size, as_json, workdir, jobs, quiet) -> None:
+def render_cmd(scene, method, out, size, edits, as_json, workdir, jobs, quiet) -> None:
     """Render one frame (baking first whatever the method needs)."""
     from pipeline import job
+    from pipeline.scene import with_material_edits
 
-    sc = job.open_scene(scene, parse_size(size))
+    sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
     result = job.render(sc, job.workdir_for(sc, workdir), method, out, jobs=jobs, quiet=quiet)
     frame = result.frame
     if as_json:

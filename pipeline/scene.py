@@ -484,6 +484,48 @@ def load_scene(path: str | Path) -> Scene:
     return Scene(path, name, camera, materials, objects, tuple(lights), dict(settings), raw)
 
 
+EDITABLE_KEYS = ("gamma", "specular", "albedo")
+
+
+def with_material_edits(scene: Scene, edits: list[str]) -> Scene:
+    """The scene with run-time material edits ``NAME.KEY=VALUE`` applied: NAME a material
+    or an object (meaning its material), KEY one of :data:`EDITABLE_KEYS`, VALUE a number
+    or ``r,g,b``. Each edited material is validated as in the file; γ must lie in the
+    material's gamma_range, the range its PCA basis was baked over (no extrapolation)."""
+    chk = _Checker(scene.path)
+    materials, raw = dict(scene.materials), dict(scene.raw["materials"])
+    for edit in edits:
+        target, eq, value_text = edit.partition("=")
+        name, dot, key = target.rpartition(".")
+        if not eq or not dot:
+            raise chk.fail(f"--set {edit}", "expected NAME.KEY=VALUE, e.g. floor.gamma=40")
+        if name in scene.objects:
+            name = scene.objects[name].material
+        if name not in materials:
+            raise chk.fail(f"--set {edit}", f"no material or object named {name!r}")
+        if key not in EDITABLE_KEYS:
+            raise chk.fail(f"--set {edit}", f"cannot edit {key!r} at run time (editable: "
+                           f"{', '.join(EDITABLE_KEYS)})")
+        try:
+            numbers = [float(v) for v in value_text.split(",")]
+        except ValueError:
+            raise chk.fail(f"--set {edit}", f"expected a number or r,g,b, found "
+                           f"{value_text!r}") from None
+        spec = dict(raw[name])
+        if key != "albedo" and materials[name].model == "lambert":
+            raise chk.fail(f"--set {edit}", f"material {name!r} is Lambertian; it has "
+                           f"no {key}")
+        if key == "gamma":
+            lo, hi = spec["gamma_range"]
+            if len(numbers) != 1 or not lo <= numbers[0] <= hi:
+                raise chk.fail(f"--set {edit}", f"gamma {value_text} is outside the baked "
+                               f"PCA range [{lo:g}, {hi:g}] of material {name!r}; widen its "
+                               "gamma_range in the scene file and re-bake")
+        spec[key] = numbers[0] if len(numbers) == 1 else numbers
+        materials[name], raw[name] = _material(chk, name, spec)
+    return replace(scene, materials=materials, raw={**scene.raw, "materials": raw})
+
+
 def default_scene_path() -> Path:
     """The embedded default scene (the Cornell box with a glossy floor)."""
     checkout = Path(__file__).resolve().parent.parent / "scenes" / "cornell_box.yaml"

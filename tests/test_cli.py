@@ -32,19 +32,19 @@ def test_run_summary_then_noop(baked):
     assert f"{frames / 'tiny_direct.exr'}" in first.stdout
     again = prt("run", scene, "--workdir", workdir, "--frames", frames, "-q")
     assert again.returncode == 0
-    assert "All 2 stages fresh: nothing to bake." in again.stdout
+    assert "All 3 stages fresh: nothing to bake." in again.stdout
     assert "Frame up to date" in again.stdout
     report = json.loads(prt("run", scene, "--workdir", workdir, "--frames", frames, "--json",
                             "-q").stdout)
-    assert [s["action"] for s in report["stages"]] == ["skipped", "skipped"]
+    assert [s["action"] for s in report["stages"]] == ["skipped"] * 3
 
 
 def test_status_json(baked):
     """`prt status --json` lists every stage with state and reason."""
     scene, workdir, _, _ = baked
     out = json.loads(prt("status", scene, "--workdir", workdir, "--json").stdout)
-    assert out == {"stages": [{"name": "geometry", "state": "fresh", "reason": ""},
-                              {"name": "gbuffer", "state": "fresh", "reason": ""}]}
+    assert out == {"stages": [{"name": n, "state": "fresh", "reason": ""}
+                              for n in ("geometry", "brdf_basis", "gbuffer")]}
 
 
 def test_inspect_reports_schema_and_arrays(baked):
@@ -88,3 +88,23 @@ def test_clean_removes_workdir(tmp_path):
     assert (tmp_path / "w" / "geometry.zarr").is_dir()
     result = prt("clean", scene, "--workdir", tmp_path / "w")
     assert result.returncode == 0 and not (tmp_path / "w" / "geometry.zarr").exists()
+
+
+def test_render_material_edits(baked, tmp_path):
+    """`prt render --set`: an in-range γ edit renders a different frame with no re-bake;
+    γ outside the baked gamma_range, an unknown name and a Lambertian γ are one-line
+    errors naming the scene file, with exit status 2."""
+    scene, workdir, frames, _ = baked
+    out = prt("render", scene, "--workdir", workdir, "--out", tmp_path / "a.exr", "--set",
+              "ball.gamma=250", "--json", "-q")
+    assert out.returncode == 0, out.stderr
+    for edit, problem in [("ball.gamma=301", "outside the baked PCA range [3, 300]"),
+                          ("shiny.gamma=1", "outside the baked PCA range [3, 300]"),
+                          ("nothing.gamma=5", "no material or object named 'nothing'"),
+                          ("floor.gamma=5", "is Lambertian"),
+                          ("ball.roughness=5", "cannot edit 'roughness'")]:
+        bad = prt("render", scene, "--workdir", workdir, "--out", tmp_path / "b.exr",
+                  "--set", edit, "-q")
+        assert bad.returncode == 2
+        assert f"{scene}: --set {edit}: " in bad.stderr and problem in bad.stderr
+        assert "Traceback" not in bad.stderr
