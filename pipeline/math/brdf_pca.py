@@ -20,6 +20,7 @@ is at most the tolerance, capped at max_k.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,13 +88,16 @@ class BrdfBasis:
 
 
 def build_basis(params: BrdfParams, gamma_range: tuple[float, float], tolerance: float,
-                max_k: int, gamma_samples: int = 256, coordinate_samples: int = 1024
+                max_k: int, gamma_samples: int = 256, coordinate_samples: int = 1024,
+                term: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
                 ) -> BrdfBasis:
-    """Sample, decompose and tabulate the error of ``params.model``'s edited term."""
+    """Sample, decompose and tabulate the error of ``params.model``'s edited term (or of
+    ``term(γ, x)``, for studies of other normalisations)."""
     lo, hi = gamma_range
     grid = np.linspace(*coordinate_domain(params.model), coordinate_samples)
     gammas = np.linspace(lo, hi, gamma_samples)
-    samples = edited_term(gammas[:, None], grid[None, :], params)
+    term = term or (lambda g, x: edited_term(g, x, params))
+    samples = term(gammas[:, None], grid[None, :])
     mean = samples.mean(axis=0)
     _, sv, vt = np.linalg.svd(samples - mean, full_matrices=False)
     kmax = min(max_k, len(sv))
@@ -103,7 +107,7 @@ def build_basis(params: BrdfParams, gamma_range: tuple[float, float], tolerance:
     projection[:kmax] = np.linalg.pinv(vt[:kmax].T)
 
     gamma_test = np.linspace(lo, hi, TEST_OVERSAMPLING * (gamma_samples - 1) + 1)
-    test = edited_term(gamma_test[:, None], grid[None, :], params) - mean
+    test = term(gamma_test[:, None], grid[None, :]) - mean
     coeff = test @ basis.T
     rms = np.empty((max_k + 1, len(gamma_test)))
     residual = test.copy()
