@@ -236,13 +236,33 @@ def breakdown() -> dict:
     result["largest_gamma"] = largest
     # 3. Grazing angles: the fixed term multiplies the reconstruction error.
     grazing = []
-    for model in ("blinn_phong", "ward", "ward_duer", "cook_torrance", "ashikhmin_shirley"):
+    for model in ("blinn_phong", "ward", "ward_duer", "cook_torrance", "ashikhmin_shirley",
+                  "lafortune"):
         b = basis_for(model)
         lo, hi = RANGES[model]
         for gamma in (lo, math.sqrt(lo * hi), hi):
             for theta in (0, 60, 80, 85, 89):
                 grazing.append({"model": model, **albedo_error(model, b, gamma, theta)})
     result["grazing"] = grazing
+    # 4. Linear interpolation of the tabulated terms between coordinate samples, at the
+    # range ends; for Lafortune also with the paper's spacing (evenly in x).
+    rng = np.random.default_rng(0)
+    interpolation = []
+    for model in RANGES:
+        b = basis_for(model)
+        grids = {"stage grid": b.grid}
+        if model == "lafortune":
+            grids["evenly in x (paper)"] = np.linspace(b.grid[0], b.grid[-1], len(b.grid))
+        for label, grid in grids.items():
+            x = rng.uniform(grid[0], grid[-1], 200_000)
+            for gamma in RANGES[model]:
+                exact = edited_term(gamma, x, b.params)
+                table = np.interp(x, grid, edited_term(gamma, grid, b.params))
+                interpolation.append({
+                    "model": model, "grid": label, "gamma": gamma,
+                    "relative_l2": float(np.sqrt(np.mean((table - exact) ** 2)
+                                                 / np.mean(exact ** 2)))})
+    result["interpolation"] = interpolation
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ax = axes[0]
@@ -267,10 +287,10 @@ def breakdown() -> dict:
     ax = axes[2]
     for model in ("blinn_phong", "ward", "ward_duer", "cook_torrance", "ashikhmin_shirley"):
         rows = [r for r in grazing if r["model"] == model
-                and r["gamma"] == RANGES[model][0]]
+                and r["gamma"] == RANGES[model][1 if model == "blinn_phong" else 0]]
         ax.semilogy([r["theta_o"] for r in rows],
                     [max(abs(r["relative_error"]), 1e-7) for r in rows], "o-",
-                    label=f"{model} γ={RANGES[model][0]}")
+                    label=f"{model} γ={rows[0]['gamma']:g}")
     ax.set(xlabel="θo (degrees)", ylabel="|albedo error| / albedo",
            title="grazing: reconstructed vs exact albedo")
     ax.legend(fontsize=7)

@@ -32,16 +32,17 @@ def bases():
 @pytest.mark.parametrize("model", sorted(RANGES))
 def test_reconstruction_at_random_gamma_within_measured_rms(bases, model):
     """At 25 random γ (off the sample grid), the reconstruction error computed directly
-    is within the worst RMS the table reports for the chosen k (the table samples γ 4×
-    more densely than the basis; the error is smooth in γ and largest at the range
-    ends, which the table contains), and under the tolerance."""
+    is within the worst RMS the table reports for the chosen k, and the relative error is
+    under the tolerance. The table's worst value is a maximum over sampled γ (4× the
+    basis samples, plus geometric spacing near γmin where the error oscillates fastest),
+    so 1 % slack: over 400 random γ the largest excess measured was 0.03 % (Lafortune)."""
     b = bases[model]
     rng = np.random.default_rng(7)
     for gamma in rng.uniform(*RANGES[model], 25):
         p = edited_term(gamma, b.grid, b.params)
         rec = b.mean + b.coefficients(gamma) @ b.basis[:b.k]
         rms = np.sqrt(np.mean((rec - p) ** 2))
-        assert rms <= b.rms[b.k].max()
+        assert rms <= 1.01 * b.rms[b.k].max()
         assert rms / np.sqrt(np.mean(p ** 2)) <= b.tolerance
 
 

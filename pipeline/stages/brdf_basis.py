@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.math.brdf import BrdfParams
-from pipeline.math.brdf_pca import BrdfBasis, build_basis
+from pipeline.math.brdf_pca import BrdfBasis, build_basis, gamma_test_grid
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
 from pipeline.store import Artifact
 
@@ -32,7 +32,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     h = int(ctx.params["brdf_basis.coordinate_samples"])
     n_gamma = int(ctx.params["brdf_basis.gamma_samples"])
     if model == "lambert":
-        n_test = 4 * (n_gamma - 1) + 1
+        n_test = len(gamma_test_grid(1.0, 2.0, n_gamma))
         return {"grid": np.zeros(h), "gamma_samples": np.zeros(n_gamma), "mean": np.zeros(h),
                 "basis": np.zeros((max_k, h)), "projection": np.zeros((max_k, h)),
                 "singular_values": np.zeros(n_gamma), "gamma_test": np.zeros(n_test),
