@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -9,7 +10,8 @@ import yaml
 
 PROJECT = Path(__file__).resolve().parent.parent
 TESTS = Path(__file__).resolve().parent
-SHARED_DATA = PROJECT.parent / "shared" / "data"
+# The shared data folder: $PRT_DATA, else ../shared/data beside the checkout (as in CI).
+SHARED_DATA = Path(os.environ.get("PRT_DATA") or PROJECT.parent / "shared" / "data")
 
 
 def small_scene_dict(size: int = 24) -> dict[str, Any]:
