@@ -19,13 +19,11 @@ import numpy as np
 import yaml
 
 from pipeline.math.brdf import BrdfParams
-from pipeline.math.brdf_pca import build_basis
+from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, build_basis
 
 ROOT = Path(__file__).resolve().parent.parent
 PARAMS = yaml.safe_load((ROOT / "stages.yaml").read_text())["params"]
-RANGES = {"blinn_phong": (3, 300), "lafortune": (3, 300), "ashikhmin_shirley": (3, 300),
-          "ward": (0.05, 2.0), "ward_duer": (0.05, 2.0), "ward_anisotropic": (0.05, 2.0),
-          "cook_torrance": (0.1, 2.0)}
+RANGES = PAPER_GAMMA_RANGES
 BUILD_REPEATS = 7
 EVAL_CALLS = 2000
 

@@ -38,7 +38,7 @@ from pipeline.math.brdf import (  # noqa: E402
     fixed_term,
     glossy,
 )
-from pipeline.math.brdf_pca import BrdfBasis, build_basis  # noqa: E402
+from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, BrdfBasis, build_basis  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "benchmarks" / "results"
@@ -48,9 +48,7 @@ MAX_K = PARAMS["brdf_basis.max_k"]
 SETTINGS = dict(gamma_samples=PARAMS["brdf_basis.gamma_samples"],
                 coordinate_samples=PARAMS["brdf_basis.coordinate_samples"])
 # Paper 000 Table 5's ranges; the anisotropic Ward (paper 004) with αy = 4 αx.
-RANGES = {"blinn_phong": (3, 300), "lafortune": (3, 300), "ashikhmin_shirley": (3, 300),
-          "ward": (0.05, 2.0), "ward_duer": (0.05, 2.0), "ward_anisotropic": (0.05, 2.0),
-          "cook_torrance": (0.1, 2.0)}
+RANGES = PAPER_GAMMA_RANGES
 PAPER_K = 6
 
 
@@ -62,6 +60,12 @@ def params(model: str) -> BrdfParams:
 def basis_for(model: str, gamma_range=None, max_k=MAX_K, term=None) -> BrdfBasis:
     return build_basis(params(model), gamma_range or RANGES[model], TOLERANCE, max_k,
                        term=term, **SETTINGS)
+
+
+def save_figure(fig, name: str) -> None:
+    fig.tight_layout()
+    fig.savefig(OUT / f"{name}.png", dpi=110)
+    plt.close(fig)
 
 
 def k_reaching(errors: np.ndarray, threshold: float) -> int | None:
@@ -139,9 +143,7 @@ def figure5() -> dict:
     ax.semilogy(b.gamma_test, b.rel_rms[b.k], "--", label=f"relative, k = {b.k}")
     ax.set(xlabel="γ", ylabel="RMS error", title="(c) RMS along γ")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(OUT / "brdf_fig5.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, "brdf_fig5")
     return {
         "model": "blinn_phong", "gamma_range": [3, 300], "settings": SETTINGS,
         "coordinate": "delta uniform on [0, pi/2], 1024 samples; gamma uniform, 256 samples; "
@@ -183,9 +185,7 @@ def model_tables() -> dict:
     ax.set(xlabel="k", ylabel="worst relative RMS over γ",
            title="PCA error against k, paper 000 Table 5 ranges")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(OUT / "brdf_models.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, "brdf_models")
     return out
 
 
@@ -294,9 +294,7 @@ def breakdown() -> dict:
     ax.set(xlabel="θo (degrees)", ylabel="|albedo error| / albedo",
            title="grazing: reconstructed vs exact albedo")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(OUT / "brdf_breakdown.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, "brdf_breakdown")
     return result
 
 

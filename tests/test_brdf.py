@@ -20,10 +20,9 @@ from pipeline.math.brdf import (
     glossy,
     pack_materials,
 )
+from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES
 
-RANGES = {"blinn_phong": (3, 300), "lafortune": (3, 300), "ashikhmin_shirley": (3, 300),
-          "ward": (0.05, 2.0), "ward_duer": (0.05, 2.0), "ward_anisotropic": (0.05, 2.0),
-          "cook_torrance": (0.1, 2.0)}
+RANGES = PAPER_GAMMA_RANGES
 
 
 def material(model: str, gamma: float) -> BrdfParams:

@@ -11,16 +11,14 @@ from helpers import small_scene_dict, write_scene
 
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams, edited_term
-from pipeline.math.brdf_pca import build_basis
+from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, build_basis
 from pipeline.runner import run
 from pipeline.scene import load_scene
 from pipeline.stagefile import load_stagefile
 from pipeline.stages.brdf_basis import read_basis
 from pipeline.store import Workdir, open_artifact
 
-RANGES = {"blinn_phong": (3, 300), "lafortune": (3, 300), "ashikhmin_shirley": (3, 300),
-          "ward": (0.05, 2.0), "ward_duer": (0.05, 2.0), "ward_anisotropic": (0.05, 2.0),
-          "cook_torrance": (0.1, 2.0)}
+RANGES = PAPER_GAMMA_RANGES
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ the anisotropic Ward, Lafortune's normalised lobe base) takes ``coordinate_sampl
 values over its domain: δ evenly spaced on [0, π/2] (the paper's choice; it weights the
 lobe's peak more than solid angle would); Lafortune's x on the paper's [ε, 1 − ε],
 ε = 1e-3, evenly spaced in the angle arccos x rather than in x, so that its lobe x^γ is
-sampled like Blinn-Phong's cos^γδ (evenly in x, the γ = 300 lobe's half width spans 2.3
+sampled like Blinn-Phong's cos^γδ (evenly in x, the γ = 300 lobe's half width spans 2.4
 samples of 1024 and linear interpolation alone errs by 7.6e-3; see NOTES.md).
 
 Basis. P (k' × h) stacks p_i = f_E(γ_i, x_1..h); b0 is the mean row; the SVD
@@ -32,6 +32,13 @@ from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams, edited_term
 
 LAFORTUNE_EPSILON = 1e-3
+# Paper 000 Table 5's editing ranges per model (the anisotropic Ward, from paper 004,
+# takes Ward's); tests and studies use them.
+PAPER_GAMMA_RANGES = {
+    "blinn_phong": (3.0, 300.0), "lafortune": (3.0, 300.0), "ashikhmin_shirley": (3.0, 300.0),
+    "ward": (0.05, 2.0), "ward_duer": (0.05, 2.0), "ward_anisotropic": (0.05, 2.0),
+    "cook_torrance": (0.1, 2.0),
+}
 TEST_OVERSAMPLING = 4
 
 

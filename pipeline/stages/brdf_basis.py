@@ -79,7 +79,7 @@ def read_basis(artifact: Artifact, material: str, params: BrdfParams) -> BrdfBas
     k = int(artifact.read("k")[i])
     if artifact.attrs["models"][i] == "lambert":
         return None
-    fields = {f: artifact.read(f)[i] for f in _FIELDS}
+    fields = {f: artifact.read(f, (i,)) for f in _FIELDS}
     lo, hi = artifact.attrs["gamma_ranges"][i]
     return BrdfBasis(params=params, gamma_range=(lo, hi), k=k,
                      tolerance=artifact.attrs["tolerances"][i], **fields)
