@@ -163,6 +163,58 @@ def render_cmd(scene, method, out, size, edits, as_json, workdir, jobs, quiet) -
                f"{t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
 
 
+@cli.command("reference")
+@SCENE
+@click.option("--transport", type=click.Choice(["direct", "env-direct", "d2i", "full"]),
+              default="full", show_default=True,
+              help="Light transport: direct (all lights, one reflection), env-direct "
+                   "(environment only), d2i (full BRDF first, Lambertian after), full.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Output EXR (linear); a PNG preview and a JSON record go beside it.")
+@click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
+@click.option("--tolerance", type=click.FloatRange(min=0), default=0.01, show_default=True,
+              help="Stop when the estimated relative RMSE of the image is below this.")
+@click.option("--max-spp", type=click.IntRange(min=1), default=4096, show_default=True,
+              help="Stop at this many paths per pixel.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--pixel-filter", type=click.Choice(["center", "box"]), default="center",
+              show_default=True,
+              help="center: paths through pixel centres (as the methods render); box: "
+                   "jittered over the pixel (as Mitsuba's box filter).")
+@click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
+              help="Material edit as for `prt render` (repeatable).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON line of statistics.")
+@WORKDIR
+@QUIET
+def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_filter, edits,
+                  as_json, workdir, quiet) -> None:
+    """Render a converged Monte-Carlo reference image (cached in the work directory)."""
+    from pipeline import job
+    from pipeline.images import write_exr, write_png
+    from pipeline.reference import ReferenceSettings
+    from pipeline.scene import with_material_edits
+
+    if out.suffix.lower() != ".exr":
+        raise PrtError(out, "output must be an .exr file")
+    sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
+    settings = ReferenceSettings(transport=transport, tolerance=tolerance, max_spp=max_spp,
+                                 seed=seed, pixel_filter=pixel_filter)
+    result = job.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)
+    image = result.image
+    write_exr(out, image.mean)
+    write_png(out.with_suffix(".png"), image.mean)
+    stats = {"transport": transport, "spp": image.spp, "estimate": image.estimate,
+             "seconds": round(image.seconds, 3), "rays": image.rays,
+             "cached": result.cached, "artifact": str(result.artifact), "exr": str(out)}
+    out.with_suffix(".json").write_text(json.dumps(stats, indent=1))
+    if as_json:
+        click.echo(json.dumps(stats))
+        return
+    state = "cached" if result.cached else f"rendered in {image.seconds:.1f} s"
+    click.echo(f"Wrote {out} ({transport}, {image.spp} spp, estimated relative RMSE "
+               f"{image.estimate:.4f}; {state})")
+
+
 @cli.command("clean")
 @SCENE
 @WORKDIR

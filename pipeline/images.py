@@ -1,4 +1,5 @@
-"""Image files: linear RGB to OpenEXR, sRGB-encoded PNG previews, EXR reading.
+"""Image files: linear RGB to OpenEXR, sRGB-encoded PNG previews, EXR and Radiance HDR
+reading, colour-mapped PNG heat maps.
 
 Images are (height, width, 3) float32 arrays of linear radiance, row 0 at the top.
 Files are written to a temporary name and renamed, so a killed run never leaves a
@@ -71,3 +72,88 @@ def read_exr(path: str | Path) -> np.ndarray:
     except Exception as exc:
         raise PrtError(path, f"cannot read EXR ({exc})") from None
     return np.asarray(rgb, dtype=np.float32)
+
+
+def read_hdr(path: str | Path) -> np.ndarray:
+    """Read a Radiance RGBE (.hdr) image as (height, width, 3) float32 (``-Y H +X W``
+    orientation, flat or new-style run-length encoded scanlines)."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise PrtError(path, f"cannot read image ({exc.strerror or exc})") from None
+    if not data.startswith((b"#?RADIANCE", b"#?RGBE")):
+        raise PrtError(path, "not a Radiance HDR file (no #?RADIANCE header)")
+    end = data.find(b"\n\n")
+    line_end = data.find(b"\n", end + 2)
+    if end < 0 or line_end < 0:
+        raise PrtError(path, "truncated Radiance HDR header")
+    if b"FORMAT=32-bit_rle_rgbe" not in data[:end]:
+        raise PrtError(path, "unsupported Radiance HDR format (expected 32-bit_rle_rgbe)")
+    size = data[end + 2:line_end].split()
+    if len(size) != 4 or size[0] != b"-Y" or size[2] != b"+X":
+        raise PrtError(path, f"unsupported HDR orientation {data[end + 2:line_end]!r}")
+    height, width = int(size[1]), int(size[3])
+    raw = np.frombuffer(data, np.uint8, offset=line_end + 1)
+    rgbe = np.empty((height, width, 4), np.uint8)
+    pos = 0
+    try:
+        for row in range(height):
+            pos = _read_scanline(raw, pos, rgbe[row])
+    except (IndexError, ValueError):
+        raise PrtError(path, f"truncated or corrupt pixel data (scanline {row})") from None
+    exponent = np.where(rgbe[..., 3] > 0, np.ldexp(1.0, rgbe[..., 3].astype(int) - 136), 0.0)
+    return (rgbe[..., :3] * exponent[..., None]).astype(np.float32)
+
+
+def _read_scanline(raw: np.ndarray, pos: int, out: np.ndarray) -> int:
+    """Decode one scanline of ``out`` (width, 4) from ``raw`` at ``pos``; returns the new
+    position."""
+    width = len(out)
+    rle = (8 <= width < 32768 and raw[pos] == 2 and raw[pos + 1] == 2
+           and (int(raw[pos + 2]) << 8 | int(raw[pos + 3])) == width)
+    if not rle:
+        out[:] = raw[pos:pos + 4 * width].reshape(width, 4)
+        return pos + 4 * width
+    pos += 4
+    for channel in range(4):
+        x = 0
+        while x < width:
+            count = int(raw[pos])
+            if count > 128:
+                count -= 128
+                out[x:x + count, channel] = raw[pos + 1]
+                pos += 2
+            else:
+                if count == 0:
+                    raise ValueError("zero-length run")
+                out[x:x + count, channel] = raw[pos + 1:pos + 1 + count]
+                pos += 1 + count
+            x += count
+    return pos
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an EXR or Radiance HDR image as (height, width, 3) float32 linear RGB."""
+    if Path(path).suffix.lower() == ".hdr":
+        return read_hdr(path)
+    return read_exr(path)
+
+
+def write_heatmap(path: str | Path, values: np.ndarray, vmax: float,
+                  colormap: str = "magma") -> None:
+    """Write (height, width) non-negative ``values`` as a colour-mapped 8-bit PNG, 0 at
+    the colour map's bottom and ``vmax`` (or above) at its top."""
+    from matplotlib import colormaps
+    from PIL import Image
+
+    path = Path(path)
+    scaled = np.clip(np.nan_to_num(values / max(vmax, 1e-30)), 0.0, 1.0)
+    rgb = np.round(colormaps[colormap](scaled)[..., :3] * 255.0).astype(np.uint8)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = _temporary(path)
+        Image.fromarray(rgb, "RGB").save(tmp, format="PNG")
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise PrtError(path, f"cannot write image ({exc.strerror or exc})") from None

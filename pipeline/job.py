@@ -111,6 +111,72 @@ def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
     return report, result
 
 
+REFERENCE_CODE = ("pipeline.reference", "pipeline.math.brdf", "pipeline.math.brdf_sampling",
+                  "pipeline.math.envmap", "pipeline.math.lights", "pipeline.math.camera",
+                  "pipeline.math.frames", "pipeline.raytrace")
+
+
+def load_geometry(scene: Scene, workdir: Workdir, quiet: bool = True) -> tuple[dict, str]:
+    """Bake the geometry stage if stale; its arrays and names as a dict, and its key."""
+    from pipeline.store import open_artifact
+
+    bake(scene, workdir, until="geometry", quiet=quiet)
+    artifact = open_artifact(workdir.artifact("geometry"), "geometry")
+    arrays: dict[str, Any] = {n: artifact.read(n) for n in artifact.names}
+    arrays["object_names"] = artifact.attrs["object_names"]
+    arrays["material_names"] = artifact.attrs["material_names"]
+    return arrays, artifact.record["key"]
+
+
+@dataclass
+class ReferenceResult:
+    """A reference image (from the cache or rendered now) and where it is stored."""
+
+    image: Any  # pipeline.reference.ReferenceImage
+    artifact: Path
+    cached: bool
+
+
+def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
+              ) -> ReferenceResult:
+    """The reference image for ``settings`` (a ReferenceSettings), rendered unless an
+    artifact with the same key (scene camera, lights and materials, geometry, renderer
+    code, settings) is stored under ``workdir/reference/``."""
+    import dataclasses
+
+    from pipeline import reference as ref
+    from pipeline.schema import load_schema
+    from pipeline.store import open_artifact, read_record, software_versions, write_artifact
+
+    geometry, geometry_key = load_geometry(scene, workdir, quiet)
+    parts = {"code": [module_source_hash(m) for m in REFERENCE_CODE],
+             "geometry": geometry_key, "settings": dataclasses.asdict(settings),
+             "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}}
+    key = digest(parts)
+    path = workdir.root / "reference" / f"{settings.transport}-{key[:16]}.zarr"
+    record = read_record(path)
+    if record is not None and record.get("key") == key:
+        stored = open_artifact(path, "reference")
+        a = stored.attrs
+        image = ref.ReferenceImage(stored.read("mean"), stored.read("variance"), a["spp"],
+                                   a["estimate"], a["seconds"], a["rays"],
+                                   [tuple(h) for h in a["history"]])
+        return ReferenceResult(image, path, True)
+    image = ref.render(scene, geometry, settings, progress=not quiet)
+    with workdir.lock():
+        write_artifact(workdir, path, load_schema("reference"),
+                       {"mean": image.mean, "variance": image.variance},
+                       {"transport": settings.transport,
+                        "settings": dataclasses.asdict(settings), "spp": image.spp,
+                        "estimate": float(image.estimate), "seconds": image.seconds,
+                        "rays": int(image.rays),
+                        "history": [list(map(float, h)) for h in image.history]},
+                       {"stage": "reference", "key": key, "key_parts": parts,
+                        "seconds": image.seconds, "software": software_versions()},
+                       {"tile": 64})
+    return ReferenceResult(image, path, False)
+
+
 def clean(workdir: Workdir) -> int:
     """Delete a work directory; returns the bytes freed."""
     root = workdir.root

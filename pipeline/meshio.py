@@ -47,7 +47,7 @@ def read_mesh(path: Path) -> RawMesh:
 def primitive_mesh(spec: dict[str, Any]) -> RawMesh:
     """A built-in primitive: ``plane`` (in the xz plane, normal +y, ``size`` [sx, sz],
     with uv), ``sphere`` (icosphere of ``radius`` and ``subdivisions``), ``box``
-    (``size`` [sx, sy, sz]); all centred at the origin."""
+    (``size`` [sx, sy, sz], flat faces); all centred at the origin."""
     import trimesh
 
     kind = spec["type"]
@@ -61,7 +61,10 @@ def primitive_mesh(spec: dict[str, Any]) -> RawMesh:
     if kind == "sphere":
         mesh = trimesh.creation.icosphere(subdivisions=spec["subdivisions"],
                                           radius=spec["radius"])
-    else:
-        mesh = trimesh.creation.box(extents=spec["size"])
-    return RawMesh(np.asarray(mesh.vertices, dtype=np.float64),
-                   np.asarray(mesh.faces, dtype=np.int64), None, f"primitive {kind}")
+        return RawMesh(np.asarray(mesh.vertices, dtype=np.float64),
+                       np.asarray(mesh.faces, dtype=np.int64), None, "primitive sphere")
+    # A box's faces keep their own vertices so that its vertex normals stay flat.
+    mesh = trimesh.creation.box(extents=spec["size"])
+    corners = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces].reshape(-1, 3)
+    return RawMesh(corners, np.arange(len(corners), dtype=np.int64).reshape(-1, 3), None,
+                   "primitive box")

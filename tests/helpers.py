@@ -48,3 +48,23 @@ def write_scene(folder: Path, doc: dict[str, Any], name: str = "scene.yaml") -> 
     path = folder / name
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+def scene_geometry(folder: Path, doc: dict[str, Any]) -> tuple[Any, dict]:
+    """Write ``doc`` into ``folder``, bake its geometry there; (scene, geometry arrays)."""
+    from pipeline import job
+    from pipeline.scene import load_scene
+
+    scene = load_scene(write_scene(folder, doc))
+    geometry, _ = job.load_geometry(scene, job.workdir_for(scene, folder / "work"))
+    return scene, geometry
+
+
+def constant_environment(path: Path, radiance: list[float]) -> Path:
+    """A small latitude-longitude EXR of constant ``radiance`` (RGB)."""
+    import numpy as np
+
+    from pipeline.images import write_exr
+
+    write_exr(path, np.broadcast_to(np.asarray(radiance, np.float32), (8, 16, 3)))
+    return path

@@ -23,19 +23,27 @@ def camera_frame(position, look_at, up) -> tuple[np.ndarray, np.ndarray, np.ndar
     return right, np.cross(right, forward), forward
 
 
-def camera_rays(position, look_at, up, fov: float, width: int, height: int,
-                region: tuple[int, int, int, int] | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Origins and unit directions, each (rows, cols, 3) float32, for the pixel
-    ``region`` = (y0, y1, x0, x1) (default: the whole image)."""
-    y0, y1, x0, x1 = region or (0, height, 0, width)
+def pixel_directions(position, look_at, up, fov: float, width: int, height: int,
+                     x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Unit float64 directions (..., 3) through continuous image points ``x`` (columns,
+    0 at the left edge, ``width`` at the right) and ``y`` (rows, 0 at the top edge); the
+    centre of pixel (row i, column j) is (x, y) = (j + ½, i + ½)."""
     right, true_up, forward = camera_frame(position, look_at, up)
     half_h = np.tan(np.radians(fov) / 2.0)
     half_w = half_h * width / height
-    cols = (2.0 * (np.arange(x0, x1) + 0.5) / width - 1.0) * half_w
-    rows = (1.0 - 2.0 * (np.arange(y0, y1) + 0.5) / height) * half_h
-    d = (forward[None, None, :] + cols[None, :, None] * right[None, None, :]
-         + rows[:, None, None] * true_up[None, None, :])
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    sx = (2.0 * np.asarray(x, float) / width - 1.0) * half_w
+    sy = (1.0 - 2.0 * np.asarray(y, float) / height) * half_h
+    d = forward + sx[..., None] * right + sy[..., None] * true_up
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def camera_rays(position, look_at, up, fov: float, width: int, height: int,
+                region: tuple[int, int, int, int] | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and unit directions, each (rows, cols, 3) float32, through the pixel
+    centres of ``region`` = (y0, y1, x0, x1) (default: the whole image)."""
+    y0, y1, x0, x1 = region or (0, height, 0, width)
+    y, x = np.meshgrid(np.arange(y0, y1) + 0.5, np.arange(x0, x1) + 0.5, indexing="ij")
+    d = pixel_directions(position, look_at, up, fov, width, height, x, y)
     origins = np.broadcast_to(np.asarray(position, float), d.shape)
     return origins.astype(np.float32), d.astype(np.float32)

@@ -22,3 +22,16 @@ def orthonormalize(t: np.ndarray, n: np.ndarray) -> np.ndarray:
     fallback = tangent_from_normal(n)
     ok = length > 1e-8
     return np.where(ok, t / np.where(ok, length, 1.0), fallback)
+
+
+def face_tangents(vertices: np.ndarray, uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per-face dP/du (F, 3), zero where the face's uv mapping is degenerate."""
+    p0, p1, p2 = (vertices[faces[:, i]].astype(np.float64) for i in range(3))
+    t0, t1, t2 = (uv[faces[:, i]].astype(np.float64) for i in range(3))
+    e1, e2 = p1 - p0, p2 - p0
+    du1, dv1 = t1[:, 0] - t0[:, 0], t1[:, 1] - t0[:, 1]
+    du2, dv2 = t2[:, 0] - t0[:, 0], t2[:, 1] - t0[:, 1]
+    det = du1 * dv2 - du2 * dv1
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    return (e1 * dv2[:, None] - e2 * dv1[:, None]) * inv[:, None]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.math.camera import camera_frame, camera_rays
-from pipeline.math.frames import orthonormalize
+from pipeline.math.frames import face_tangents, orthonormalize
 from pipeline.raytrace import RayTracer
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output, stitch_tiles
 
@@ -28,19 +28,6 @@ def _scene_tracer(ctx: ChunkContext) -> tuple[RayTracer, dict[str, np.ndarray]]:
         _TRACERS.clear()
         _TRACERS[key] = (RayTracer(arrays["vertices"], arrays["faces"]), arrays)
     return _TRACERS[key]
-
-
-def face_tangents(vertices: np.ndarray, uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Per-face dP/du (F, 3), zero where the face's uv mapping is degenerate."""
-    p0, p1, p2 = (vertices[faces[:, i]].astype(np.float64) for i in range(3))
-    t0, t1, t2 = (uv[faces[:, i]].astype(np.float64) for i in range(3))
-    e1, e2 = p1 - p0, p2 - p0
-    du1, dv1 = t1[:, 0] - t0[:, 0], t1[:, 1] - t0[:, 1]
-    du2, dv2 = t2[:, 0] - t0[:, 0], t2[:, 1] - t0[:, 1]
-    det = du1 * dv2 - du2 * dv1
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    return (e1 * dv2[:, None] - e2 * dv1[:, None]) * inv[:, None]
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:

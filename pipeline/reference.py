@@ -1,0 +1,462 @@
+"""The Monte-Carlo reference renderer: progressive path tracing with Embree and MIS.
+
+It shares the project's geometry (the ``geometry`` artifact: world-space triangles,
+vertex normals, uv), BRDFs (pipeline/math/brdf.py, sampled by brdf_sampling.py), camera
+(pipeline/math/camera.py), lights (pipeline/math/lights.py layout) and environment maps
+(pipeline/math/envmap.py), so that each method is measured against the same transport.
+
+Transports (what a path may carry):
+
+``direct``      emission seen by the camera, plus light from every scene light reflected
+                once by the first surface (no bounces).
+``env-direct``  the environment seen by the camera and environment light reflected once,
+                with visibility (other lights ignored).
+``d2i``         paper 000's transport: the first surface seen from the camera reflects
+                with its full BRDF; every later vertex is Lambertian with its diffuse
+                albedo kd (the glossy lobe dropped), any number of bounces.
+``full``        path tracing with the full BRDF at every vertex.
+
+Estimator. At every shading vertex, next-event estimation samples each light once
+(point, spot and directional lights deterministically; a uniform point on each quad; a
+direction from each environment map's luminance distribution) and the BRDF is sampled
+once to continue the path. Quad lights tied to an emitting object and environment maps
+can be reached by both strategies and are combined with the power heuristic; delta
+lights by light sampling only. Russian roulette (survival probability
+min(max throughput, 0.95)) starts after ``rr_depth`` vertices. ``emission`` adds
+test-only emitting objects reached by BRDF sampling alone (weight 1).
+
+Shading frame: the normal is the barycentric blend of vertex normals turned to face the
+incoming ray (as in the G-buffer), the tangent follows +u of the mesh's uv. A direction
+on the shading side of the normal but behind the triangle's plane carries nothing. Ray
+origins are offset by ``1e-4`` × the scene diagonal along the triangle's normal.
+
+Progressive rendering. Passes of ``spp_per_pass`` paths per pixel accumulate per-pixel
+sums and sums of squares; the variance of each pixel's mean is s²/n. The image's
+estimated relative RMSE is √(Σ s²/n) / √(Σ mean²) over pixels and channels; rendering
+stops once it is ≤ ``tolerance`` (after ``min_spp``) or at ``max_spp``. Pass p draws its
+random numbers from ``numpy.random.default_rng([seed, p])``: a given seed gives the same
+image bit for bit.
+
+Pixel filter: ``center`` traces every path through the pixel centre, like the methods'
+one view sample per pixel (so edges match them); ``box`` jitters uniformly over the
+pixel (Mitsuba's box filter).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.math import brdf_sampling
+from pipeline.math.brdf import BrdfParams, evaluate, scene_brdfs
+from pipeline.math.camera import pixel_directions
+from pipeline.math.envmap import EnvironmentMap
+from pipeline.math.frames import face_tangents, orthonormalize
+from pipeline.math.lights import TYPE_CODES, pack_lights, smoothstep
+from pipeline.raytrace import RayTracer
+from pipeline.scene import Scene
+
+TRANSPORTS = ("direct", "env-direct", "d2i", "full")
+PIXEL_FILTERS = ("center", "box")
+RAY_EPSILON = 1e-4  # origin offset, relative to the scene diagonal
+PATHS_PER_PASS = 1 << 17
+
+
+@dataclass(frozen=True)
+class ReferenceSettings:
+    """How to render: ``transport`` (one of :data:`TRANSPORTS`), stop at estimated
+    relative RMSE ``tolerance`` or ``max_spp`` paths per pixel, never before
+    ``min_spp``; ``max_depth`` bounds the shading vertices per path (-1: none)."""
+
+    transport: str = "full"
+    tolerance: float = 0.01
+    max_spp: int = 4096
+    min_spp: int = 16
+    seed: int = 0
+    max_depth: int = -1
+    rr_depth: int = 5
+    pixel_filter: str = "center"
+    spp_per_pass: int | None = None  # default: about PATHS_PER_PASS paths per pass
+
+    def __post_init__(self) -> None:
+        if self.transport not in TRANSPORTS:
+            raise ValueError(f"unknown transport {self.transport!r} "
+                             f"(transports: {', '.join(TRANSPORTS)})")
+        if self.pixel_filter not in PIXEL_FILTERS:
+            raise ValueError(f"unknown pixel filter {self.pixel_filter!r}")
+        if not (self.tolerance >= 0 and self.max_spp >= 1 and self.min_spp >= 1):
+            raise ValueError("tolerance must be >= 0 and max_spp, min_spp >= 1")
+
+
+@dataclass
+class ReferenceImage:
+    """A rendered reference: ``mean`` (H, W, 3) radiance, ``variance`` (H, W, 3) the
+    estimated variance of each pixel's mean, ``spp`` paths per pixel, ``estimate`` the
+    estimated relative RMSE, ``seconds`` of rendering, ``rays`` traced, and ``history``
+    [(spp, estimate, seconds)] after every pass."""
+
+    mean: np.ndarray
+    variance: np.ndarray
+    spp: int
+    estimate: float
+    seconds: float
+    rays: int
+    history: list[tuple[int, float, float]] = field(default_factory=list)
+
+
+def relative_rmse_estimate(mean: np.ndarray, variance: np.ndarray) -> float:
+    """√(Σ variance) / √(Σ mean²): the expected relative RMSE of ``mean``."""
+    norm = float(np.sum(np.square(mean, dtype=np.float64)))
+    return math.sqrt(float(np.sum(variance, dtype=np.float64)) / norm) if norm > 0 else math.inf
+
+
+class TransportScene:
+    """Everything a path needs: Embree scene, per-face shading data, BRDFs, lights.
+
+    ``geometry`` holds the geometry artifact's arrays (vertices, normals, uv, faces,
+    face_object, object_material) and its ``object_names`` and ``material_names``;
+    ``emission`` maps object names to test-only emitted radiance (RGB)."""
+
+    def __init__(self, scene: Scene, geometry: dict, emission: dict | None = None) -> None:
+        v = np.asarray(geometry["vertices"], np.float64)
+        self.faces = np.asarray(geometry["faces"], np.int64)
+        self.vertex_normals = np.asarray(geometry["normals"], np.float64)
+        self.face_object = np.asarray(geometry["face_object"], np.int64)
+        self.object_material = np.asarray(geometry["object_material"], np.int64)
+        object_names = list(geometry["object_names"])
+        self.materials = scene_brdfs(scene, list(geometry["material_names"]))
+        self.lambert = [BrdfParams("lambert", p.albedo) for p in self.materials]
+        self.vertices = v
+        e1 = v[self.faces[:, 1]] - v[self.faces[:, 0]]
+        e2 = v[self.faces[:, 2]] - v[self.faces[:, 0]]
+        cross = np.cross(e1, e2)
+        self.face_normal = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True),
+                                              1e-300)
+        self.face_tangent = face_tangents(v, np.asarray(geometry["uv"], np.float64),
+                                          self.faces)
+        self.tracer = RayTracer(v, self.faces)
+        self.epsilon = RAY_EPSILON * float(np.linalg.norm(v.max(0) - v.min(0)))
+        self.camera = scene.camera
+        lights = [(light.type, light.params) for light in scene.lights
+                  if light.type != "environment"]
+        self.lights = pack_lights(lights, {n: i for i, n in enumerate(object_names)}
+                                  ).astype(np.float64)
+        from pipeline.images import read_image
+
+        self.environments = [EnvironmentMap(read_image(light.params["file"]),
+                                            light.params.get("rotation", 0.0),
+                                            light.params.get("scale", 1.0))
+                             for light in scene.lights if light.type == "environment"]
+        self.emission = np.zeros((len(object_names), 3))
+        self.emitter_light = np.full(len(object_names), -1)
+        for i, row in enumerate(self.lights):
+            if int(row[0]) == TYPE_CODES["quad"] and row[16] >= 0:
+                self.emitter_light[int(row[16])] = i
+        for name, radiance in (emission or {}).items():
+            self.emission[object_names.index(name)] = radiance
+
+
+@dataclass
+class _Vertex:
+    """Shading vertices of the live paths: points, frames, materials, outgoing ``wo``."""
+
+    x: np.ndarray
+    n: np.ndarray
+    t: np.ndarray
+    ng: np.ndarray
+    wo: np.ndarray
+    material: np.ndarray
+    prim: np.ndarray | None = None
+
+    def local(self, w: np.ndarray) -> np.ndarray:
+        b = np.cross(self.n, self.t)
+        return np.stack([np.sum(w * self.t, -1), np.sum(w * b, -1), np.sum(w * self.n, -1)], -1)
+
+    def world(self, w: np.ndarray) -> np.ndarray:
+        b = np.cross(self.n, self.t)
+        return w[:, :1] * self.t + w[:, 1:2] * b + w[:, 2:] * self.n
+
+
+def _per_material(material: np.ndarray, table: list[BrdfParams], fn, shape) -> np.ndarray:
+    out = np.zeros(shape)
+    for index in np.unique(material):
+        sel = material == index
+        out[sel] = fn(sel, table[index])
+    return out
+
+
+def _brdf(vtx: _Vertex, wi_local: np.ndarray, table: list[BrdfParams]) -> np.ndarray:
+    wo = vtx.local(vtx.wo)
+    return _per_material(vtx.material, table,
+                         lambda s, p: evaluate(wi_local[s], wo[s], p), (len(wo), 3))
+
+
+def _brdf_pdf(vtx: _Vertex, wi_local: np.ndarray, table: list[BrdfParams]) -> np.ndarray:
+    wo = vtx.local(vtx.wo)
+    return _per_material(vtx.material, table,
+                         lambda s, p: brdf_sampling.pdf(wi_local[s], wo[s], p), (len(wo),))
+
+
+def _power(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Power-heuristic weight of the strategy with density ``a`` against ``b``."""
+    ratio = np.divide(b, a, out=np.zeros(np.shape(a)), where=a > 0)
+    return np.where(a > 0, 1.0 / (1.0 + ratio * ratio), 0.0)
+
+
+class PathTracer:
+    """Traces paths of one transport through a :class:`TransportScene`."""
+
+    def __init__(self, ts: TransportScene, settings: ReferenceSettings) -> None:
+        self.ts = ts
+        self.s = settings
+        self.use_local = settings.transport != "env-direct"
+        self.one_vertex = settings.transport in ("direct", "env-direct")
+        self.rays = 0
+
+    # ------------------------------------------------------------------------ lights
+
+    def _shadow(self, vtx: _Vertex, wi: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """1.0 where the segment from each vertex along ``wi`` over ``dist`` (≥ 1e30:
+        unbounded) is free. The ray leaves from the offset origin towards the same end
+        point and stops 1e-4 of its length short of it, so that an emitter's own
+        surface does not shadow it."""
+        side = np.sign(np.sum(vtx.ng * wi, -1))[:, None]
+        origin = vtx.x + self.ts.epsilon * side * vtx.ng
+        finite = dist < 1e30
+        direction = np.where(finite[:, None], vtx.x + wi * np.where(finite, dist, 0)[:, None]
+                             - origin, wi)
+        length = np.linalg.norm(direction, axis=-1)
+        direction /= np.maximum(length, 1e-300)[:, None]
+        self.rays += len(wi)
+        blocked = self.ts.tracer.occluded(origin, direction,
+                                          np.where(finite, length * (1 - 1e-4), 1e30))
+        return (~blocked).astype(np.float64)
+
+    def _connect(self, vtx: _Vertex, wi: np.ndarray, table) -> tuple[np.ndarray, np.ndarray]:
+        """BRDF × cos θi (N, 3) towards world ``wi`` and the mask of usable directions."""
+        li = vtx.local(wi)
+        ok = (li[:, 2] > 0) & (np.sum(vtx.ng * wi, -1) > 0)
+        return _brdf(vtx, li, table) * np.maximum(li[:, 2], 0)[:, None] * ok[:, None], ok
+
+    def next_event(self, vtx: _Vertex, table, rng: np.random.Generator) -> np.ndarray:
+        """Light reaching each vertex from every light, reflected towards ``wo`` (N, 3)."""
+        n = len(vtx.x)
+        out = np.zeros((n, 3))
+        for row in self.ts.lights if self.use_local else ():
+            kind = int(row[0])
+            if kind == TYPE_CODES["directional"]:
+                wi = np.broadcast_to(-row[4:7], (n, 3))
+                dist, scale = np.full(n, 1e30), np.ones(n)
+            else:
+                q = row[1:4]
+                if kind == TYPE_CODES["quad"]:
+                    u = rng.random((n, 2))
+                    q = row[1:4] + u[:, :1] * row[4:7] + u[:, 1:] * row[7:10]
+                d = q - vtx.x
+                dist = np.linalg.norm(d, axis=-1)
+                wi = d / np.maximum(dist, 1e-300)[:, None]
+                scale = 1.0 / np.maximum(dist * dist, 1e-300)
+                if kind == TYPE_CODES["spot"]:
+                    scale = scale * smoothstep(row[13], row[14], -(wi @ row[4:7]))
+            fcos, ok = self._connect(vtx, wi, table)
+            if kind == TYPE_CODES["quad"]:
+                nq = np.cross(row[4:7], row[7:10])
+                area = np.linalg.norm(nq)
+                cos_l = -(wi @ (nq / area))
+                ok &= cos_l > 0
+                light_pdf = np.divide(dist * dist, cos_l * area, out=np.zeros(n), where=ok)
+                weight = np.ones(n)
+                if row[16] >= 0:  # reachable by BRDF sampling too
+                    weight = _power(light_pdf, _brdf_pdf(vtx, vtx.local(wi), table))
+                scale = weight / np.maximum(light_pdf, 1e-300)
+            vis = np.zeros(n)
+            if ok.any():
+                vis[ok] = self._shadow(_subset(vtx, ok), wi[ok], dist[ok])
+            out += fcos * (row[10:13] * (scale * vis)[:, None])
+        for env in self.ts.environments:
+            wi, env_pdf = env.sample(rng.random((n, 3)))
+            fcos, ok = self._connect(vtx, wi, table)
+            weight = _power(env_pdf, _brdf_pdf(vtx, vtx.local(wi), table))
+            vis = np.zeros(n)
+            if ok.any():
+                vis[ok] = self._shadow(_subset(vtx, ok), wi[ok], np.full(int(ok.sum()), 1e30))
+            out += fcos * env.radiance(wi) * (weight * vis / np.maximum(env_pdf, 1e-300))[:, None]
+        return out
+
+    # ------------------------------------------------------------------------- paths
+
+    def camera_paths(self, pixel: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """One path sample per entry of ``pixel`` (flat pixel ids): radiance (N, 3)."""
+        cam = self.ts.camera
+        row, col = np.divmod(pixel, cam.width)
+        jitter = rng.random((len(pixel), 2)) if self.s.pixel_filter == "box" \
+            else np.full((len(pixel), 2), 0.5)
+        d = pixel_directions(cam.position, cam.look_at, cam.up, cam.fov, cam.width,
+                             cam.height, col + jitter[:, 0], row + jitter[:, 1])
+        o = np.broadcast_to(np.asarray(cam.position, float), d.shape).copy()
+        radiance = np.zeros((len(pixel), 3))
+        throughput = np.ones((len(pixel), 3))
+        alive = np.arange(len(pixel))
+        brdf_pdf = np.zeros(len(pixel))  # density of the direction that led here (0: camera)
+        depth = 0
+        while len(alive):
+            hits = self.ts.tracer.intersect(o, d)
+            self.rays += len(o)
+            miss = hits.prim < 0
+            self._add_environment(radiance, alive[miss], throughput[miss], d[miss],
+                                  brdf_pdf[miss], depth)
+            hit = ~miss
+            alive, o, d, throughput, brdf_pdf = (alive[hit], o[hit], d[hit], throughput[hit],
+                                                 brdf_pdf[hit])
+            if not len(alive):
+                break
+            vtx = self._vertex(o, d, hits, hit)
+            self._add_emission(radiance, alive, throughput, vtx, hits.t[hit], brdf_pdf, depth)
+            if self.one_vertex and depth == 1 or depth == self.s.max_depth:
+                break
+            table = self.ts.lambert if self.s.transport == "d2i" and depth > 0 \
+                else self.ts.materials
+            radiance[alive] += throughput * self.next_event(vtx, table, rng)
+            wi_local, brdf_pdf, weight = self._sample_brdf(vtx, table, rng)
+            throughput = throughput * weight
+            if depth + 1 >= self.s.rr_depth:
+                survive = np.minimum(throughput.max(axis=1), 0.95)
+                keep = rng.random(len(alive)) < survive
+                throughput = throughput / np.maximum(survive, 1e-300)[:, None]
+            else:
+                keep = np.ones(len(alive), bool)
+            keep &= throughput.max(axis=1) > 0
+            d = vtx.world(wi_local)
+            side = np.sign(np.sum(vtx.ng * d, -1))[:, None]
+            o = vtx.x + self.ts.epsilon * side * vtx.ng
+            alive, o, d, throughput, brdf_pdf = (alive[keep], o[keep], d[keep],
+                                                 throughput[keep], brdf_pdf[keep])
+            depth += 1
+        return radiance
+
+    def _vertex(self, o, d, hits, hit) -> _Vertex:
+        ts = self.ts
+        prim = hits.prim[hit].astype(np.int64)
+        u, v = hits.u[hit].astype(np.float64), hits.v[hit].astype(np.float64)
+        x = o + hits.t[hit].astype(np.float64)[:, None] * d
+        tri = ts.faces[prim]
+        w = np.stack([1.0 - u - v, u, v], axis=1)[:, :, None]
+        n = np.sum(w * ts.vertex_normals[tri], axis=1)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        n = np.where(np.sum(n * d, -1, keepdims=True) > 0, -n, n)
+        ng = ts.face_normal[prim]
+        ng = np.where(np.sum(ng * d, -1, keepdims=True) > 0, -ng, ng)
+        t = orthonormalize(ts.face_tangent[prim], n)
+        material = ts.object_material[ts.face_object[prim]]
+        return _Vertex(x, n, t, ng, -d, material, prim)
+
+    def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> None:
+        if not self.ts.environments or (self.one_vertex and depth > 1):
+            return
+        for env in self.ts.environments:
+            weight = np.ones(len(d)) if depth == 0 else _power(brdf_pdf, env.pdf(d))
+            radiance[index] += throughput * env.radiance(d) * weight[:, None]
+
+    def _add_emission(self, radiance, index, throughput, vtx, dist, brdf_pdf, depth) -> None:
+        ts = self.ts
+        obj = ts.face_object[vtx.prim]
+        test_emission = ts.emission[obj]
+        if self.use_local:
+            light = ts.emitter_light[obj]
+            for li in np.unique(light[light >= 0]):
+                row = ts.lights[li]
+                nq = np.cross(row[4:7], row[7:10])
+                area = np.linalg.norm(nq)
+                cos_l = vtx.wo @ (nq / area)
+                sel = (light == li) & (cos_l > 0)
+                if depth == 0:
+                    weight = np.ones(int(sel.sum()))
+                else:
+                    d = dist[sel].astype(np.float64)
+                    light_pdf = d * d / (cos_l[sel] * area)
+                    weight = _power(brdf_pdf[sel], light_pdf)
+                radiance[index[sel]] += throughput[sel] * row[10:13] * weight[:, None]
+        radiance[index] += throughput * test_emission
+
+    def _sample_brdf(self, vtx: _Vertex, table, rng):
+        """Sampled local directions, their densities and BRDF × cos / density (N, 3)."""
+        n = len(vtx.x)
+        u = rng.random((n, 3))
+        wo = vtx.local(vtx.wo)
+        wi = np.zeros((n, 3))
+        pdf = np.zeros(n)
+        for index in np.unique(vtx.material):
+            sel = vtx.material == index
+            wi[sel] = brdf_sampling.sample(wo[sel], u[sel], table[index])
+            pdf[sel] = brdf_sampling.pdf(wi[sel], wo[sel], table[index])
+        ok = (wi[:, 2] > 0) & (np.sum(vtx.world(wi) * vtx.ng, -1) > 0) & (pdf > 0)
+        f = _brdf(vtx, wi, table)
+        weight = np.where(ok[:, None], f * wi[:, 2:3] / np.where(ok, pdf, 1.0)[:, None], 0.0)
+        return wi, pdf, weight
+
+
+def _subset(vtx: _Vertex, mask: np.ndarray) -> _Vertex:
+    return _Vertex(vtx.x[mask], vtx.n[mask], vtx.t[mask], vtx.ng[mask], vtx.wo[mask],
+                   vtx.material[mask])
+
+
+def render(scene: Scene, geometry: dict, settings: ReferenceSettings,
+           emission: dict | None = None, progress: bool = False) -> ReferenceImage:
+    """Render the scene's camera view progressively (see the module docstring)."""
+    start = time.perf_counter()
+    ts = TransportScene(scene, geometry, emission)
+    tracer = PathTracer(ts, settings)
+    cam = scene.camera
+    npix = cam.width * cam.height
+    per_pass = settings.spp_per_pass or max(1, PATHS_PER_PASS // npix)
+    total = np.zeros((npix, 3))
+    total_sq = np.zeros((npix, 3))
+    spp, estimate, history = 0, math.inf, []
+    bar = _progress_bar(settings, progress)
+    pass_index = 0
+    while spp < settings.max_spp:
+        count = min(per_pass, settings.max_spp - spp)
+        rng = np.random.default_rng([settings.seed, pass_index])
+        pixel = np.tile(np.arange(npix), count)
+        samples = tracer.camera_paths(pixel, rng).reshape(count, npix, 3)
+        total += samples.sum(axis=0)
+        total_sq += np.square(samples).sum(axis=0)
+        spp += count
+        pass_index += 1
+        mean, variance = _moments(total, total_sq, spp)
+        estimate = relative_rmse_estimate(mean, variance)
+        history.append((spp, estimate, time.perf_counter() - start))
+        if bar is not None:
+            bar.update(count)
+            bar.set_postfix_str(f"rel. RMSE ≈ {estimate:.4f}")
+        if spp >= settings.min_spp and estimate <= settings.tolerance:
+            break
+    if bar is not None:
+        bar.close()
+    mean, variance = _moments(total, total_sq, spp)
+    shape = (cam.height, cam.width, 3)
+    return ReferenceImage(mean.reshape(shape).astype(np.float32),
+                          variance.reshape(shape).astype(np.float32), spp, estimate,
+                          time.perf_counter() - start, tracer.rays, history)
+
+
+def _moments(total: np.ndarray, total_sq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel means and variances of the means from sums over ``n`` samples."""
+    mean = total / n
+    if n < 2:
+        return mean, np.full_like(mean, np.inf)
+    sample_var = np.maximum(total_sq / n - mean * mean, 0.0) * n / (n - 1)
+    return mean, sample_var / n
+
+
+def _progress_bar(settings: ReferenceSettings, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=settings.max_spp, unit="spp", desc=f"reference {settings.transport}",
+                leave=False)
+

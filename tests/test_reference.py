@@ -1,0 +1,192 @@
+"""The Monte-Carlo reference renderer: unbiased on scenes with analytic answers, honest
+about its own error, deterministic.
+
+Statistical checks use the renderer's own per-pixel variance of the mean, σ²: over the
+pixels, z = (I − exact)/σ must average near 0 and z² near 1. With a few hundred pixels
+the mean of z² has a standard deviation of about √(2/N) ≈ 0.07, so the accepted band
+[0.7, 1.4] fails a biased or a dishonest estimator but not a correct one by chance
+(seeds are fixed, so each test's outcome is deterministic anyway).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import PROJECT, constant_environment, scene_geometry
+
+from pipeline import job
+from pipeline.math.camera import camera_rays
+from pipeline.metrics import relative_rmse
+from pipeline.reference import ReferenceSettings, render
+
+
+def _camera(position, look_at, size, fov=40.0):
+    return {"position": position, "look_at": look_at, "up": [0, 1, 0], "fov": fov,
+            "width": size, "height": size}
+
+
+def _z_scores(image, exact, variance, mask):
+    sigma = np.sqrt(variance[mask])
+    z = (image[mask] - exact[mask]) / sigma
+    return float(z.mean()), float((z * z).mean())
+
+
+def test_convex_lambertian_object_under_uniform_environment_shows_albedo_times_radiance(
+        tmp_path):
+    albedo, radiance = np.array([0.5, 0.25, 0.8]), np.array([0.8, 1.0, 1.2])
+    doc = {"format": "prt-scene/1", "name": "furnace",
+           "camera": _camera([0, 0, 4], [0, 0, 0], 24),
+           "materials": {"m": {"model": "lambert", "albedo": albedo.tolist()}},
+           "objects": {"ball": {"primitive": {"type": "sphere", "radius": 1,
+                                              "subdivisions": 3}, "material": "m"}},
+           "lights": [{"type": "environment",
+                       "file": str(constant_environment(tmp_path / "sky.exr",
+                                                        radiance.tolist()))}]}
+    scene, geometry = scene_geometry(tmp_path, doc)
+    for transport in ("env-direct", "full"):
+        image = render(scene, geometry, ReferenceSettings(transport, tolerance=0,
+                                                          max_spp=64))
+        # Pixels whose centre ray meets a sphere of 0.95 (inside the icosphere's faces).
+        o, d = camera_rays([0, 0, 4], [0, 0, 0], [0, 1, 0], 40.0, 24, 24)
+        b = np.sum(o * d, -1)
+        sphere = b * b - (np.sum(o * o, -1) - 0.95 ** 2) > 0
+        assert sphere.sum() > 100
+        exact = np.broadcast_to(albedo * radiance, image.mean.shape)
+        z_mean, z2 = _z_scores(image.mean, exact, image.variance, sphere)
+        assert abs(z_mean) < 0.2 and 0.7 < z2 < 1.4, (transport, z_mean, z2)
+        rel = image.mean[sphere].mean(0) / (albedo * radiance)
+        np.testing.assert_allclose(rel, 1.0, atol=0.005)
+        np.testing.assert_allclose(image.mean[0, 0], radiance, rtol=1e-6)  # background
+
+
+def test_closed_emitting_lambertian_enclosure_shows_le_over_one_minus_albedo(tmp_path):
+    albedo, emitted = np.array([0.5, 0.3, 0.7]), np.array([1.0, 2.0, 0.5])
+    doc = {"format": "prt-scene/1", "name": "enclosure",
+           "camera": _camera([0.2, -0.1, 0.3], [1, 0.5, -1], 20, fov=70),
+           "materials": {"m": {"model": "lambert", "albedo": albedo.tolist()}},
+           "objects": {"room": {"primitive": {"type": "box", "size": [2, 2, 2]},
+                                "material": "m"}}}
+    scene, geometry = scene_geometry(tmp_path, doc)
+    image = render(scene, geometry, ReferenceSettings("full", tolerance=0, max_spp=256),
+                   emission={"room": emitted.tolist()})
+    exact = np.broadcast_to(emitted / (1.0 - albedo), image.mean.shape)
+    everywhere = np.ones(image.mean.shape[:2], bool)
+    z_mean, z2 = _z_scores(image.mean, exact, image.variance, everywhere)
+    assert abs(z_mean) < 0.2 and 0.7 < z2 < 1.4, (z_mean, z2)
+    np.testing.assert_allclose(image.mean.mean((0, 1)), emitted / (1.0 - albedo), rtol=0.005)
+
+
+def test_point_light_on_a_lambertian_plane_matches_the_inverse_square_law(tmp_path):
+    albedo, intensity, light = 0.6, np.array([3.0, 2.0, 1.0]), np.array([0.3, 1.5, 0.2])
+    cam = _camera([0, 2.5, 2.5], [0, 0, 0], 16)
+    doc = {"format": "prt-scene/1", "name": "lamp", "camera": cam,
+           "materials": {"m": {"model": "lambert", "albedo": [albedo] * 3}},
+           "objects": {"floor": {"primitive": {"type": "plane", "size": [40, 40]},
+                                 "material": "m"}},
+           "lights": [{"type": "point", "position": light.tolist(),
+                       "intensity": intensity.tolist()}]}
+    scene, geometry = scene_geometry(tmp_path, doc)
+    image = render(scene, geometry, ReferenceSettings("direct", tolerance=0, max_spp=2))
+    o, d = camera_rays(cam["position"], cam["look_at"], cam["up"], cam["fov"], 16, 16)
+    x = o + (-o[..., 1] / d[..., 1])[..., None] * d
+    to_light = light - x
+    r2 = np.sum(to_light ** 2, -1)
+    exact = albedo / np.pi * intensity * (to_light[..., 1] / np.sqrt(r2) / r2)[..., None]
+    np.testing.assert_allclose(image.mean, exact, rtol=1e-4)
+    assert np.all(image.variance == 0)  # one deterministic connection per pixel
+
+
+def _polygon_irradiance(points: np.ndarray, normal: np.ndarray, corners: np.ndarray):
+    """Irradiance per unit radiance from a polygon (Lambert's formula), unoccluded."""
+    total = np.zeros(len(points))
+    for i in range(len(corners)):
+        a = corners[i] - points
+        b = corners[(i + 1) % len(corners)] - points
+        a /= np.linalg.norm(a, axis=-1, keepdims=True)
+        b /= np.linalg.norm(b, axis=-1, keepdims=True)
+        cross = np.cross(a, b)
+        angle = np.arccos(np.clip(np.sum(a * b, -1), -1, 1))
+        total += angle * (cross @ normal) / np.linalg.norm(cross, axis=-1)
+    return np.abs(total) / 2.0
+
+
+def test_quad_light_with_emitter_geometry_matches_lamberts_polygon_formula(tmp_path):
+    """Light sampling and BRDF sampling of the luminaire, combined by MIS, converge to
+    the closed-form irradiance of a rectangle."""
+    albedo, radiance = 0.7, np.array([4.0, 3.0, 2.0])
+    corner, eu, ev = np.array([-0.25, 1.0, -0.25]), np.array([0.5, 0, 0.0]), \
+        np.array([0.0, 0, 0.5])  # eu × ev = −y: emits downwards
+    cam = _camera([0, 0.6, 2.5], [0, 0, 0], 20)
+    doc = {"format": "prt-scene/1", "name": "panel", "camera": cam,
+           "materials": {"m": {"model": "lambert", "albedo": [albedo] * 3}},
+           "objects": {
+               "floor": {"primitive": {"type": "plane", "size": [40, 40]}, "material": "m"},
+               "panel": {"primitive": {"type": "plane", "size": [0.5, 0.5]},
+                         "transform": {"translate": [0, 1, 0]}, "material": "m"}},
+           "lights": [{"type": "quad", "corner": corner.tolist(), "edge_u": eu.tolist(),
+                       "edge_v": ev.tolist(), "radiance": radiance.tolist(),
+                       "object": "panel"}]}
+    scene, geometry = scene_geometry(tmp_path, doc)
+    image = render(scene, geometry, ReferenceSettings("direct", tolerance=0, max_spp=256))
+    o, d = camera_rays(cam["position"], cam["look_at"], cam["up"], cam["fov"], 20, 20)
+    x = (o + (-o[..., 1] / d[..., 1])[..., None] * d).reshape(-1, 3)
+    corners = np.array([corner, corner + eu, corner + eu + ev, corner + ev])
+    e = _polygon_irradiance(x, np.array([0.0, 1.0, 0.0]), corners)
+    exact = (albedo / np.pi * e[:, None] * radiance).reshape(image.mean.shape)
+    floor = (d[..., 1] < -0.01) & (image.variance[..., 0] > 0)  # rays that meet the floor
+    assert floor.sum() > 250
+    z_mean, z2 = _z_scores(image.mean, exact, image.variance, floor)
+    assert abs(z_mean) < 0.2 and 0.7 < z2 < 1.4, (z_mean, z2)
+    assert relative_rmse(image.mean, exact, floor) < 0.02
+
+
+@pytest.fixture(scope="module")
+def small_cornell(tmp_path_factory):
+    scene = job.open_scene(PROJECT / "scenes" / "cornell_box_lambert.yaml", (20, 20))
+    folder = tmp_path_factory.mktemp("cornell")
+    geometry, _ = job.load_geometry(scene, job.workdir_for(scene, folder))
+    return scene, geometry
+
+
+def test_convergence_estimate_is_within_a_factor_1_5_of_the_measured_error(small_cornell):
+    scene, geometry = small_cornell
+    for transport, spp in (("full", 32), ("direct", 8)):
+        image = render(scene, geometry, ReferenceSettings(transport, tolerance=0,
+                                                          max_spp=spp, seed=1))
+        better = render(scene, geometry, ReferenceSettings(transport, tolerance=0,
+                                                           max_spp=16 * spp, seed=2))
+        measured = relative_rmse(image.mean, better.mean)
+        assert 1 / 1.5 < image.estimate / measured < 1.5, (transport, image.estimate,
+                                                            measured)
+
+
+def test_progressive_rendering_stops_at_the_tolerance(small_cornell):
+    scene, geometry = small_cornell
+    image = render(scene, geometry, ReferenceSettings("full", tolerance=0.004, max_spp=4096,
+                                                      min_spp=4, spp_per_pass=4))
+    assert image.estimate <= 0.004 and image.spp < 4096
+    assert image.history[-2][1] > 0.004  # the pass before had not reached it yet
+    assert image.spp == image.history[-1][0]
+
+
+def test_a_seed_gives_the_same_image_bit_for_bit(small_cornell):
+    scene, geometry = small_cornell
+    settings = ReferenceSettings("full", tolerance=0, max_spp=4, seed=7)
+    first = render(scene, geometry, settings)
+    again = render(scene, geometry, settings)
+    other = render(scene, geometry, ReferenceSettings("full", tolerance=0, max_spp=4, seed=8))
+    assert np.array_equal(first.mean, again.mean)
+    assert np.array_equal(first.variance, again.variance)
+    assert not np.array_equal(first.mean, other.mean)
+
+
+def test_d2i_transport_lies_between_direct_and_full_light(small_cornell):
+    """d2i drops glossy reflection after the first vertex: on an all-Lambertian scene it
+    equals full transport; it always adds bounce light to direct."""
+    scene, geometry = small_cornell
+    results = {t: render(scene, geometry, ReferenceSettings(t, tolerance=0, max_spp=64,
+                                                            seed=3))
+               for t in ("direct", "d2i", "full")}
+    assert relative_rmse(results["d2i"].mean, results["full"].mean) < 3 * max(
+        results["d2i"].estimate, results["full"].estimate)
+    assert results["d2i"].mean.sum() > 1.1 * results["direct"].mean.sum()
