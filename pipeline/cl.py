@@ -112,5 +112,6 @@ def kernel(file: str, name: str, defines: dict[str, Any] | None = None) -> Any:
 
 
 def event_ms(event: Any) -> float:
-    """Milliseconds between an event's start and end (profiling clock)."""
+    """Milliseconds between an event's start and end (profiling clock); waits for it."""
+    event.wait()
     return (event.profile.end - event.profile.start) * 1e-6

@@ -215,6 +215,36 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
                f"{image.estimate:.4f}; {state})")
 
 
+@cli.command("evaluate")
+@SCENE
+@click.option("--method", type=click.Choice(["direct"]), default="direct", show_default=True,
+              help="Method to evaluate.")
+@click.option("--sweep", "sweeps", metavar="NAME=V1,V2,...", multiple=True,
+              help="Budget values to sweep (repeatable; several make a grid): size (image "
+                   "width, or WxH) or a stage parameter such as brdf_basis.max_k.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Folder for results.json, probe.json, the charts and frames.")
+@click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Timed frames per budget (medians are reported).")
+@click.option("--reference-tolerance", type=click.FloatRange(min=0), default=0.005,
+              show_default=True, help="Estimated relative RMSE of the reference images.")
+@click.option("--reference-max-spp", type=click.IntRange(min=1), default=4096,
+              show_default=True, help="Sample cap of the reference images.")
+@WORKDIR
+@QUIET
+def evaluate_cmd(scene, method, sweeps, out, repeats, reference_tolerance, reference_max_spp,
+                 workdir, quiet) -> None:
+    """Chart a method's error against frame time, storage and bake time over budgets."""
+    from pipeline import evaluate, job
+
+    sc = job.open_scene(scene)
+    settings = evaluate.EvaluateSettings(repeats, reference_tolerance, reference_max_spp)
+    records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), method,
+                                evaluate.parse_sweep(list(sweeps)), out, settings, quiet)
+    click.echo(f"Wrote {out / 'results.json'} ({len(records)} budgets) and charts "
+               f"{', '.join(name for _, _, name in evaluate.CHARTS)}")
+
+
 @cli.command("clean")
 @SCENE
 @WORKDIR

@@ -23,6 +23,8 @@ from pipeline.store import Workdir
 
 # Rendering methods: name -> (module, function, the stage whose artifact it needs).
 METHODS = {"direct": ("pipeline.render.direct", "render_direct", "gbuffer")}
+# The artifacts each method's frame reads (its run-time storage).
+METHOD_READS = {"direct": ("geometry", "gbuffer")}
 
 
 def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> Scene:
@@ -66,11 +68,9 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
 
     With ``reuse``, a frame whose inputs (artifact keys, lights, materials, camera, code)
     are unchanged since it was written is not rendered again."""
-    import importlib
-
     if method not in METHODS:
         raise PrtError(None, f"unknown method {method!r} (methods: {', '.join(METHODS)})")
-    module_name, function, needs = METHODS[method]
+    module_name, _, needs = METHODS[method]
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
     baked = bake(scene, workdir, until=needs, jobs=jobs, quiet=quiet)
@@ -82,11 +82,19 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
         return RenderResult(out, png, None, baked)
     from pipeline.images import write_exr, write_png
 
-    frame = getattr(importlib.import_module(module_name), function)(scene, workdir)
+    frame = render_frame(scene, workdir, method)
     write_exr(out, frame.rgb)
     write_png(png, frame.rgb)
     meta.write_text(json.dumps({"key": key, "method": method, **frame.timings}, indent=1))
     return RenderResult(out, png, frame, baked)
+
+
+def render_frame(scene: Scene, workdir: Workdir, method: str) -> Frame:
+    """One frame of ``method`` from the (already baked) artifacts in ``workdir``."""
+    import importlib
+
+    module_name, function, _ = METHODS[method]
+    return getattr(importlib.import_module(module_name), function)(scene, workdir)
 
 
 def _stored_key(meta: Path) -> str | None:

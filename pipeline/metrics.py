@@ -7,7 +7,7 @@ select the pixels that count (default: all).
 * PSNR in dB of the tonemapped images, tonemap(x) = sRGB(clip(x · exposure, 0, 1)) with
   ``exposure`` 1 (as the PNG previews), peak 1;
 * HDR-FLIP (NVIDIA's ꟻLIP, PyPI ``flip-evaluator``) mean error when installed, else None;
-* per-pixel relative error |I − R|₂ / mean(|R|₂) for heat maps.
+* per-pixel relative error |I − R|₂ / |R|₂ (with a floor) for heat maps.
 """
 
 from __future__ import annotations
@@ -57,12 +57,12 @@ def hdr_flip(image: np.ndarray, reference: np.ndarray) -> float | None:
     return float(mean)
 
 
-def error_map(image: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Per-pixel |I − R|₂ (RGB norm) divided by the RMS of the reference's RGB norms:
-    (height, width), the quantity whose mean square the relative RMSE summarises."""
+def error_map(image: np.ndarray, reference: np.ndarray, floor: float = 0.05) -> np.ndarray:
+    """Per-pixel relative error |I − R|₂ / max(|R|₂, floor × mean |R|₂) (RGB norms),
+    (height, width): the floor keeps near-black pixels from dominating the map."""
     diff = np.linalg.norm(np.asarray(image, np.float64) - reference, axis=-1)
-    scale = math.sqrt(float(np.mean(np.sum(np.asarray(reference, np.float64) ** 2, -1))))
-    return diff / scale if scale > 0 else diff
+    norm = np.linalg.norm(np.asarray(reference, np.float64), axis=-1)
+    return diff / np.maximum(norm, max(floor * float(norm.mean()), 1e-30))
 
 
 def image_metrics(image: np.ndarray, reference: np.ndarray,

@@ -146,6 +146,11 @@ class Scene:
         raw = {**self.raw, "camera": {**self.raw["camera"], "width": width, "height": height}}
         return replace(self, camera=camera, raw=raw)
 
+    def with_settings(self, overrides: dict[str, Any]) -> Scene:
+        """The same scene with stage-parameter ``overrides`` added to its settings."""
+        settings = {**self.settings, **overrides}
+        return replace(self, settings=settings, raw={**self.raw, "settings": settings})
+
     def section(self, dotted: str) -> Any:
         """The canonical value at a dotted path (``camera``, ``objects.floor.material``,
         ``materials.white``). File paths (``mesh``, ``file``) are replaced by the SHA-256

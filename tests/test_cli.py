@@ -73,7 +73,8 @@ def test_render_json_and_size(baked, tmp_path):
     assert out.is_file() and out.with_suffix(".png").is_file()
 
 
-@pytest.mark.parametrize("command", ["", "run", "status", "inspect", "render", "clean"])
+@pytest.mark.parametrize("command", ["", "run", "status", "inspect", "render", "reference",
+                                     "evaluate", "clean"])
 def test_help_everywhere(command):
     """Every command has help text."""
     result = prt(*([command] if command else []), "--help")
@@ -108,3 +109,43 @@ def test_render_material_edits(baked, tmp_path):
         assert bad.returncode == 2
         assert f"{scene}: --set {edit}: " in bad.stderr and problem in bad.stderr
         assert "Traceback" not in bad.stderr
+
+
+def test_reference_writes_image_and_reuses_its_cache(baked, tmp_path):
+    scene, workdir, _, _ = baked
+    out = tmp_path / "ref.exr"
+    args = ("reference", scene, "--transport", "direct", "--out", out, "--max-spp", "4",
+            "--tolerance", "0", "--workdir", workdir, "--json", "-q")
+    first = prt(*args)
+    assert first.returncode == 0, first.stderr
+    stats = json.loads(first.stdout)
+    assert (stats["spp"], stats["cached"]) == (4, False)
+    assert out.is_file() and out.with_suffix(".png").is_file()
+    again = json.loads(prt(*args).stdout)
+    assert again["cached"] and again["artifact"] == stats["artifact"]
+    other = json.loads(prt(*args[:-2], "--seed", "3", "--json", "-q").stdout)
+    assert not other["cached"] and other["artifact"] != stats["artifact"]
+
+
+def test_evaluate_writes_records_and_charts(baked, tmp_path):
+    scene, workdir, _, _ = baked
+    out = tmp_path / "eval"
+    result = prt("evaluate", scene, "--method", "direct", "--sweep", "size=8,12", "--out",
+                 out, "--repeats", "1", "--reference-max-spp", "64", "--workdir", workdir,
+                 "-q")
+    assert result.returncode == 0, result.stderr
+    records = json.loads((out / "results.json").read_text())
+    assert [r["budget"] for r in records] == [{"size": 8}, {"size": 12}, {"size": 16}]
+    assert [r["default"] for r in records] == [False, False, True]
+    for r in records:
+        assert r["method"] == "direct" and r["frame_ms"] >= r["kernel_ms"] > 0
+        assert r["storage_bytes"] > 0 and r["bake_s"] > 0 and 0 < r["rel_rmse"] < 1
+        assert r["pathtrace_ms_equal_error"] is None or r["pathtrace_ms_equal_error"] > 0
+        assert (out / "frames" / f"size-{r['budget']['size']}_error.png").is_file()
+    probe = json.loads((out / "probe.json").read_text())["bandwidth_probe"]
+    assert probe["opencl_copy_gbs"] > 0
+    for chart in ("error_vs_frame_time", "error_vs_storage", "error_vs_bake_time"):
+        assert (out / f"{chart}.png").is_file()
+    bad = prt("evaluate", scene, "--sweep", "nonsense.key=1", "--out", out, "--workdir",
+              workdir, "-q")
+    assert bad.returncode == 2 and "unknown budget 'nonsense.key'" in bad.stderr

@@ -10,12 +10,15 @@ import numpy as np
 @dataclass
 class Frame:
     """A rendered image: ``rgb`` (height, width, 3) float32 linear radiance, row 0 on
-    top, and wall-clock ``timings`` in milliseconds (``setup_ms``, ``kernel_ms``, ...)."""
+    top, wall-clock ``timings`` in milliseconds (``setup_ms``, ``kernel_ms``, ...,
+    ``total_ms``) and ``kernel_bytes``, the bytes the frame's kernels read and write
+    (for their effective bandwidth)."""
 
     method: str
     rgb: np.ndarray
     timings: dict[str, float]
     notes: list[str] = field(default_factory=list)
+    kernel_bytes: int = 0
 
     @property
     def height(self) -> int:

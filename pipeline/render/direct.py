@@ -64,14 +64,14 @@ def render_direct(scene: Scene, workdir: Workdir) -> Frame:
     out_buf = pcl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     light_rows = packed if len(packed) else np.zeros((1, packed.shape[1]), np.float32)
     camera = np.array([*scene.camera.position, 0.0], np.float32)
-    args = [buf(position), buf(normal), buf(tangent), buf(object_id), buf(material_id),
-            buf(materials),
-            buf(light_rows), np.int32(len(packed)), buf(visibility),
+    inputs = [position, normal, tangent, object_id, material_id, materials, light_rows]
+    args = [*map(buf, inputs), np.int32(len(packed)), buf(visibility),
             np.int32(visibility.shape[1]), camera, np.int32(h * w), out_buf]
+    kernel_bytes = sum(a.nbytes for a in inputs) + visibility.nbytes + out.nbytes
     t3 = time.perf_counter()
     event = kernel(queue, (h * w,), None, *args)
     pcl.enqueue_copy(queue, out, out_buf, wait_for=[event])
     t4 = time.perf_counter()
     timings = {"setup_ms": (t1 - t0 + t3 - t2) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
                "kernel_ms": cl.event_ms(event), "total_ms": (t4 - t0) * 1e3}
-    return Frame("direct", out.reshape(h, w, 3), timings, notes)
+    return Frame("direct", out.reshape(h, w, 3), timings, notes, kernel_bytes)

@@ -1,0 +1,314 @@
+"""``prt evaluate``: a method's error against its cost as its budgets vary (DESIGN §8).
+
+For every budget of a sweep (the cartesian product of ``--sweep NAME=V1,V2,...``, plus
+the method's default budget) it bakes what the method needs in a work directory of its
+own, renders ``repeats`` frames after one warm-up and records:
+
+* ``frame_ms``, ``kernel_ms``, ``setup_ms``: medians over the frames (setup = everything
+  but the OpenCL kernels: loading artifacts, shadow rays, transfers);
+* ``storage_bytes``: bytes on disk of the artifacts a frame reads; ``bake_s``: the seconds
+  recorded by the stages that made them (those of the whole chain);
+* ``rel_rmse`` (headline), ``psnr_db``, ``flip`` against the reference renderer's image
+  of the method's transport at the same size (pipeline/reference.py, cached), and
+  ``reference_rel_rmse``, that reference's own estimated error: it is rendered again at
+  a quarter of the method's error whenever it exceeds a third of it (up to the sample
+  cap), so that the error measures the method, not the reference;
+  ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
+* ``kernel_gbs`` = ``kernel_bytes`` / kernel time, and ``bandwidth_fraction`` of the
+  memory-bandwidth probe run at the start (pipeline/bandwidth.py);
+* what a user would do instead: ``pathtrace_ms_equal_error``, the wall time the reference
+  renderer (a different seed, progressive) needs until its estimated error falls to the
+  method's ``rel_rmse`` (``pathtrace_rel_rmse``: its error then, measured against the
+  reference), and ``mitsuba_ms_equal_error`` where every material is Lambertian and
+  Mitsuba 3 is installed (spp doubled until its error is at most the method's).
+
+Budget names: ``size`` (image width; the height follows the camera's aspect ratio, or
+``WxH``) or any stage parameter of stages.yaml (``brdf_basis.max_k``, ...), applied as a
+scene setting. Writes ``results.json`` (a list of records), ``probe.json`` (the
+bandwidth probe and settings), charts ``error_vs_frame_time.png``,
+``error_vs_storage.png``, ``error_vs_bake_time.png`` and, per budget, the frame and an
+error heat map (per-pixel relative error, metrics.error_map, colour scale 0 to
+``HEATMAP_MAX``) under ``frames/``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline import job, metrics
+from pipeline.errors import PrtError
+from pipeline.images import write_exr, write_heatmap, write_png
+from pipeline.reference import ReferenceSettings
+from pipeline.scene import Scene
+from pipeline.store import Workdir, read_record
+
+# The reference transport that matches what each method models.
+METHOD_TRANSPORT = {"direct": "direct"}
+HEATMAP_MAX = 0.2  # heat maps span relative errors 0 to 20 %
+MITSUBA_MAX_SPP = 4096
+
+
+@dataclass(frozen=True)
+class EvaluateSettings:
+    """``repeats`` timed frames per budget; the reference's ``reference_tolerance`` and
+    ``reference_max_spp``; the path tracer's ``pathtrace_max_spp``."""
+
+    repeats: int = 5
+    reference_tolerance: float = 0.005
+    reference_max_spp: int = 4096
+    pathtrace_max_spp: int = 4096
+
+
+def parse_sweep(items: list[str]) -> dict[str, list[Any]]:
+    """``["NAME=V1,V2", ...]`` -> {NAME: [V1, V2]} with numbers parsed."""
+    sweep: dict[str, list[Any]] = {}
+    for item in items:
+        name, eq, values = item.partition("=")
+        if not eq or not name or not values:
+            raise PrtError("--sweep", f"{item!r}: expected NAME=V1,V2,... e.g. size=64,128")
+        sweep[name] = [_number(v) for v in values.split(",")]
+    return sweep
+
+
+def _number(text: str) -> Any:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def default_budget(scene: Scene, names: list[str]) -> dict[str, Any]:
+    """The scene's own value of each budget name."""
+    from pipeline.runner import stage_params
+    from pipeline.stagefile import load_stagefile
+
+    params = stage_params(load_stagefile(None), scene)
+    unknown = [n for n in names if n != "size" and n not in params]
+    if unknown:
+        raise PrtError("--sweep", f"unknown budget {unknown[0]!r} (budgets: size or a stage "
+                       f"parameter: {', '.join(sorted(params))})")
+    return {n: scene.camera.width if n == "size" else params[n] for n in names}
+
+
+def apply_budget(scene: Scene, budget: dict[str, Any]) -> Scene:
+    """``scene`` with the budget's image size and stage-parameter settings."""
+    settings = {}
+    for name, value in budget.items():
+        if name != "size":
+            settings[name] = value
+            continue
+        if isinstance(value, str):
+            w, _, h = value.lower().partition("x")
+            width, height = int(w), int(h)
+        else:
+            width = int(value)
+            height = max(1, round(width * scene.camera.height / scene.camera.width))
+        scene = scene.with_image_size(width, height)
+    return scene.with_settings(settings) if settings else scene
+
+
+def _slug(budget: dict[str, Any]) -> str:
+    return "_".join(f"{k.replace('.', '-')}-{v}" for k, v in sorted(budget.items())) or "default"
+
+
+def _bytes_on_disk(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def _pathtrace_equal_error(scene: Scene, geometry: dict, transport: str, target: float,
+                           reference: np.ndarray, max_spp: int) -> dict[str, Any]:
+    """Time the reference renderer (seed 1) needs to reach estimated error ``target``."""
+    from pipeline.reference import render
+
+    image = render(scene, geometry, ReferenceSettings(transport, tolerance=target,
+                                                      max_spp=max_spp, min_spp=1, seed=1))
+    reached = image.estimate <= target
+    return {"pathtrace_ms_equal_error": image.seconds * 1e3 if reached else None,
+            "pathtrace_spp": image.spp, "pathtrace_estimate": image.estimate,
+            "pathtrace_rel_rmse": metrics.relative_rmse(image.mean, reference)}
+
+
+def _mitsuba_equal_error(scene: Scene, geometry: dict, transport: str, target: float,
+                         reference: np.ndarray) -> dict[str, Any]:
+    """Mitsuba 3's render time at the fewest spp (powers of 2) reaching ``target``, when
+    the scene's materials allow and Mitsuba is installed; None otherwise."""
+    if any(m.model != "lambert" for m in scene.materials.values()):
+        return {"mitsuba_ms_equal_error": None, "mitsuba_note": "non-Lambertian materials"}
+    try:
+        from pipeline import mitsuba
+
+        mitsuba.variant()
+    except PrtError as exc:
+        return {"mitsuba_ms_equal_error": None, "mitsuba_note": str(exc.problem)}
+    spp, error, seconds = 1, np.inf, None
+    while spp <= MITSUBA_MAX_SPP:
+        result = mitsuba.render(scene, geometry, transport, spp, seed=1)
+        error = metrics.relative_rmse(result.rgb, reference)
+        if error <= target:
+            seconds = result.render_s
+            break
+        spp *= 2
+    return {"mitsuba_ms_equal_error": None if seconds is None else seconds * 1e3,
+            "mitsuba_spp": spp, "mitsuba_rel_rmse": error,
+            "mitsuba_note": "box pixel filter: its error includes edge aliasing against "
+                            "the pixel-centre reference"}
+
+
+def evaluate(scene: Scene, workdir: Workdir, method: str, sweep: dict[str, list[Any]],
+             out: Path, settings: EvaluateSettings = EvaluateSettings(),
+             quiet: bool = False) -> list[dict[str, Any]]:
+    """Run the sweep; write results.json, probe.json, charts and frames into ``out``."""
+    from pipeline.bandwidth import probe
+
+    if method not in job.METHODS:
+        raise PrtError(None, f"unknown method {method!r} (methods: {', '.join(job.METHODS)})")
+    names = sorted(sweep)
+    default = default_budget(scene, names)
+    budgets = [dict(zip(names, values, strict=True))
+               for values in itertools.product(*(sweep[n] for n in names))]
+    if default not in budgets:
+        budgets.append(default)
+    out.mkdir(parents=True, exist_ok=True)
+    bandwidth = probe()
+    transport = METHOD_TRANSPORT[method]
+    records = []
+    for budget in budgets:
+        records.append(_evaluate_budget(scene, workdir, method, transport, budget,
+                                        budget == default, out, settings, bandwidth, quiet))
+        if not quiet:
+            r = records[-1]
+            print(f"  {_slug(budget):<24} rel. RMSE {r['rel_rmse']:.4f}  frame "
+                  f"{r['frame_ms']:.1f} ms  path tracer at equal error "
+                  f"{_ms(r['pathtrace_ms_equal_error'])}")
+    (out / "results.json").write_text(json.dumps(records, indent=1))
+    (out / "probe.json").write_text(json.dumps(
+        {"bandwidth_probe": bandwidth, "settings": vars(settings), "method": method,
+         "scene": str(scene.path), "transport": transport}, indent=1))
+    write_charts(records, out)
+    return records
+
+
+def _ms(value: float | None) -> str:
+    return "not reached" if value is None else f"{value:.0f} ms"
+
+
+def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
+                     settings, bandwidth, quiet) -> dict[str, Any]:
+    sc = apply_budget(scene, budget)
+    wd = Workdir(workdir.root / "sweep" / method / _slug(budget))
+    job.bake(sc, wd, until=job.METHODS[method][2], quiet=quiet)
+    reads = job.METHOD_READS[method]
+    bake_s = sum(read_record(wd.artifact(name))["seconds"] for name in reads)
+    storage = sum(_bytes_on_disk(wd.artifact(name)) for name in reads)
+    job.render_frame(sc, wd, method)  # warm-up: kernel build, file cache
+    frames = [job.render_frame(sc, wd, method) for _ in range(settings.repeats)]
+    frame = frames[-1]
+
+    def median(key: str) -> float:
+        return statistics.median(f.timings[key] for f in frames)
+
+    kernel_ms = median("kernel_ms")
+    tolerance = settings.reference_tolerance
+    while True:
+        ref = job.reference(sc, workdir, ReferenceSettings(
+            transport, tolerance=tolerance, max_spp=settings.reference_max_spp),
+            quiet=quiet).image
+        errors = metrics.image_metrics(frame.rgb, ref.mean)
+        # A reference noisier than a third of the error would measure itself: tighten it.
+        if ref.estimate <= errors["rel_rmse"] / 3 or ref.spp >= settings.reference_max_spp:
+            break
+        tolerance = errors["rel_rmse"] / 4
+    surfaces = ~emitter_pixels(sc, wd)
+    slug = _slug(budget)
+    write_exr(out / "frames" / f"{slug}.exr", frame.rgb)
+    write_png(out / "frames" / f"{slug}.png", frame.rgb)
+    write_png(out / "frames" / f"{slug}_reference.png", ref.mean)
+    write_heatmap(out / "frames" / f"{slug}_error.png",
+                  metrics.error_map(frame.rgb, ref.mean), HEATMAP_MAX)
+    geometry, _ = job.load_geometry(sc, wd)
+    kernel_gbs = frame.kernel_bytes / (kernel_ms * 1e-3) / 1e9 if kernel_ms > 0 else None
+    return {
+        "method": method, "budget": budget, "default": is_default,
+        "width": sc.camera.width, "height": sc.camera.height,
+        "frame_ms": median("total_ms"), "kernel_ms": kernel_ms,
+        "setup_ms": median("total_ms") - kernel_ms, "repeats": settings.repeats,
+        "storage_bytes": storage, "bake_s": bake_s,
+        **errors,
+        "rel_rmse_surfaces": metrics.relative_rmse(frame.rgb, ref.mean, surfaces),
+        "reference_rel_rmse": ref.estimate, "reference_spp": ref.spp,
+        "reference_tolerance": tolerance,
+        "kernel_bytes": frame.kernel_bytes, "kernel_gbs": kernel_gbs,
+        "bandwidth_fraction": None if kernel_gbs is None
+        else kernel_gbs / bandwidth["opencl_copy_gbs"],
+        **_pathtrace_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean,
+                                 settings.pathtrace_max_spp),
+        **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
+        "heatmap_max": HEATMAP_MAX,
+    }
+
+
+def emitter_pixels(scene: Scene, workdir: Workdir) -> np.ndarray:
+    """(height, width) True where the G-buffer's pixel sees an emitting object (a quad
+    light's ``object``); such pixels show the light's radiance, which dwarfs everything
+    else in ‖R‖ (the Cornell luminaire: 18 against ≈ 0.3), so the records also give
+    ``rel_rmse_surfaces`` over the other pixels."""
+    from pipeline.store import open_artifact
+
+    gbuffer = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
+    geometry = open_artifact(workdir.artifact("geometry"), "geometry")
+    names = geometry.attrs["object_names"]
+    emitters = [names.index(light.params["object"]) for light in scene.lights
+                if light.type == "quad" and "object" in light.params]
+    return np.isin(gbuffer.read("object_id"), emitters)
+
+
+CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
+          ("storage_bytes", "artifact bytes a frame reads", "error_vs_storage.png"),
+          ("bake_s", "bake time (s)", "error_vs_bake_time.png"))
+
+
+def write_charts(records: list[dict[str, Any]], out: Path) -> None:
+    """Relative RMSE against frame time, storage and bake time (log-log PNGs); the frame
+    time chart also shows the path tracers' time to equal error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for key, label, name in CHARTS:
+        fig, ax = plt.subplots(figsize=(5.5, 4.0), dpi=120)
+        for method in sorted({r["method"] for r in records}):
+            rows = sorted((r for r in records if r["method"] == method), key=lambda r: r[key])
+            ax.plot([r[key] for r in rows], [r["rel_rmse"] for r in rows], "o-", label=method)
+            for r in rows:
+                text = ", ".join(f"{k}={v}" for k, v in r["budget"].items())
+                ax.annotate(text, (r[key], r["rel_rmse"]), fontsize=7,
+                            textcoords="offset points", xytext=(4, 4))
+                if r["default"]:
+                    ax.plot(r[key], r["rel_rmse"], "*", ms=14, color="gold", mec="k",
+                            label="default budget")
+            if key == "frame_ms":
+                for tracer, field_name in (("reference path tracer", "pathtrace_ms_equal_error"),
+                                           ("Mitsuba 3", "mitsuba_ms_equal_error")):
+                    pts = [(r[field_name], r["rel_rmse"]) for r in rows if r.get(field_name)]
+                    if pts:
+                        ax.plot(*zip(*sorted(pts), strict=True), "s--",
+                                label=f"{tracer}, equal error")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("relative RMSE vs reference")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / name)
+        plt.close(fig)
