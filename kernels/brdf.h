@@ -89,6 +89,43 @@ inline float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
     return 0.0f;
 }
 
+/* The fixed term f_F(wi, wo) of paper 000 Table 4 (without rho_s; pipeline/math/brdf.py
+ * fixed_term): 0 below either horizon and for Lambert. */
+inline float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
+    int model = (int)mat[0];
+    float nl = wi.z, nv = wo.z;
+    if (model == MODEL_LAMBERT || nl <= 0.0f || nv <= 0.0f) return 0.0f;
+    if (model == MODEL_BLINN_PHONG || model == MODEL_LAFORTUNE) return 1.0f;
+    if (model == MODEL_WARD || model == MODEL_WARD_ANISOTROPIC) return rsqrt(nl * nv);
+    if (model == MODEL_WARD_DUER) return 1.0f / (nl * nv);
+    float3 h = normalize(wi + wo);
+    float vh = fmax(dot(wo, h), 1e-30f);
+    float fresnel = schlick_fresnel(mat[11], vh);
+    if (model == MODEL_COOK_TORRANCE) {
+        float nh = h.z;
+        float geom = fmin(1.0f, fmin(2.0f * nh * nv / vh, 2.0f * nh * nl / vh));
+        float nh2 = fmax(nh, 1e-30f) * fmax(nh, 1e-30f);
+        return geom * fresnel / (nl * nv * nh2 * nh2);
+    }
+    if (model == MODEL_ASHIKHMIN_SHIRLEY) return fresnel / (vh * fmax(nl, nv));
+    return 0.0f;
+}
+
+/* The PCA coordinate x(wi, wo) of the model (pipeline/math/brdf.py coordinate): the
+ * angle delta = angle(N, H) in radians (the anisotropic Ward's effective delta_e), or
+ * for Lafortune the arc cosine of its lobe base, arccos(x) in [0, pi/2] (computed from
+ * 1 - x in double where available, so that x near 1 keeps its digits). */
+inline float brdf_coordinate_angle(__global const float* mat, float3 wi, float3 wo) {
+    int model = (int)mat[0];
+    if (model == MODEL_LAFORTUNE) {
+        float u = clamp(lafortune_one_minus_x(mat, wi, wo), 0.0f, 1.0f);
+        return 2.0f * asin(sqrt(0.5f * u));                  /* arccos(1 - u) */
+    }
+    float3 s = wi + wo;
+    float sy = model == MODEL_WARD_ANISOTROPIC ? s.y / mat[8] : s.y;
+    return atan2(sqrt(s.x * s.x + sy * sy), fmax(s.z, 0.0f));
+}
+
 /* The full BRDF kd / pi + rho_s * f_F * f_E (RGB, 1/sr); zero below either horizon. */
 inline float3 brdf_eval(__global const float* mat, float3 wi, float3 wo) {
     if (wi.z <= 0.0f || wo.z <= 0.0f) return (float3)(0.0f);

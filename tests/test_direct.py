@@ -23,7 +23,7 @@ from pipeline.store import Workdir, open_artifact
 
 def bake_and_render(scene_path, workdir):
     scene = load_scene(scene_path)
-    run(scene, load_stagefile(), workdir, progress=False)
+    run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
     return scene, render_direct(scene, workdir)
 
 
@@ -138,7 +138,7 @@ def cornell(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cornell")
     scene = load_scene(PROJECT / "scenes" / "cornell_box.yaml").with_image_size(64, 64)
     workdir = Workdir(tmp / "w")
-    run(scene, load_stagefile(), workdir, progress=False)
+    run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
     return scene, workdir, render_direct(scene, workdir)
 
 

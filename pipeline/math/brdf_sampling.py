@@ -46,7 +46,7 @@ def lobe_exponent(p: BrdfParams) -> float:
     return max(float(p.gamma), 1.0)
 
 
-def _cos_power_direction(u1: np.ndarray, u2: np.ndarray, n: float) -> np.ndarray:
+def cos_power_direction(u1: np.ndarray, u2: np.ndarray, n: float) -> np.ndarray:
     """Directions (N, 3) about +z with density (n + 1)/2π cos^n θ."""
     cos_t = u1 ** (1.0 / (n + 1.0))
     sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
@@ -54,7 +54,7 @@ def _cos_power_direction(u1: np.ndarray, u2: np.ndarray, n: float) -> np.ndarray
     return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
 
 
-def _frame_to_world(local: np.ndarray, axis: np.ndarray) -> np.ndarray:
+def frame_to_world(local: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Rotate directions given about +z onto unit ``axis`` (N, 3) (Duff et al. 2017)."""
     sign = np.where(axis[:, 2] >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + axis[:, 2])
@@ -101,9 +101,9 @@ def sample(wo: np.ndarray, u: np.ndarray, p: BrdfParams) -> np.ndarray:
     glossy = u[:, 0] < q
     if not glossy.any():
         return wi
-    lobe = _cos_power_direction(u[glossy, 1], u[glossy, 2], lobe_exponent(p))
+    lobe = cos_power_direction(u[glossy, 1], u[glossy, 2], lobe_exponent(p))
     if p.model == "lafortune":
-        wi[glossy] = _frame_to_world(lobe, _lafortune_axis(wo[glossy], p))
+        wi[glossy] = frame_to_world(lobe, _lafortune_axis(wo[glossy], p))
     else:
         w, h = wo[glossy], lobe  # the half vector, about the normal
         wi[glossy] = 2.0 * np.sum(w * h, axis=-1, keepdims=True) * h - w

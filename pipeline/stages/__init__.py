@@ -27,6 +27,8 @@ REGISTRY = {
     "geometry": "pipeline.stages.geometry",
     "gbuffer": "pipeline.stages.gbuffer",
     "brdf_basis": "pipeline.stages.brdf_basis",
+    "gather": "pipeline.stages.gather",
+    "transfer": "pipeline.stages.transfer",
 }
 
 

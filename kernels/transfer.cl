@@ -1,0 +1,118 @@
+/* Transfer entries of method d2i with sub-area sampling: the OpenCL twin of
+ * pipeline/math/transfer.py (see its docstring for the estimators, the sample counts and
+ * the convergence rule). One work-item per (receiver p, gather disk g) pair.
+ *
+ * Defines: ROWS = rows of T (k + 1; 0 for receivers that only need D or Ms),
+ *          SUBAREA = points per disk pattern (a power of two), FIRST_CHECK = 4.
+ *
+ * Receivers: 12 floats each: position, normal, tangent, wo (world, unit normal/tangent/wo).
+ * Disks:      8 floats each: centre, normal, area, unused.
+ * Points:     SUBAREA * 3 floats per disk: its sub-area sample points (world).
+ * Table:      ROWS * h floats: b0, b1..bk tabulated on the ascending coordinate grid
+ *             grid[h] (delta in radians, or Lafortune's lobe base x); the cell of a value
+ *             is found from its angle a (delta, or arccos x): f = (a - angle_lo) *
+ *             angle_scale, reversed when REVERSED_GRID (Lafortune), and the weight
+ *             linearly in the coordinate, as numpy.interp does.
+ */
+#include "brdf.h"
+
+#define FORM_FACTOR_CAP 3.14159265358979f
+
+inline float table_lookup(__global const float* row, __global const float* grid, int h,
+                          float coord, float angle, float angle_lo, float angle_scale) {
+    float f = (angle - angle_lo) * angle_scale;
+#ifdef REVERSED_GRID
+    f = (float)(h - 1) - f;
+#endif
+    int i = clamp((int)floor(f), 0, h - 2);
+    if (coord < grid[i] && i > 0) i -= 1;
+    if (coord > grid[i + 1] && i < h - 2) i += 1;
+    float w = clamp((coord - grid[i]) / (grid[i + 1] - grid[i]), 0.0f, 1.0f);
+    return row[i] + w * (row[i + 1] - row[i]);
+}
+
+__kernel void transfer_pairs(__global const float* receivers, const int receiver_count,
+                             __global const float* disks, const int disk_count,
+                             __global const float* points,
+                             __global const uchar* visibility,      /* receiver x disk */
+                             __global const float* material,        /* MATERIAL_FLOATS */
+                             __global const float* grid, __global const float* table,
+                             const int h, const float angle_lo, const float angle_scale,
+                             const float solid_angle, const float tolerance,
+                             __global float* d_out,                 /* receiver x disk */
+                             __global float* t_out)                 /* receiver x ROWS x disk */
+{
+    int g = get_global_id(0), p = get_global_id(1);
+    if (g >= disk_count || p >= receiver_count) return;
+    size_t pair = (size_t)p * disk_count + g;
+    __global const float* r = receivers + 12 * (size_t)p;
+    float3 x = vload3(0, r), nx = vload3(1, r), tx = vload3(2, r), wo_world = vload3(3, r);
+    __global const float* disk = disks + 8 * (size_t)g;
+    float3 centre = vload3(0, disk), ng = vload3(1, disk);
+    float area = disk[6];
+    if (!visibility[pair] || area <= 0.0f) {
+        d_out[pair] = 0.0f;
+#if ROWS > 0
+        for (int j = 0; j < ROWS; ++j) t_out[((size_t)p * ROWS + j) * disk_count + g] = 0.0f;
+#endif
+        return;
+    }
+    float3 dc = centre - x;
+    float omega = area / fmax(dot(dc, dc), 1e-30f);
+    int count = 1;
+    while (count < SUBAREA && (float)count * solid_angle < omega) count *= 2;
+
+#if ROWS > 0
+    float3 wo = to_local(wo_world, nx, tx);
+    float sum[ROWS], half_sum[ROWS];
+    for (int j = 0; j < ROWS; ++j) { sum[j] = 0.0f; half_sum[j] = 0.0f; }
+#endif
+    float geo_sum = 0.0f, geo_half = 0.0f;
+    int used = count;
+    __global const float* q = points + (size_t)g * SUBAREA * 3;
+    for (int i = 0; i < count; ++i) {
+        float3 d = vload3(i, q) - x;
+        float r2 = fmax(dot(d, d), 1e-30f);
+        float3 w = d * rsqrt(r2);
+        float geo = area * fmax(dot(w, nx), 0.0f) * fmax(-dot(w, ng), 0.0f) / r2;
+        geo_sum += geo;
+#if ROWS > 0
+        float3 wi = to_local(w, nx, tx);
+        float fixed = geo * brdf_fixed(material, wi, wo);
+        if (fixed != 0.0f) {
+            float angle = brdf_coordinate_angle(material, wi, wo);
+#ifdef REVERSED_GRID
+            float coord = cos(angle);
+#else
+            float coord = angle;
+#endif
+            for (int j = 0; j < ROWS; ++j)
+                sum[j] += fixed * table_lookup(table + j * h, grid, h, coord, angle, angle_lo,
+                                               angle_scale);
+        }
+#endif
+        int n = i + 1;
+        if (n >= FIRST_CHECK && (n & (n - 1)) == 0 && n < count) {
+            if (n >= 2 * FIRST_CHECK) {
+#if ROWS > 0
+                float mean = sum[0] / n, first = half_sum[0] / (n / 2);
+#else
+                float mean = geo_sum / n, first = geo_half / (n / 2);
+#endif
+                if (fabs(2.0f * mean - 2.0f * first) <= tolerance * fabs(mean)) {
+                    used = n;
+                    break;
+                }
+            }
+            geo_half = geo_sum;
+#if ROWS > 0
+            for (int j = 0; j < ROWS; ++j) half_sum[j] = sum[j];
+#endif
+        }
+    }
+    d_out[pair] = fmin(geo_sum / used, FORM_FACTOR_CAP) * (1.0f / BRDF_PI);
+#if ROWS > 0
+    for (int j = 0; j < ROWS; ++j)
+        t_out[((size_t)p * ROWS + j) * disk_count + g] = sum[j] / used;
+#endif
+}

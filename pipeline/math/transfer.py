@@ -1,0 +1,165 @@
+"""Transfer entries of method d2i (paper 000 §3.2, §5.2) with sub-area sampling, in NumPy.
+
+The OpenCL twin is ``kernels/transfer.cl``; tests hold the two together and check both
+against brute-force integration over the disks.
+
+Setting. A receiver x (a view sample, or a gather sample for Ms) with unit normal n_x;
+a gather sample g standing for the disk K_g of area |A_g| with normal n_g. For a point q
+on the disk, ω = (q − x)/|q − x| and the geometry term of the area measure is
+
+    G(x, q) = max(0, n_x·ω) · max(0, −n_g·ω) / |q − x|².
+
+(Paper 000 writes the estimator in solid angle with the pdf |x − g| / (|A_g| |N_g·ω|);
+the change of measure dω = cosθ_q dA / r² needs the square of the distance, which the
+paper's pdf drops (DESIGN §7). With q uniform on K_g the area-measure form below is exact
+in expectation.)
+
+Estimators, with q_1..q_n the first n points of g's sub-area sample set (pipeline/stages/
+gather.py) and V_g(x) the visibility of g's centre from x (paper eq. 4: a region shares
+its centre's visibility and radiance):
+
+    D_g(x)  = V_g(x) · (1/π) · |A_g|/n Σ_i G(x, q_i)                  (1/sr·sr = 1)
+    T_jg(x) = V_g(x) · |A_g|/n Σ_i f_F(ω_i, ω_o) b_j(x(ω_i, ω_o)) G(x, q_i),  j = 0..k
+
+with ω_i, ω_o in x's local shading frame, b_0 the PCA mean and b_1..b_k the basis rows of
+x's material (pipeline/math/brdf_pca.py), evaluated by linear interpolation on the
+basis grid exactly as ``BrdfBasis.reconstruct`` does. So that the frame is
+
+    I(x) = direct(x) + ρs(x) · max(0, c(γ)ᵀ T(x) L) + kd(x) · D(x) L,
+
+where L (G, 3) is the outgoing radiance of the gather samples (Lambertian). Ms is D
+with gather samples as receivers: L_{n+1} = kd ⊙ Ms L_n. The mean geometry factor
+|A_g|/n Σ G is a disk's form factor times π and so at most π; it is capped there (only
+pairs closer than the disk's radius, at corners, can exceed it through sampling noise).
+
+Number of sub-area samples. A pair gets at most n_max = min(2^⌈log2(Ω/Ω_s)⌉, M) samples
+(at least 1; M, the pattern's length, a power of two), Ω = |A_g| / |g − x|² the disk's
+solid-angle scale and Ω_s = ``solid_angle``. With n_max > 4 the sum runs in prefixes of
+8, 16, 32, ... and stops at the first prefix whose two halves, each an estimate of its own
+(every prefix of the pattern is evenly spread), agree within ``tolerance`` × the
+prefix's estimate (T row 0 for glossy receivers, |A_g| G otherwise; paper §5.1: "the
+summation stops when converging within a certain threshold"), or at n_max. n_max = 1 uses
+the disk's first pattern point, not its centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.math.brdf import BrdfParams, coordinate, fixed_term, to_local
+from pipeline.math.brdf_pca import BrdfBasis
+
+FORM_FACTOR_CAP = np.pi  # the largest |A_g|·mean G a disk can give (form factor 1, × π)
+FIRST_CHECK = 4          # sub-area samples before the first convergence check
+
+
+@dataclass(frozen=True)
+class Disks:
+    """Gather disks: ``center``, ``normal`` (G, 3), ``area`` (G,), and their sub-area
+    sample points ``points`` (G, M, 3) (pipeline.stages.gather.subarea_points)."""
+
+    center: np.ndarray
+    normal: np.ndarray
+    area: np.ndarray
+    points: np.ndarray
+
+
+@dataclass(frozen=True)
+class Receivers:
+    """Receiving points: ``position``, ``normal``, ``tangent`` (P, 3); ``wo`` (P, 3)
+    unit directions towards the viewer (world frame)."""
+
+    position: np.ndarray
+    normal: np.ndarray
+    tangent: np.ndarray
+    wo: np.ndarray
+
+
+@dataclass(frozen=True)
+class GlossyTable:
+    """What T needs of a material: its BRDF parameters, the basis grid (h,) and the
+    tabulated rows (R, h) = [b0, b1, ..., bk]."""
+
+    params: BrdfParams
+    grid: np.ndarray
+    rows: np.ndarray
+
+    @classmethod
+    def from_basis(cls, basis: BrdfBasis, k: int | None = None) -> GlossyTable:
+        k = basis.k if k is None else k
+        return cls(basis.params, basis.grid, np.vstack([basis.mean, basis.basis[:k]]))
+
+    def evaluate(self, wi_local: np.ndarray, wo_local: np.ndarray) -> np.ndarray:
+        """f_F(ωi, ωo) · b_j(x(ωi, ωo)) for every row j: (..., R)."""
+        x = coordinate(wi_local, wo_local, self.params)
+        fixed = fixed_term(wi_local, wo_local, self.params)
+        columns = [np.interp(x, self.grid, row) for row in self.rows]
+        return np.stack(columns, axis=-1) * fixed[..., None]
+
+
+def sample_counts(receivers: Receivers, disks: Disks, solid_angle: float) -> np.ndarray:
+    """n_max (P, G) int: sub-area samples each pair may use."""
+    d2 = np.sum((disks.center[None] - receivers.position[:, None]) ** 2, axis=-1)
+    omega = disks.area[None, :] / np.maximum(d2, 1e-300)
+    exponent = np.ceil(np.log2(np.maximum(omega / solid_angle, 1.0)))
+    return np.minimum(2 ** exponent, disks.points.shape[1]).astype(np.int64)
+
+
+def _geometry(receivers: Receivers, q: np.ndarray, disk_normal: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """G(x, q) (P, G, S) and the unit directions ω (P, G, S, 3) for points q (G, S, 3)."""
+    d = q[None] - receivers.position[:, None, None]
+    r2 = np.maximum(np.sum(d * d, axis=-1), 1e-300)
+    w = d / np.sqrt(r2)[..., None]
+    cos_x = np.maximum(np.einsum("pgsc,pc->pgs", w, receivers.normal), 0.0)
+    cos_q = np.maximum(-np.einsum("pgsc,gc->pgs", w, disk_normal), 0.0)
+    return cos_x * cos_q / r2, w
+
+
+def transfer(receivers: Receivers, disks: Disks, visibility: np.ndarray,
+             table: GlossyTable | None, solid_angle: float, tolerance: float
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+    """D (P, G) and, for a glossy ``table``, T (P, R, G) of receivers against disks;
+    ``visibility`` (P, G) of the disk centres (0/1)."""
+    counts = sample_counts(receivers, disks, solid_angle)
+    geometry, w = _geometry(receivers, disks.points, disks.normal)  # (P, G, M)
+    per_sample = geometry * disks.area[None, :, None]
+    glossy = None
+    if table is not None:
+        wi_local = to_local(w, receivers.normal[:, None, None], receivers.tangent[:, None, None])
+        wo_local = to_local(receivers.wo, receivers.normal, receivers.tangent)[:, None, None]
+        wo_local = np.broadcast_to(wo_local, wi_local.shape)
+        glossy = table.evaluate(wi_local, wo_local) * per_sample[..., None]  # (P, G, M, R)
+    used = _converged_counts(per_sample if glossy is None else glossy[..., 0], counts,
+                             tolerance)
+    mask = np.arange(disks.points.shape[1])[None, None, :] < used[..., None]
+    mean_geometry = np.minimum(np.sum(per_sample * mask, axis=-1) / used, FORM_FACTOR_CAP)
+    d = visibility * mean_geometry / np.pi
+    if glossy is None:
+        return d, None
+    t = np.sum(glossy * mask[..., None], axis=2) / used[..., None]
+    return d, np.moveaxis(t * visibility[..., None], -1, 1)
+
+
+def _converged_counts(values: np.ndarray, counts: np.ndarray, tolerance: float) -> np.ndarray:
+    """Samples used per pair: the first prefix 8, 16, ... ≤ n_max whose two halves'
+    means of ``values`` (P, G, M) agree within ``tolerance`` × the prefix's mean; n_max
+    (a power of two) if none does, or if n_max ≤ 4."""
+    used = np.where(counts <= FIRST_CHECK, counts, 0)
+    running = np.cumsum(values, axis=-1)
+    size = values.shape[-1]
+    if size < 2 * FIRST_CHECK:
+        return np.where(used == 0, counts, used)
+    previous = running[..., FIRST_CHECK - 1] / FIRST_CHECK
+    prefix = 2 * FIRST_CHECK
+    while prefix <= size:
+        mean = running[..., prefix - 1] / prefix
+        second_half = 2.0 * mean - previous
+        converged = np.abs(second_half - previous) <= tolerance * np.abs(mean)
+        done = (used == 0) & (prefix <= counts) & (converged | (prefix == counts))
+        used = np.where(done, prefix, used)
+        previous = mean
+        prefix *= 2
+    return np.where(used == 0, counts, used)

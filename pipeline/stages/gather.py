@@ -1,0 +1,260 @@
+"""Stage ``gather``: paper 000 §5.1's gather samples, their areas, disks and sub-area
+sample sets (one chunk: the whole scene). Schema ``gather``.
+
+Gather samples (backward photon shooting, Hašan et al. 2006). A view sample x is a pixel
+of the G-buffer; a ray leaves x and its first hit is a gather sample. Two groups:
+
+* diffuse: x drawn uniformly among the pixels that see a surface, the direction uniform
+  over x's hemisphere;
+* glossy: x drawn among the pixels of glossy (non-Lambertian) materials, the direction
+  drawn with density ∝ (ω·R)^e about R, the mirror reflection of the direction to the eye
+  (paper eq. 16, e = ``gather.glossy_exponent``, default 200).
+
+The group sizes are glossy : diffuse = ``gather.glossy_ratio`` (paper: 1 : 6); a scene
+without glossy pixels gets diffuse samples only. Directions below x's shading horizon and
+rays that escape are drawn again, up to ``MAX_RAYS_PER_SAMPLE`` rays per requested
+sample: an open scene (a plane under the sky) may get fewer samples than requested, or
+none, and then has less (or no) indirect light to gather; ``count`` says how many. A
+gather sample's normal is the shading normal of the hit turned towards the ray's origin:
+the side of the surface that was seen.
+
+Order. Samples are sorted by object, then along a 3D Hilbert curve through the scene's
+bounding box (pipeline/math/spacecurve.py), so that rows of T, D and Ms are smooth in the
+gather index (DESIGN §7).
+
+Areas |A_g|. Uniform surface samples, one on every triangle plus more in proportion to
+area (``gather.area_samples`` per gather sample in all), each carrying the area it stands
+for, are taken on both sides of the surface. Each is assigned to the nearest of its
+``NEIGHBOURS`` nearest gather samples on the same object whose normal faces the same way
+(n_g · n_s > ``FACING``), if it lies within ``REACH`` × g's local spacing (the distance
+from g to its ``SPACING_K``-th nearest neighbour on the object). Surface samples with none
+are dropped: the insides of closed meshes, the outsides of the Cornell box's walls, and
+regions no gather ray reaches (the floor under a box, the ceiling behind the luminaire).
+For a Poisson spread of gather samples the chance that a point of a sampled region lies
+farther than the reach from every sample is ≈ exp(−4π·SPACING_K/3) ≈ 4e-6. |A_g| is the
+sum of the areas assigned to g; the attribute ``dropped_area`` records what was dropped.
+
+Disks and sub-area samples. K_g is the disk of area |A_g| (radius √(|A_g|/π)) about g in
+its tangent plane. Its sub-area samples are the shared unit-disk pattern ``disk_pattern``
+(``gather.subarea_max`` points: the Halton (2, 3) sequence through the concentric
+mapping, so that every prefix is evenly spread), turned by g's own angle
+``disk_rotation`` and scaled by the radius: q_i = g + r (R(θ_g) p_i)·(t_g, b_g), with
+t_g = ``disk_tangent`` and b_g = n_g × t_g.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pipeline.errors import PrtError
+from pipeline.math.brdf_sampling import cos_power_direction, frame_to_world
+from pipeline.math.frames import tangent_from_normal
+from pipeline.math.spacecurve import hilbert_order
+from pipeline.raytrace import RayTracer
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+
+NEIGHBOURS = 8     # gather samples considered for each surface sample
+FACING = 0.5       # least n_g · n_s for a surface sample to join gather sample g
+SPACING_K = 3      # a gather sample's local spacing: distance to its 3rd nearest neighbour
+REACH = 2.0        # surface samples farther than REACH × spacing from g are dropped
+RAY_EPSILON = 1e-4  # ray origin offset along the normal, relative to the scene diagonal
+MAX_RAYS_PER_SAMPLE = 64  # rays shot per requested sample before settling for fewer
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    geo = {n: ctx.inputs["geometry"].read(n) for n in
+           ("vertices", "normals", "faces", "face_object", "object_material")}
+    gbuf = ctx.inputs["gbuffer"]
+    position = gbuf.read("position").reshape(-1, 3).astype(np.float64)
+    normal = gbuf.read("normal").reshape(-1, 3).astype(np.float64)
+    material = gbuf.read("material_id").reshape(-1)
+    names = ctx.inputs["geometry"].attrs["material_names"]
+    glossy_material = np.array([ctx.scene[f"materials.{n}.model"] != "lambert"
+                                for n in names] + [False])
+    seen = np.flatnonzero(material >= 0)
+    glossy_pixels = seen[glossy_material[material[seen]]]
+
+    count = int(ctx.params["gather.count"])
+    ratio = float(ctx.params["gather.glossy_ratio"])
+    n_glossy = int(round(count * ratio / (1.0 + ratio))) if len(glossy_pixels) else 0
+    vertices = geo["vertices"].astype(np.float64)
+    diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    tracer = RayTracer(geo["vertices"], geo["faces"])
+    cam = np.asarray(ctx.scene["camera"]["position"], np.float64)
+    shoot = _Shooter(tracer, geo, position, normal, cam, RAY_EPSILON * diagonal, ctx.rng)
+    diffuse = shoot(seen, count - n_glossy, exponent=None)
+    glossy = shoot(glossy_pixels, n_glossy, exponent=float(ctx.params["gather.glossy_exponent"]))
+    samples = {k: np.concatenate([diffuse[k], glossy[k]]) for k in diffuse}
+    samples["group"] = np.r_[np.zeros(len(diffuse["face"]), np.int8),
+                             np.ones(len(glossy["face"]), np.int8)]
+    found = len(samples["face"])
+
+    order = _order(samples["position"], samples["object_id"], vertices)
+    samples = {k: v[order] for k, v in samples.items()}
+    area, dropped = _areas(samples["position"], samples["normal"], samples["object_id"],
+                           vertices, geo["faces"], geo["face_object"],
+                           int(ctx.params["gather.area_samples"]) * count, ctx.rng)
+    subarea_max = int(ctx.params["gather.subarea_max"])
+    if subarea_max & (subarea_max - 1):
+        raise PrtError(None, f"gather.subarea_max = {subarea_max}: expected a power of two")
+    return {
+        "position": samples["position"].astype(np.float32),
+        "normal": samples["normal"].astype(np.float32),
+        "object_id": samples["object_id"].astype(np.int32),
+        "material_id": geo["object_material"][samples["object_id"]].astype(np.int32),
+        "face": samples["face"].astype(np.int32),
+        "group": samples["group"],
+        "source_pixel": samples["source_pixel"].astype(np.int32),
+        "area": area.astype(np.float32),
+        "radius": np.sqrt(area / np.pi).astype(np.float32),
+        "disk_tangent": tangent_from_normal(samples["normal"]).astype(np.float32),
+        "disk_rotation": ctx.rng.uniform(0.0, 2.0 * np.pi, found).astype(np.float32),
+        "disk_pattern": disk_pattern(subarea_max).astype(np.float32),
+        "dropped_area": np.array([dropped]),
+        "requested": np.array([count]),
+    }
+
+
+class _Shooter:
+    """Draws gather samples: rays from view samples, first hits kept."""
+
+    def __init__(self, tracer, geo, position, normal, eye, epsilon, rng) -> None:
+        self.tracer, self.geo, self.rng, self.epsilon = tracer, geo, rng, epsilon
+        self.position, self.normal, self.eye = position, normal, eye
+
+    def __call__(self, pool: np.ndarray, n: int, exponent: float | None) -> dict:
+        """Up to ``n`` gather samples from view samples drawn from ``pool``; fewer when
+        ``MAX_RAYS_PER_SAMPLE`` × n rays find fewer hits (open scenes)."""
+        parts: list[dict] = [self._shoot(pool[:0], exponent)]
+        have = shot = 0
+        while have < n and shot < MAX_RAYS_PER_SAMPLE * n and len(pool):
+            pixel = self.rng.choice(pool, max(int((n - have) * 1.25), 1024))
+            parts.append(self._shoot(pixel, exponent))
+            have += len(parts[-1]["face"])
+            shot += len(pixel)
+        return {k: np.concatenate([p[k] for p in parts])[:n] for k in parts[0]}
+
+    def _shoot(self, pixel: np.ndarray, exponent: float | None) -> dict:
+        x, nx = self.position[pixel], self.normal[pixel]
+        u = self.rng.random((len(pixel), 2))
+        if exponent is None:  # uniform over the hemisphere about the normal
+            d = frame_to_world(cos_power_direction(u[:, 0], u[:, 1], 0.0), nx)
+        else:  # ∝ (ω·R)^e about the mirror direction R of the view direction
+            wo = self.eye - x
+            wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+            mirror = 2.0 * np.sum(wo * nx, 1, keepdims=True) * nx - wo
+            d = frame_to_world(cos_power_direction(u[:, 0], u[:, 1], exponent), mirror)
+        above = np.sum(d * nx, axis=1) > 0.0
+        hits = self.tracer.intersect(x + self.epsilon * nx, d)
+        ok = above & (hits.prim >= 0)
+        face = hits.prim[ok].astype(np.int64)
+        tri = self.geo["faces"][face]
+        w = np.stack([1.0 - hits.u[ok] - hits.v[ok], hits.u[ok], hits.v[ok]], 1)[:, :, None]
+        p = x[ok] + hits.t[ok, None] * d[ok]
+        n = np.sum(w * self.geo["normals"][tri], axis=1).astype(np.float64)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        n = np.where(np.sum(n * d[ok], 1, keepdims=True) > 0, -n, n)
+        return {"position": p, "normal": n, "face": face,
+                "object_id": self.geo["face_object"][face], "source_pixel": pixel[ok]}
+
+
+def _order(position: np.ndarray, object_id: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """Sort by object, then along the Hilbert curve through the scene's bounding box."""
+    curve = hilbert_order(position, vertices.min(0), vertices.max(0))
+    rank = np.empty(len(curve), np.int64)
+    rank[curve] = np.arange(len(curve))
+    return np.lexsort((rank, object_id))
+
+
+def _areas(position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
+           vertices: np.ndarray, faces: np.ndarray, face_object: np.ndarray, total: int,
+           rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """|A_g| (G,) from two-sided uniform surface samples, and the area dropped."""
+    p0, p1, p2 = (vertices[faces[:, i]] for i in range(3))
+    cross = np.cross(p1 - p0, p2 - p0)
+    face_area = 0.5 * np.linalg.norm(cross, axis=1)
+    face_normal = cross / np.maximum(2.0 * face_area, 1e-300)[:, None]
+    extra = max(total - len(faces), 0)
+    per_face = 1 + rng.multinomial(extra, face_area / face_area.sum())
+    face = np.repeat(np.arange(len(faces)), per_face)
+    u = rng.random((len(face), 2))
+    su = np.sqrt(u[:, 0])  # uniform in the triangle (Turk 1990)
+    points = (p0[face] * (1 - su)[:, None] + p1[face] * (su * (1 - u[:, 1]))[:, None]
+              + p2[face] * (su * u[:, 1])[:, None])
+    weight = face_area[face] / per_face[face]
+    area = np.zeros(len(position))
+    dropped = float(weight.sum() * 2.0)
+    for obj in np.unique(object_id):
+        own = np.flatnonzero(object_id == obj)
+        mine = np.flatnonzero(face_object[face] == obj)
+        if len(own) == 0 or len(mine) == 0:
+            continue
+        tree = cKDTree(position[own])
+        k = min(NEIGHBOURS, len(own))
+        spacing = tree.query(position[own], k=min(SPACING_K + 1, len(own)))[0]
+        reach = REACH * np.atleast_2d(spacing)[:, -1] if len(own) > 1 else np.full(1, np.inf)
+        dist, near = tree.query(points[mine], k=k)
+        dist, near = dist.reshape(len(mine), k), near.reshape(len(mine), k)
+        for side in (1.0, -1.0):
+            facing = np.einsum("nkc,nc->nk", normal[own][near],
+                               side * face_normal[face[mine]]) > FACING
+            first = np.argmax(facing, axis=1)
+            row = np.arange(len(mine))
+            g = near[row, first]
+            ok = facing[row, first] & (dist[row, first] <= reach[g])
+            kept = np.bincount(g[ok], weights=weight[mine][ok], minlength=len(own))
+            area[own] += kept
+            dropped -= float(kept.sum())
+    return area, dropped
+
+
+def disk_pattern(count: int) -> np.ndarray:
+    """``count`` points (count, 2) in the unit disk: Halton (2, 3) points through Shirley
+    and Chiu's concentric mapping; every prefix is evenly spread over the disk."""
+    index = np.arange(1, count + 1)
+    u = 2.0 * np.stack([_radical_inverse(index, 2), _radical_inverse(index, 3)], 1) - 1.0
+    a, b = u[:, 0], u[:, 1]
+    outer = np.abs(a) > np.abs(b)
+    r = np.where(outer, a, b)
+    safe_a = np.where(a == 0, 1.0, a)
+    safe_b = np.where(b == 0, 1.0, b)
+    phi = np.where(outer, (np.pi / 4) * b / safe_a, np.pi / 2 - (np.pi / 4) * a / safe_b)
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+
+
+def _radical_inverse(index: np.ndarray, base: int) -> np.ndarray:
+    out, scale = np.zeros(len(index)), 1.0 / base
+    i = index.copy()
+    while np.any(i > 0):
+        out += (i % base) * scale
+        i //= base
+        scale /= base
+    return out
+
+
+def subarea_points(position: np.ndarray, normal: np.ndarray, tangent: np.ndarray,
+                   radius: np.ndarray, rotation: np.ndarray, pattern: np.ndarray
+                   ) -> np.ndarray:
+    """Sub-area sample points (G, M, 3) on the disks K_g: the pattern (M, 2) turned by
+    each disk's ``rotation`` and scaled by its ``radius`` in the frame (t, n × t)."""
+    c, s = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
+    a = c * pattern[None, :, 0] - s * pattern[None, :, 1]
+    b = s * pattern[None, :, 0] + c * pattern[None, :, 1]
+    bitangent = np.cross(normal, tangent)
+    r = radius[:, None, None]
+    return position[:, None, :] + r * (a[..., None] * tangent[:, None, :]
+                                       + b[..., None] * bitangent[:, None, :])
+
+
+def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+    arrays = dict(pieces[0][1])
+    dropped = float(arrays.pop("dropped_area")[0])
+    requested = int(arrays.pop("requested")[0])
+    count = len(arrays["area"])
+    return Output(arrays, attrs={
+        "count": count, "requested": requested, "glossy_count": int(arrays["group"].sum()),
+        "glossy_exponent": float(ctx.params["gather.glossy_exponent"]),
+        "subarea_max": int(ctx.params["gather.subarea_max"]),
+        "total_area": float(arrays["area"].sum(dtype=np.float64)), "dropped_area": dropped},
+        sizes={"gather": count})

@@ -1,0 +1,323 @@
+"""Stage ``transfer``: per pixel, the glossy transfer basis matrix T and the diffuse
+transfer D of method d2i (paper 000 §3, §5.2), one chunk per pixel tile. Schema
+``transfer``.
+
+For each view sample x (a G-buffer pixel) and gather disk g: the visibility V_g(x) of
+g's centre through Embree (only pairs that face each other at the centres are traced),
+then the sub-area estimators of pipeline/math/transfer.py on the OpenCL device
+(kernels/transfer.cl): D for every pixel that sees a surface, T (k + 1 rows: b0 and the
+k PCA bases of the pixel's material) for pixels of glossy materials only.
+
+Rows are stored in the Haar domain (pipeline/math/haar.py, gather index padded to a power
+of two), truncated losslessly in practice: each row keeps its largest coefficients until
+the dropped ones hold at most ``transfer.keep_tolerance`` of the row's norm (relative L2),
+and never more than ``transfer.max_coefficients``; ``*_residual`` records what each row
+lost. Rows are variable-length (CSR: per-row counts, flat indices and values, largest
+coefficient first within a row). Dense rows would not fit (400² pixels × 16k gathers ×
+4 bytes is 10 GB for D alone); the ``haar`` stage then cuts these rows down to the
+renderer's budgets without recomputing transport, so budget sweeps re-run only that
+stage.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.math import haar
+from pipeline.math.brdf import BrdfParams, pack_materials
+from pipeline.math.transfer import GlossyTable, Receivers
+from pipeline.raytrace import RayTracer
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.stages.brdf_basis import read_basis
+from pipeline.stages.gather import subarea_points
+
+RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
+PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
+FIRST_CHECK = 4      # kernels/transfer.cl's first convergence prefix (as math.transfer)
+
+
+@dataclass
+class GatherDisks:
+    """The gather artifact's disks as the kernel wants them: ``packed`` (G, 8) float32
+    (centre, normal, area, 0), sub-area ``points`` (G, M, 3) float32."""
+
+    center: np.ndarray
+    normal: np.ndarray
+    packed: np.ndarray
+    points: np.ndarray
+
+    @classmethod
+    def from_artifact(cls, gather: Any) -> GatherDisks:
+        center = gather.read("position").astype(np.float64)
+        normal = gather.read("normal").astype(np.float64)
+        area = gather.read("area").astype(np.float64)
+        points = subarea_points(center, normal, gather.read("disk_tangent").astype(np.float64),
+                                gather.read("radius").astype(np.float64),
+                                gather.read("disk_rotation").astype(np.float64),
+                                gather.read("disk_pattern").astype(np.float64))
+        packed = np.zeros((len(area), 8), np.float32)
+        packed[:, 0:3], packed[:, 3:6], packed[:, 6] = center, normal, area
+        return cls(center, normal, packed, np.ascontiguousarray(points, np.float32))
+
+
+def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
+                      disks: GatherDisks, epsilon: float) -> np.ndarray:
+    """V (P, G) uint8: 1 where receiver p and disk centre g face each other
+    (n_p·ω > 0, n_g·ω < 0) and nothing lies between them."""
+    d = disks.center[None, :, :] - position[:, None, :]
+    facing = (np.einsum("pgc,pc->pg", d, normal) > 0) & \
+        (np.einsum("pgc,gc->pg", d, disks.normal) < 0)
+    p_idx, g_idx = np.nonzero(facing)
+    start = position[p_idx] + epsilon * normal[p_idx]
+    end = disks.center[g_idx] + epsilon * disks.normal[g_idx]
+    ray = end - start
+    length = np.linalg.norm(ray, axis=1)
+    ok = length > 0
+    blocked = np.ones(len(ray), bool)
+    blocked[ok] = tracer.occluded(start[ok], ray[ok] / length[ok, None], length[ok] * (1 - 1e-4))
+    vis = np.zeros(facing.shape, np.uint8)
+    vis[p_idx[~blocked], g_idx[~blocked]] = 1
+    return vis
+
+
+class TransferKernel:
+    """kernels/transfer.cl over one set of gather disks (uploaded once)."""
+
+    def __init__(self, disks: GatherDisks, solid_angle: float, tolerance: float) -> None:
+        import pyopencl as pcl
+
+        self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
+        self.count, self.subarea = len(disks.packed), disks.points.shape[1]
+        self.disks = self._buffer(disks.packed)
+        self.points = self._buffer(disks.points)
+        self.solid_angle, self.tolerance = np.float32(solid_angle), np.float32(tolerance)
+
+    def _buffer(self, a: np.ndarray) -> Any:
+        """A read-only device copy of ``a`` (one zero element if ``a`` is empty)."""
+        mf = self.pcl.mem_flags
+        a = a if a.size else np.zeros(1, a.dtype)
+        return self.pcl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                               hostbuf=np.ascontiguousarray(a))
+
+    def __call__(self, receivers: Receivers, visibility: np.ndarray,
+                 table: GlossyTable | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """D (P, G) and T (P, R, G) float32, as pipeline.math.transfer.transfer."""
+        pcl, n = self.pcl, len(receivers.position)
+        packed = np.concatenate([receivers.position, receivers.normal, receivers.tangent,
+                                 receivers.wo], axis=1).astype(np.float32)
+        rows = 0 if table is None else len(table.rows)
+        if n == 0 or self.count == 0:
+            return (np.zeros((n, self.count), np.float32),
+                    np.zeros((n, rows, self.count), np.float32) if rows else None)
+        defines = {"ROWS": rows, "SUBAREA": self.subarea, "FIRST_CHECK": FIRST_CHECK}
+        if table is None:
+            material = np.zeros((1, 16), np.float32)
+            grid = np.zeros(2, np.float32)
+            values = np.zeros(2, np.float32)
+            angle_lo, angle_scale = 0.0, 1.0
+        else:
+            material = pack_materials([table.params])
+            grid = table.grid.astype(np.float32)
+            values = table.rows.astype(np.float32)
+            angle_lo, angle_scale = _grid_angles(table.params, table.grid)
+            if table.params.model == "lafortune":
+                defines["REVERSED_GRID"] = 1
+        d = np.empty((n, self.count), np.float32)
+        t = np.empty((n, max(rows, 1), self.count), np.float32)
+        mf = pcl.mem_flags
+        d_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, d.nbytes)
+        t_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, t.nbytes)
+        kernel = cl.kernel("transfer.cl", "transfer_pairs", defines)
+        kernel(self.queue, (self.count, n), None, self._buffer(packed), np.int32(n),
+               self.disks, np.int32(self.count), self.points,
+               self._buffer(np.ascontiguousarray(visibility, np.uint8)),
+               self._buffer(material), self._buffer(grid), self._buffer(values),
+               np.int32(len(grid)), np.float32(angle_lo), np.float32(angle_scale),
+               self.solid_angle, self.tolerance, d_buf, t_buf)
+        pcl.enqueue_copy(self.queue, d, d_buf)
+        if rows:
+            pcl.enqueue_copy(self.queue, t, t_buf)
+        return d, (t if rows else None)
+
+
+def _grid_angles(params: BrdfParams, grid: np.ndarray) -> tuple[float, float]:
+    """(angle_lo, angle_scale) so that (angle − lo) · scale is the fractional index of an
+    angle in the basis grid's angle sequence (Lafortune: arccos of its x grid, reversed)."""
+    if params.model == "lafortune":
+        lo, hi = float(np.arccos(grid[-1])), float(np.arccos(grid[0]))
+    else:
+        lo, hi = float(grid[0]), float(grid[-1])
+    return lo, (len(grid) - 1) / (hi - lo)
+
+
+def compress_rows(rows: np.ndarray, keep_tolerance: float, max_coefficients: int
+                  ) -> dict[str, np.ndarray]:
+    """Haar rows of dense rows (n, G), CSR: ``count`` (n,) int32 kept per row, flat
+    ``index`` int32 and ``value`` float32 (Σ count,) (each row's largest first), and
+    ``residual`` (n,) float32, the dropped coefficients' norm over the row's norm."""
+    coefficients = haar.forward(rows.astype(np.float32))
+    n, size = coefficients.shape
+    cap = min(max_coefficients, size)
+    magnitude = np.abs(coefficients)
+    top = np.argpartition(-magnitude, cap - 1, axis=1)[:, :cap] if cap < size \
+        else np.broadcast_to(np.arange(size), (n, size)).copy()
+    top_values = np.take_along_axis(coefficients, top, axis=1)
+    order = np.argsort(-np.abs(top_values), axis=1, kind="stable")
+    top = np.take_along_axis(top, order, axis=1)
+    top_values = np.take_along_axis(top_values, order, axis=1)
+    total = np.sum(np.square(coefficients, dtype=np.float64), axis=1)
+    dropped = total[:, None] - np.cumsum(np.square(top_values, dtype=np.float64), axis=1)
+    enough = dropped <= (keep_tolerance ** 2) * total[:, None]
+    count = np.where(enough.any(axis=1), np.argmax(enough, axis=1) + 1, cap)
+    count = np.where(total > 0, count, 0)
+    keep = np.arange(cap)[None, :] < count[:, None]
+    last = np.clip(count - 1, 0, cap - 1)
+    residual = np.where(count > 0, np.take_along_axis(dropped, last[:, None], 1)[:, 0], 0.0)
+    return {"index": top[keep].astype(np.int32),
+            "value": top_values[keep].astype(np.float32),
+            "count": count.astype(np.int32),
+            "residual": np.sqrt(np.maximum(residual, 0) / np.maximum(total, 1e-300))
+            .astype(np.float32)}
+
+
+# ---------------------------------------------------------------------------- the stage
+
+_CACHE: dict[str, Any] = {}
+
+
+def _cached(key: str, build) -> Any:
+    """One object per process and input key (the Embree scene, the uploaded disks)."""
+    if key not in _CACHE:
+        _CACHE[key] = build()
+    return _CACHE[key]
+
+
+def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
+    """Material index (geometry order) -> its table, for the glossy materials."""
+    basis_artifact = ctx.inputs["brdf_basis"]
+    names = ctx.inputs["geometry"].attrs["material_names"]
+    tables = {}
+    for i, name in enumerate(names):
+        model = ctx.scene[f"materials.{name}.model"]
+        if model == "lambert":
+            continue
+        get = lambda key, default, n=name: (  # noqa: E731
+            default if ctx.scene.get(f"materials.{n}.{key}") is None
+            else ctx.scene[f"materials.{n}.{key}"])
+        f0 = get("f0", 0.04)
+        if get("ior", None) is not None:
+            f0 = ((get("ior", 1.5) - 1.0) / (get("ior", 1.5) + 1.0)) ** 2
+        params = BrdfParams(model, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0,  # γ unused
+                            get("alpha_ratio", 1.0), get("cxy", -1.0), get("cz", 1.0), f0)
+        tables[i] = GlossyTable.from_basis(read_basis(basis_artifact, name, params))
+    return tables
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    geometry, gather, gbuf = (ctx.inputs[n] for n in ("geometry", "gather", "gbuffer"))
+    y0, y1, x0, x1 = ctx.chunk.region
+    width = ctx.scene["camera"]["width"]
+    region = (slice(y0, y1), slice(x0, x1))
+    position = gbuf.read("position", region).reshape(-1, 3).astype(np.float64)
+    normal = gbuf.read("normal", region).reshape(-1, 3).astype(np.float64)
+    tangent = gbuf.read("tangent", region).reshape(-1, 3).astype(np.float64)
+    material = gbuf.read("material_id", region).reshape(-1)
+    rows_y, cols_x = np.divmod(np.arange(len(material)), x1 - x0)
+    pixel = (rows_y + y0) * width + cols_x + x0
+    eye = np.asarray(ctx.scene["camera"]["position"], np.float64)
+    wo = eye - position
+    wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-30)
+
+    tracer = _cached("tracer" + geometry.record["key"], lambda: RayTracer(
+        geometry.read("vertices"), geometry.read("faces")))
+    disks = _cached("disks" + gather.record["key"], lambda: GatherDisks.from_artifact(gather))
+    kernel = _cached(f"kernel{gather.record['key']}{ctx.params['transfer.subarea_solid_angle']}"
+                     f"{ctx.params['transfer.subarea_tolerance']}",
+                     lambda: TransferKernel(disks, ctx.params["transfer.subarea_solid_angle"],
+                                            ctx.params["transfer.subarea_tolerance"]))
+    bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
+    epsilon = RAY_EPSILON * float(np.linalg.norm(bbox))
+    tables = glossy_tables(ctx)
+    keep = float(ctx.params["transfer.keep_tolerance"])
+    cap = int(ctx.params["transfer.max_coefficients"])
+
+    d_parts: list[tuple[np.ndarray, dict, int]] = []
+    t_parts: list[tuple[np.ndarray, dict, int]] = []
+    seen = np.flatnonzero(material >= 0)
+    for start in range(0, len(seen), PIXEL_BATCH):
+        batch = seen[start:start + PIXEL_BATCH]
+        vis = center_visibility(tracer, position[batch], normal[batch], disks, epsilon)
+        for mat in np.unique(material[batch]):
+            own = material[batch] == mat
+            sel = batch[own]
+            receivers = Receivers(position[sel], normal[sel], tangent[sel], wo[sel])
+            d, t = kernel(receivers, vis[own], tables.get(int(mat)))
+            d_parts.append((sel, compress_rows(d, keep, cap), 1))
+            if t is not None:
+                t_parts.append((sel, compress_rows(t.reshape(-1, t.shape[-1]), keep, cap),
+                                t.shape[1]))
+    unseen = np.flatnonzero(material < 0)
+    d_parts.append((unseen, {"count": np.zeros(len(unseen), np.int32),
+                             "residual": np.zeros(len(unseen), np.float32),
+                             "index": np.zeros(0, np.int32), "value": np.zeros(0, np.float32)},
+                    1))
+    out = {f"d_{k}": v for k, v in _rows_by_pixel(pixel, d_parts).items()}
+    out.update({f"t_{k}": v for k, v in _rows_by_pixel(pixel, t_parts).items()})
+    return out
+
+
+def _rows_by_pixel(pixel: np.ndarray, parts: list[tuple[np.ndarray, dict, int]]
+                   ) -> dict[str, np.ndarray]:
+    """CSR rows of ``parts`` [(local pixels, their rows, rows per pixel)] ordered by
+    pixel (a pixel's rows stay together, in order), with ``pixel`` the global id of
+    each row's pixel."""
+    rows = {k: _join([part[k] for _, part, _ in parts], dt) for k, dt in _ROW_FIELDS.items()}
+    local = _join([np.repeat(sel, n) for sel, _, n in parts], np.int64)
+    out = sort_rows(local, rows)
+    out["pixel"] = pixel[np.sort(local, kind="stable")].astype(np.int32)
+    return out
+
+
+_ROW_FIELDS = {"count": np.int32, "residual": np.float32, "index": np.int32,
+               "value": np.float32}
+
+
+def _join(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
+    return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+
+def sort_rows(key: np.ndarray, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """CSR rows (``count``, ``residual`` per row; flat ``index``, ``value``) reordered by
+    ``key`` (one per row; stable, so rows with equal keys keep their order)."""
+    order = np.argsort(key, kind="stable")
+    count = rows["count"].astype(np.int64)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    new_count = count[order]
+    new_start = np.concatenate([[0], np.cumsum(new_count)[:-1]])
+    entry = np.repeat(start[order] - new_start, new_count) + np.arange(new_count.sum())
+    return {"count": rows["count"][order], "residual": rows["residual"][order],
+            "index": rows["index"][entry], "value": rows["value"][entry]}
+
+
+def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+    """All tiles' rows: D in raster order of the whole image, T rows of the glossy pixels
+    in raster order (each pixel's b0 row first)."""
+    cam = ctx.scene["camera"]
+    arrays: dict[str, np.ndarray] = {}
+    for m in ("d", "t"):
+        rows = {k: _join([a[f"{m}_{k}"] for _, a in pieces], dt) for k, dt in _ROW_FIELDS.items()}
+        key = _join([a[f"{m}_pixel"] for _, a in pieces], np.int32)
+        arrays.update({f"{m}_{k}": v for k, v in sort_rows(key, rows).items()})
+        if m == "t":
+            arrays["t_pixel"] = np.sort(key, kind="stable")
+    gather_count = int(ctx.inputs["gather"].attrs["count"])
+    return Output(arrays, attrs={
+        "width": cam["width"], "height": cam["height"], "gather_count": gather_count,
+        "haar_length": haar.padded_length(gather_count),
+        "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
+        "max_coefficients": int(ctx.params["transfer.max_coefficients"])},
+        sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})
