@@ -22,9 +22,11 @@ from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir
 
 # Rendering methods: name -> (module, function, the stage whose artifact it needs).
-METHODS = {"direct": ("pipeline.render.direct", "render_direct", "gbuffer")}
+METHODS = {"direct": ("pipeline.render.direct", "render_direct", "gbuffer"),
+           "d2i": ("pipeline.render.d2i", "render_d2i", "haar")}
 # The artifacts each method's frame reads (its run-time storage).
-METHOD_READS = {"direct": ("geometry", "gbuffer")}
+METHOD_READS = {"direct": ("geometry", "gbuffer"),
+                "d2i": ("geometry", "gbuffer", "gather", "brdf_basis", "haar")}
 
 
 def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> Scene:

@@ -39,11 +39,12 @@ class RayTracer:
         TriangleMesh(self.scene, triangles)
         self.threads = threads or os.cpu_count() or 1
 
-    def _batched(self, fn, n: int) -> list:
+    def _batched(self, fn, n: int, threads: int | None = None) -> list:
         slices = [slice(s, min(s + BATCH, n)) for s in range(0, n, BATCH)]
-        if self.threads == 1 or len(slices) == 1:
+        threads = threads or self.threads
+        if threads == 1 or len(slices) == 1:
             return [fn(s) for s in slices]
-        with ThreadPoolExecutor(self.threads) as pool:
+        with ThreadPoolExecutor(threads) as pool:
             return list(pool.map(fn, slices))
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
@@ -64,8 +65,10 @@ class RayTracer:
                     np.concatenate([p["v"] for p in parts]))
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray,
-                 distances: np.ndarray) -> np.ndarray:
-        """True where something lies on the ray before ``distances`` (N,)."""
+                 distances: np.ndarray, threads: int | None = None) -> np.ndarray:
+        """True where something lies on the ray before ``distances`` (N,); ``threads``
+        overrides the tracer's thread count (1: on the calling thread, for callers that
+        run their own pool)."""
         o = np.ascontiguousarray(origins.reshape(-1, 3), np.float32)
         d = np.ascontiguousarray(directions.reshape(-1, 3), np.float32)
         t = np.ascontiguousarray(distances.reshape(-1), np.float32)
@@ -73,7 +76,7 @@ class RayTracer:
         def run(s: slice):
             return self.scene.run(o[s], d[s], dists=t[s].copy(), query="OCCLUDED")
 
-        parts = self._batched(run, len(o))
+        parts = self._batched(run, len(o), threads)
         if not parts:
             return np.zeros(0, bool)
         return np.concatenate(parts) != -1

@@ -163,6 +163,14 @@ def stage_chunks(spec: StageSpec, scene: Scene, params: dict[str, Any]) -> list[
         w, h = scene.camera.width, scene.camera.height
         return [Chunk(f"y{y:05d}_x{x:05d}", region=(y, min(y + tile, h), x, min(x + tile, w)))
                 for y in range(0, h, tile) for x in range(0, w, tile)]
+    if spec.chunking == "block":
+        size, count = params[spec.tile_param], params[spec.count_param]
+        for name, value in ((spec.tile_param, size), (spec.count_param, count)):
+            if not isinstance(value, int) or value < 1:
+                raise PrtError(scene.path, f"{name}: expected a positive integer, found "
+                               f"{value!r}")
+        return [Chunk(f"b{s:08d}", span=(s, min(s + size, count)))
+                for s in range(0, count, size)]
     return [Chunk("all")]
 
 

@@ -15,6 +15,7 @@ Format ``prt-stages/1``::
         kernels: []              # kernels/ files whose source is part of its code version
         output: gbuffer          # schema kind of the artifact it writes
         chunks: none | object | material | {by: tile, size: PARAM}
+                | {by: block, size: PARAM, of: PARAM}
 
 Scene sections may hold ``*``: in a stage chunked by object, ``objects.*.X`` is the chunk's
 own object and ``materials.*`` its material; in a stage chunked by material (one chunk per
@@ -34,7 +35,7 @@ import yaml
 from pipeline.errors import PrtError
 
 STAGEFILE_FORMAT = "prt-stages/1"
-CHUNKINGS = ("none", "object", "material", "tile")
+CHUNKINGS = ("none", "object", "material", "tile", "block")
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,7 @@ class StageSpec:
     output: str
     chunking: str
     tile_param: str | None
+    count_param: str | None = None
 
 
 @dataclass(frozen=True)
@@ -118,22 +120,27 @@ def load_stagefile(path: str | Path | None = None) -> StageFile:
             if key not in params:
                 raise fail(f"{where}.params", f"parameter {key!r} has no default in params")
         chunks = spec.get("chunks", "none")
-        tile_param = None
+        tile_param = count_param = None
         if isinstance(chunks, dict):
-            if chunks.get("by") != "tile" or set(chunks) != {"by", "size"}:
-                raise fail(f"{where}.chunks", "expected {by: tile, size: PARAM}")
-            tile_param = chunks["size"]
-            if tile_param not in lists["params"]:
-                raise fail(f"{where}.chunks.size", f"{tile_param!r} is not among the "
-                           "stage's declared params")
-            if "camera" not in lists["scene"]:
+            by = chunks.get("by")
+            if not ((by == "tile" and set(chunks) == {"by", "size"})
+                    or (by == "block" and set(chunks) == {"by", "size", "of"})):
+                raise fail(f"{where}.chunks", "expected {by: tile, size: PARAM} or "
+                           "{by: block, size: PARAM, of: PARAM}")
+            tile_param, count_param = chunks["size"], chunks.get("of")
+            for key in ("size", "of"):
+                if key in chunks and chunks[key] not in lists["params"]:
+                    raise fail(f"{where}.chunks.{key}", f"{chunks[key]!r} is not among the "
+                               "stage's declared params")
+            if by == "tile" and "camera" not in lists["scene"]:
                 raise fail(f"{where}.chunks", "tile chunking needs the camera scene section")
-            chunks = "tile"
+            chunks = by
         if chunks not in CHUNKINGS:
             raise fail(f"{where}.chunks", f"expected one of {', '.join(CHUNKINGS)}")
         stages[name] = StageSpec(name, spec["impl"], str(spec.get("description", "")),
                                  lists["inputs"], lists["scene"], lists["params"],
-                                 lists["kernels"], spec["output"], chunks, tile_param)
+                                 lists["kernels"], spec["output"], chunks, tile_param,
+                                 count_param)
     for spec in stages.values():
         for dep in spec.inputs:
             if dep not in stages:

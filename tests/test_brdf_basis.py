@@ -11,11 +11,10 @@ from helpers import small_scene_dict, write_scene
 
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams, edited_term
-from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, build_basis
+from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, build_basis, read_basis
 from pipeline.runner import run
 from pipeline.scene import load_scene
 from pipeline.stagefile import load_stagefile
-from pipeline.stages.brdf_basis import read_basis
 from pipeline.store import Workdir, open_artifact
 
 RANGES = PAPER_GAMMA_RANGES

@@ -8,8 +8,8 @@ import pytest
 
 from pipeline import job
 from pipeline.math.spacecurve import hilbert_index
+from pipeline.math.transfer import disk_pattern, subarea_points
 from pipeline.scene import default_scene_path, load_scene
-from pipeline.stages.gather import disk_pattern, subarea_points
 from pipeline.store import open_artifact
 
 COUNT = 2048

@@ -9,8 +9,14 @@ import pytest
 from pipeline.math.brdf import BrdfParams, coordinate, fixed_term, to_local
 from pipeline.math.brdf_pca import build_basis
 from pipeline.math.frames import tangent_from_normal
-from pipeline.math.transfer import Disks, GlossyTable, Receivers, transfer
-from pipeline.stages.gather import disk_pattern, subarea_points
+from pipeline.math.transfer import (
+    Disks,
+    GlossyTable,
+    Receivers,
+    disk_pattern,
+    subarea_points,
+    transfer,
+)
 
 SUBAREA = 256
 

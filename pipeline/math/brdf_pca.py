@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +41,9 @@ PAPER_GAMMA_RANGES = {
     "cook_torrance": (0.1, 2.0),
 }
 TEST_OVERSAMPLING = 4
+# The tabulated fields of a BrdfBasis, as the brdf_basis artifact stores them.
+BASIS_FIELDS = ("grid", "gamma_samples", "mean", "basis", "projection", "singular_values",
+                "gamma_test", "rms", "rel_rms")
 
 
 def coordinate_grid(model: str, samples: int) -> np.ndarray:
@@ -144,3 +148,20 @@ def build_basis(params: BrdfParams, gamma_range: tuple[float, float], tolerance:
     k = int(under[0]) if len(under) else max_k
     return BrdfBasis(params, (float(lo), float(hi)), grid, gammas, mean, basis, projection,
                      sv, gamma_test, rms, rel_rms, k, tolerance)
+
+
+def read_basis(artifact: Any, material: str, params: BrdfParams) -> BrdfBasis | None:
+    """The basis of ``material`` from a brdf_basis artifact (any object with the
+    ``attrs`` and ``read(name, region)`` of pipeline.store.Artifact; ``None`` for
+    Lambertian materials); ``params`` are the material's current BRDF parameters."""
+    names = artifact.attrs["material_names"]
+    if material not in names:
+        raise KeyError(material)
+    i = names.index(material)
+    k = int(artifact.read("k")[i])
+    if artifact.attrs["models"][i] == "lambert":
+        return None
+    fields = {f: artifact.read(f, (i,)) for f in BASIS_FIELDS}
+    lo, hi = artifact.attrs["gamma_ranges"][i]
+    return BrdfBasis(params=params, gamma_range=(lo, hi), k=k,
+                     tolerance=artifact.attrs["tolerances"][i], **fields)

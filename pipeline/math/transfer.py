@@ -58,7 +58,7 @@ FIRST_CHECK = 4          # sub-area samples before the first convergence check
 @dataclass(frozen=True)
 class Disks:
     """Gather disks: ``center``, ``normal`` (G, 3), ``area`` (G,), and their sub-area
-    sample points ``points`` (G, M, 3) (pipeline.stages.gather.subarea_points)."""
+    sample points ``points`` (G, M, 3) (:func:`subarea_points`)."""
 
     center: np.ndarray
     normal: np.ndarray
@@ -163,3 +163,44 @@ def _converged_counts(values: np.ndarray, counts: np.ndarray, tolerance: float) 
         previous = mean
         prefix *= 2
     return np.where(used == 0, counts, used)
+
+
+# ------------------------------------------------------------------------ the disks
+
+
+def disk_pattern(count: int) -> np.ndarray:
+    """``count`` points (count, 2) in the unit disk: Halton (2, 3) points through Shirley
+    and Chiu's concentric mapping; every prefix is evenly spread over the disk."""
+    index = np.arange(1, count + 1)
+    u = 2.0 * np.stack([_radical_inverse(index, 2), _radical_inverse(index, 3)], 1) - 1.0
+    a, b = u[:, 0], u[:, 1]
+    outer = np.abs(a) > np.abs(b)
+    r = np.where(outer, a, b)
+    safe_a = np.where(a == 0, 1.0, a)
+    safe_b = np.where(b == 0, 1.0, b)
+    phi = np.where(outer, (np.pi / 4) * b / safe_a, np.pi / 2 - (np.pi / 4) * a / safe_b)
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+
+
+def _radical_inverse(index: np.ndarray, base: int) -> np.ndarray:
+    out, scale = np.zeros(len(index)), 1.0 / base
+    i = index.copy()
+    while np.any(i > 0):
+        out += (i % base) * scale
+        i //= base
+        scale /= base
+    return out
+
+
+def subarea_points(position: np.ndarray, normal: np.ndarray, tangent: np.ndarray,
+                   radius: np.ndarray, rotation: np.ndarray, pattern: np.ndarray
+                   ) -> np.ndarray:
+    """Sub-area sample points (G, M, 3) on the disks K_g: the pattern (M, 2) turned by
+    each disk's ``rotation`` and scaled by its ``radius`` in the frame (t, n × t)."""
+    c, s = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
+    a = c * pattern[None, :, 0] - s * pattern[None, :, 1]
+    b = s * pattern[None, :, 0] + c * pattern[None, :, 1]
+    bitangent = np.cross(normal, tangent)
+    r = radius[:, None, None]
+    return position[:, None, :] + r * (a[..., None] * tangent[:, None, :]
+                                       + b[..., None] * bitangent[:, None, :])

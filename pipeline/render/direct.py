@@ -5,11 +5,15 @@ rays to every light sample (point, spot, directional; quad lights with stratifie
 samples), then shade every pixel on the OpenCL device with its material's analytic BRDF
 (pipeline/math/brdf.py, kernels/brdf.h) at the material's γ. Emitting quads show their
 radiance. Environment lights are not part of this method.
+
+:class:`DirectShader` keeps the traced shadows and the uploaded G-buffer, so that a BRDF
+edit re-shades without tracing again (method d2i uses it for its direct term).
 """
 
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -23,55 +27,90 @@ from pipeline.scene import Scene
 from pipeline.store import Workdir, open_artifact
 
 
+def packed_scene_lights(scene: Scene, object_names: list[str]) -> tuple[np.ndarray, list[str]]:
+    """The scene's point, spot, directional and quad lights packed for kernels/lights.h,
+    and notes on what was left out (environment lights)."""
+    lights = [(light.type, light.params) for light in scene.lights if light.type != "environment"]
+    notes = ["environment lights are ignored by this method"] \
+        if len(lights) < len(scene.lights) else []
+    return pack_lights(lights, {n: i for i, n in enumerate(object_names)}), notes
+
+
+class DirectShader:
+    """Direct light at every G-buffer pixel from the scene's lights, with shadows.
+
+    ``trace(packed_lights)`` casts the shadow rays (setup of a light edit);
+    ``shade(materials)`` runs the kernel with packed material rows (a BRDF edit)."""
+
+    def __init__(self, workdir: Workdir, tracer: RayTracer | None = None) -> None:
+        import pyopencl as pcl
+
+        self.pcl = pcl
+        gbuf = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
+        geo = open_artifact(workdir.artifact("geometry"), "geometry")
+        self.height, self.width = gbuf.attrs["height"], gbuf.attrs["width"]
+        self.object_names = geo.attrs["object_names"]
+        self.material_names = geo.attrs["material_names"]
+        self.position = gbuf.read("position").reshape(-1, 3)
+        self.normal = gbuf.read("normal").reshape(-1, 3)
+        self.tangent = gbuf.read("tangent").reshape(-1, 3)
+        self.object_id = gbuf.read("object_id").reshape(-1)
+        self.material_id = gbuf.read("material_id").reshape(-1)
+        self.tracer = tracer or RayTracer(geo.read("vertices"), geo.read("faces"))
+        self.diagonal = float(np.linalg.norm(np.subtract(geo.attrs["bbox_max"],
+                                                         geo.attrs["bbox_min"])))
+        self.ctx, self.queue = cl.context(), cl.queue()
+        self.gbuffer = [self._buffer(a) for a in (self.position, self.normal, self.tangent,
+                                                  self.object_id, self.material_id)]
+        self.lights = np.zeros((0, 18), np.float32)
+        self.visibility = np.zeros((len(self.position), 1), np.uint8)
+
+    def _buffer(self, a: np.ndarray) -> Any:
+        mf = self.pcl.mem_flags
+        a = np.ascontiguousarray(a)
+        return self.pcl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                               hostbuf=a if a.size else np.zeros(1, a.dtype))
+
+    def trace(self, packed_lights: np.ndarray) -> None:
+        """Shadow rays from every pixel to every light sample."""
+        self.lights = packed_lights
+        n = len(self.position)
+        hit = np.flatnonzero(self.material_id >= 0)
+        self.visibility = np.zeros((n, max(total_samples(packed_lights), 1)), np.uint8)
+        if len(packed_lights):
+            self.visibility[hit, :total_samples(packed_lights)] = light_visibility(
+                self.tracer, self.position[hit], self.normal[hit], hit, packed_lights,
+                self.diagonal)
+
+    def shade(self, materials: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, float, int]:
+        """Radiance (P, 3) float32, kernel milliseconds and the bytes it moved."""
+        pcl, n = self.pcl, len(self.position)
+        out = np.empty((n, 3), np.float32)
+        out_buf = pcl.Buffer(self.ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
+        rows = self.lights if len(self.lights) else np.zeros((1, 18), np.float32)
+        kernel = cl.kernel("direct.cl", "direct_lighting")
+        event = kernel(self.queue, (n,), None, *self.gbuffer, self._buffer(materials),
+                       self._buffer(rows), np.int32(len(self.lights)),
+                       self._buffer(self.visibility), np.int32(self.visibility.shape[1]),
+                       np.array([*camera, 0.0], np.float32), np.int32(n), out_buf)
+        pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
+        moved = sum(a.nbytes for a in (self.position, self.normal, self.tangent,
+                                       self.object_id, self.material_id, materials, rows,
+                                       self.visibility, out))
+        return out, cl.event_ms(event), moved
+
+
 def render_direct(scene: Scene, workdir: Workdir) -> Frame:
     """Render the scene's camera view with direct lighting from its lights."""
-    import pyopencl as pcl
-
     t0 = time.perf_counter()
-    gbuf = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
-    geo = open_artifact(workdir.artifact("geometry"), "geometry")
-    h, w = gbuf.attrs["height"], gbuf.attrs["width"]
-    position = gbuf.read("position").reshape(-1, 3)
-    normal = gbuf.read("normal").reshape(-1, 3)
-    object_id = gbuf.read("object_id").reshape(-1)
-    material_id = gbuf.read("material_id").reshape(-1)
-    object_names = geo.attrs["object_names"]
-    tangent = gbuf.read("tangent").reshape(-1, 3)
-    materials = pack_materials(scene_brdfs(scene, geo.attrs["material_names"]))
-    lights = [(light.type, light.params) for light in scene.lights if light.type != "environment"]
-    notes = ["environment lights are ignored by method direct"] \
-        if len(lights) < len(scene.lights) else []
-    packed = pack_lights(lights, {n: i for i, n in enumerate(object_names)})
-    tracer = RayTracer(geo.read("vertices"), geo.read("faces"))
-    diagonal = float(np.linalg.norm(np.subtract(geo.attrs["bbox_max"], geo.attrs["bbox_min"])))
+    shader = DirectShader(workdir)
+    packed, notes = packed_scene_lights(scene, shader.object_names)
+    materials = pack_materials(scene_brdfs(scene, shader.material_names))
     t1 = time.perf_counter()
-
-    hit = np.flatnonzero(material_id >= 0)
-    visibility = np.zeros((h * w, max(total_samples(packed), 1)), np.uint8)
-    if len(packed):
-        visibility[hit, :total_samples(packed)] = light_visibility(
-            tracer, position[hit], normal[hit], hit, packed, diagonal)
+    shader.trace(packed)
     t2 = time.perf_counter()
-
-    queue, ctx = cl.queue(), cl.context()
-    kernel = cl.kernel("direct.cl", "direct_lighting")
-    mf = pcl.mem_flags
-
-    def buf(a: np.ndarray):
-        return pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
-
-    out = np.empty((h * w, 3), np.float32)
-    out_buf = pcl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    light_rows = packed if len(packed) else np.zeros((1, packed.shape[1]), np.float32)
-    camera = np.array([*scene.camera.position, 0.0], np.float32)
-    inputs = [position, normal, tangent, object_id, material_id, materials, light_rows]
-    args = [*map(buf, inputs), np.int32(len(packed)), buf(visibility),
-            np.int32(visibility.shape[1]), camera, np.int32(h * w), out_buf]
-    kernel_bytes = sum(a.nbytes for a in inputs) + visibility.nbytes + out.nbytes
+    rgb, kernel_ms, moved = shader.shade(materials, np.asarray(scene.camera.position))
     t3 = time.perf_counter()
-    event = kernel(queue, (h * w,), None, *args)
-    pcl.enqueue_copy(queue, out, out_buf, wait_for=[event])
-    t4 = time.perf_counter()
-    timings = {"setup_ms": (t1 - t0 + t3 - t2) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
-               "kernel_ms": cl.event_ms(event), "total_ms": (t4 - t0) * 1e3}
-    return Frame("direct", out.reshape(h, w, 3), timings, notes, kernel_bytes)
+    timings = {"setup_ms": (t1 - t0) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
+               "kernel_ms": kernel_ms, "total_ms": (t3 - t0) * 1e3}
+    return Frame("direct", rgb.reshape(shader.height, shader.width, 3), timings, notes, moved)

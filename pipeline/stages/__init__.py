@@ -29,6 +29,8 @@ REGISTRY = {
     "brdf_basis": "pipeline.stages.brdf_basis",
     "gather": "pipeline.stages.gather",
     "transfer": "pipeline.stages.transfer",
+    "bounce": "pipeline.stages.bounce",
+    "haar": "pipeline.stages.haar",
 }
 
 
@@ -36,12 +38,13 @@ REGISTRY = {
 class Chunk:
     """One unit of work: ``id`` is stable across runs; ``object`` is set for object
     chunks, ``material`` for material chunks, ``region`` = (y0, y1, x0, x1) in pixels for
-    tile chunks."""
+    tile chunks, ``span`` = [start, end) for block chunks (of a count the stage names)."""
 
     id: str
     object: str | None = None
     material: str | None = None
     region: tuple[int, int, int, int] | None = None
+    span: tuple[int, int] | None = None
 
 
 @dataclass

@@ -13,12 +13,10 @@ from typing import Any
 import numpy as np
 
 from pipeline.math.brdf import BrdfParams
-from pipeline.math.brdf_pca import BrdfBasis, build_basis, gamma_test_grid
+from pipeline.math.brdf_pca import BASIS_FIELDS, build_basis, gamma_test_grid
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
-from pipeline.store import Artifact
 
-_FIELDS = ("grid", "gamma_samples", "mean", "basis", "projection", "singular_values",
-           "gamma_test", "rms", "rel_rms")
+_FIELDS = BASIS_FIELDS
 
 
 def _material_section(ctx: AssembleContext, name: str, key: str) -> Any:
@@ -67,19 +65,3 @@ def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
         "reached": [bool(a["reached"][0]) for _, a in pieces],
         "max_k": int(ctx.params["brdf_basis.max_k"]),
     })
-
-
-def read_basis(artifact: Artifact, material: str, params: BrdfParams) -> BrdfBasis | None:
-    """The basis of ``material`` from a brdf_basis artifact (``None`` for Lambertian
-    materials); ``params`` are the material's current BRDF parameters."""
-    names = artifact.attrs["material_names"]
-    if material not in names:
-        raise KeyError(material)
-    i = names.index(material)
-    k = int(artifact.read("k")[i])
-    if artifact.attrs["models"][i] == "lambert":
-        return None
-    fields = {f: artifact.read(f, (i,)) for f in _FIELDS}
-    lo, hi = artifact.attrs["gamma_ranges"][i]
-    return BrdfBasis(params=params, gamma_range=(lo, hi), k=k,
-                     tolerance=artifact.attrs["tolerances"][i], **fields)

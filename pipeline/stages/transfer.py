@@ -21,6 +21,7 @@ stage.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,11 +30,10 @@ import numpy as np
 from pipeline import cl
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials
-from pipeline.math.transfer import GlossyTable, Receivers
+from pipeline.math.brdf_pca import read_basis
+from pipeline.math.transfer import GlossyTable, Receivers, subarea_points
 from pipeline.raytrace import RayTracer
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
-from pipeline.stages.brdf_basis import read_basis
-from pipeline.stages.gather import subarea_points
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
@@ -67,20 +67,33 @@ class GatherDisks:
 def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
                       disks: GatherDisks, epsilon: float) -> np.ndarray:
     """V (P, G) uint8: 1 where receiver p and disk centre g face each other
-    (n_p·ω > 0, n_g·ω < 0) and nothing lies between them."""
-    d = disks.center[None, :, :] - position[:, None, :]
-    facing = (np.einsum("pgc,pc->pg", d, normal) > 0) & \
-        (np.einsum("pgc,gc->pg", d, disks.normal) < 0)
-    p_idx, g_idx = np.nonzero(facing)
-    start = position[p_idx] + epsilon * normal[p_idx]
-    end = disks.center[g_idx] + epsilon * disks.normal[g_idx]
-    ray = end - start
-    length = np.linalg.norm(ray, axis=1)
-    ok = length > 0
-    blocked = np.ones(len(ray), bool)
-    blocked[ok] = tracer.occluded(start[ok], ray[ok] / length[ok, None], length[ok] * (1 - 1e-4))
-    vis = np.zeros(facing.shape, np.uint8)
-    vis[p_idx[~blocked], g_idx[~blocked]] = 1
+    (n_p·ω > 0, n_g·ω < 0) and nothing lies between them. The facing tests are two
+    matrix products; rays run from p to g, both offset by ``epsilon`` along their
+    normals, and stop 1e-4 of their length short. Groups of receivers run on all cores
+    (NumPy and Embree release the GIL), each building its rays and tracing them."""
+    x, n = position.astype(np.float32), normal.astype(np.float32)
+    c, ng = disks.center.astype(np.float32), disks.normal.astype(np.float32)
+    start_of = x + np.float32(epsilon) * n
+    end_of = c + np.float32(epsilon) * ng
+    c_side = np.sum(ng * c, axis=1)[None, :]
+    vis = np.zeros((len(x), len(c)), np.uint8)
+
+    def group(rows: slice) -> None:
+        facing = (n[rows] @ c.T > np.sum(n[rows] * x[rows], axis=1)[:, None]) & \
+            (x[rows] @ ng.T > c_side)
+        p_idx, g_idx = np.nonzero(facing)
+        start = np.take(start_of[rows], p_idx, axis=0)
+        ray = np.take(end_of, g_idx, axis=0)
+        ray -= start
+        length = np.sqrt(np.einsum("ij,ij->i", ray, ray))
+        ray /= np.maximum(length, 1e-30)[:, None]
+        length *= np.float32(1 - 1e-4)
+        free = ~tracer.occluded(start, ray, length, threads=1) & (length > 0)
+        vis[rows][p_idx[free], g_idx[free]] = 1
+
+    step = max(1, -(-len(x) // (4 * tracer.threads)))
+    with ThreadPoolExecutor(tracer.threads) as pool:
+        list(pool.map(group, [slice(s, s + step) for s in range(0, len(x), step)]))
     return vis
 
 
@@ -217,8 +230,23 @@ def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
     return tables
 
 
+def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, GatherDisks, TransferKernel, float]:
+    """The Embree scene, the gather disks, the transfer kernel over them (each built once
+    per process and input key) and the ray offset (scene units)."""
+    geometry, gather = ctx.inputs["geometry"], ctx.inputs["gather"]
+    tracer = _cached("tracer" + geometry.record["key"], lambda: RayTracer(
+        geometry.read("vertices"), geometry.read("faces")))
+    disks = _cached("disks" + gather.record["key"], lambda: GatherDisks.from_artifact(gather))
+    solid_angle = ctx.params["transfer.subarea_solid_angle"]
+    tolerance = ctx.params["transfer.subarea_tolerance"]
+    kernel = _cached(f"kernel{gather.record['key']}{solid_angle}{tolerance}",
+                     lambda: TransferKernel(disks, solid_angle, tolerance))
+    bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
+    return tracer, disks, kernel, RAY_EPSILON * float(np.linalg.norm(bbox))
+
+
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    geometry, gather, gbuf = (ctx.inputs[n] for n in ("geometry", "gather", "gbuffer"))
+    gbuf = ctx.inputs["gbuffer"]
     y0, y1, x0, x1 = ctx.chunk.region
     width = ctx.scene["camera"]["width"]
     region = (slice(y0, y1), slice(x0, x1))
@@ -232,15 +260,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     wo = eye - position
     wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-30)
 
-    tracer = _cached("tracer" + geometry.record["key"], lambda: RayTracer(
-        geometry.read("vertices"), geometry.read("faces")))
-    disks = _cached("disks" + gather.record["key"], lambda: GatherDisks.from_artifact(gather))
-    kernel = _cached(f"kernel{gather.record['key']}{ctx.params['transfer.subarea_solid_angle']}"
-                     f"{ctx.params['transfer.subarea_tolerance']}",
-                     lambda: TransferKernel(disks, ctx.params["transfer.subarea_solid_angle"],
-                                            ctx.params["transfer.subarea_tolerance"]))
-    bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
-    epsilon = RAY_EPSILON * float(np.linalg.norm(bbox))
+    tracer, disks, kernel, epsilon = scene_tools(ctx)
     tables = glossy_tables(ctx)
     keep = float(ctx.params["transfer.keep_tolerance"])
     cap = int(ctx.params["transfer.max_coefficients"])
@@ -275,18 +295,18 @@ def _rows_by_pixel(pixel: np.ndarray, parts: list[tuple[np.ndarray, dict, int]]
     """CSR rows of ``parts`` [(local pixels, their rows, rows per pixel)] ordered by
     pixel (a pixel's rows stay together, in order), with ``pixel`` the global id of
     each row's pixel."""
-    rows = {k: _join([part[k] for _, part, _ in parts], dt) for k, dt in _ROW_FIELDS.items()}
-    local = _join([np.repeat(sel, n) for sel, _, n in parts], np.int64)
+    rows = {k: join_arrays([part[k] for _, part, _ in parts], dt) for k, dt in ROW_FIELDS.items()}
+    local = join_arrays([np.repeat(sel, n) for sel, _, n in parts], np.int64)
     out = sort_rows(local, rows)
     out["pixel"] = pixel[np.sort(local, kind="stable")].astype(np.int32)
     return out
 
 
-_ROW_FIELDS = {"count": np.int32, "residual": np.float32, "index": np.int32,
+ROW_FIELDS = {"count": np.int32, "residual": np.float32, "index": np.int32,
                "value": np.float32}
 
 
-def _join(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
+def join_arrays(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
     return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
 
 
@@ -309,8 +329,9 @@ def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
     cam = ctx.scene["camera"]
     arrays: dict[str, np.ndarray] = {}
     for m in ("d", "t"):
-        rows = {k: _join([a[f"{m}_{k}"] for _, a in pieces], dt) for k, dt in _ROW_FIELDS.items()}
-        key = _join([a[f"{m}_pixel"] for _, a in pieces], np.int32)
+        rows = {k: join_arrays([a[f"{m}_{k}"] for _, a in pieces], dt)
+                for k, dt in ROW_FIELDS.items()}
+        key = join_arrays([a[f"{m}_pixel"] for _, a in pieces], np.int32)
         arrays.update({f"{m}_{k}": v for k, v in sort_rows(key, rows).items()})
         if m == "t":
             arrays["t_pixel"] = np.sort(key, kind="stable")

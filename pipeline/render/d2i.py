@@ -1,0 +1,282 @@
+"""Method ``d2i``: direct-to-indirect transfer with PCA-linearized BRDF editing (paper 000).
+
+A frame, from the ``compressed_transport`` artifact (T, D, Ms as Haar rows), the gather
+samples and the G-buffer:
+
+1. direct light at the pixels with the exact BRDF and shadows (render/direct.py), and
+   irradiance E_g at the gather samples with shadows (NumPy, pipeline/math/lights.py);
+2. L_d = kd_g/π ⊙ E_g, the gather samples' directly lit radiance (Lambertian);
+3. bounces in the Haar domain (paper eq. 17): L_{n+1} = kd_g ⊙ (Ms^w · W L_n), summed
+   until a bounce adds at most ``bounce_tolerance`` of the total (relative L2) or
+   ``max_bounces`` bounces;
+4. per pixel (kernels/d2i.cl): D L and T_j L as sparse products with W L, then
+   I = direct + kd ⊙ D L + ρs ⊙ max(0, Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0).
+
+Edits reuse what did not change (paper §6.2, "freezing", done as caching):
+
+* BRDF edit (γ, ρs of a glossy material): the products T_j L and D L stay; the frame is
+  the direct kernel (shadows kept) and the per-pixel combination: Σ_j c_j(γ) (T_j L)
+  costs k + 1 multiply-adds per pixel, less than the paper's frozen rows.
+* Light edit: c(γ) is fixed, so each glossy pixel's rows are merged once into one row
+  Σ_j c_j T_j^w (the paper's freezing); a frame traces the shadows, lights the gather
+  samples, bounces, and takes one sparse product per pixel for D and one for T.
+* Albedo edit: changes L (every bounce) and the direct term; shadows are kept.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.errors import PrtError
+from pipeline.math import haar
+from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
+from pipeline.math.brdf_pca import read_basis
+from pipeline.math.lights import shade_direct
+from pipeline.render import Frame
+from pipeline.render.direct import DirectShader, packed_scene_lights
+from pipeline.render.shadows import light_visibility
+from pipeline.scene import Scene
+from pipeline.store import Workdir, open_artifact
+
+GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
+
+
+@dataclass
+class Rows:
+    """CSR rows on the host: ``offsets`` (rows + 1,) int32, ``index`` int32, ``value``
+    float32."""
+
+    offsets: np.ndarray
+    index: np.ndarray
+    value: np.ndarray
+
+    @classmethod
+    def from_counts(cls, count: np.ndarray, index: np.ndarray, value: np.ndarray) -> Rows:
+        offsets = np.concatenate([[0], np.cumsum(count, dtype=np.int64)]).astype(np.int32)
+        return cls(offsets, np.ascontiguousarray(index, np.int32),
+                   np.ascontiguousarray(value, np.float32))
+
+    @property
+    def count(self) -> int:
+        return len(self.offsets) - 1
+
+    @property
+    def nbytes(self) -> int:
+        return self.offsets.nbytes + self.index.nbytes + self.value.nbytes
+
+
+class D2iRenderer:
+    """The d2i frame of one baked scene; keeps device buffers and cached products."""
+
+    def __init__(self, scene: Scene, workdir: Workdir, max_bounces: int = 32,
+                 bounce_tolerance: float = 1e-3) -> None:
+        import pyopencl as pcl
+
+        self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
+        self.scene = scene
+        self.max_bounces, self.bounce_tolerance = max_bounces, bounce_tolerance
+        transport = open_artifact(workdir.artifact("haar"), "compressed_transport")
+        gather = open_artifact(workdir.artifact("gather"), "gather")
+        self.basis = open_artifact(workdir.artifact("brdf_basis"), "brdf_basis")
+        self.direct = DirectShader(workdir)
+        self.material_names = self.direct.material_names
+        self.size = int(transport.attrs["haar_length"])
+        self.gather_position = gather.read("position").astype(np.float64)
+        self.gather_normal = gather.read("normal").astype(np.float64)
+        self.gather_material = gather.read("material_id")
+        read = transport.read
+        self.ms = Rows.from_counts(read("ms_count"), read("ms_index"), read("ms_value"))
+        self.d = Rows.from_counts(read("d_count"), read("d_index"), read("d_value"))
+        self.t = Rows.from_counts(read("t_count"), read("t_index"), read("t_value"))
+        self.t_pixel = read("t_pixel")
+        npix = len(self.direct.material_id)
+        self.glossy_first = np.full(npix, -1, np.int32)
+        self.glossy_rows = np.zeros(npix, np.int32)
+        if len(self.t_pixel):
+            pixels, first, rows = np.unique(self.t_pixel, return_index=True, return_counts=True)
+            self.glossy_first[pixels], self.glossy_rows[pixels] = first, rows
+        self.rmax = int(max(self.glossy_rows.max(initial=0), 1))
+        self.buffers = {name: {k: self._buffer(getattr(rows, k))
+                               for k in ("offsets", "index", "value")}
+                        for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t))}
+        self.irradiance = np.zeros((len(self.gather_material), 3))
+        self.storage_bytes = self.ms.nbytes + self.d.nbytes + self.t.nbytes
+
+    # ------------------------------------------------------------------------ device
+
+    def _buffer(self, a: np.ndarray) -> Any:
+        mf = self.pcl.mem_flags
+        a = np.ascontiguousarray(a)
+        return self.pcl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                               hostbuf=a if a.size else np.zeros(1, a.dtype))
+
+    def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray) -> tuple[np.ndarray, float]:
+        """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms."""
+        out = np.zeros((rows.count, 4), np.float32)
+        if rows.count == 0:
+            return out, 0.0
+        buf = self.buffers[name]
+        out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
+        event = cl.kernel("d2i.cl", "sparse_rows")(
+            self.queue, (rows.count,), None, buf["offsets"], buf["index"], buf["value"],
+            self._buffer(radiance_w), np.int32(rows.count), out_buf)
+        self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
+        return out, cl.event_ms(event)
+
+    # ------------------------------------------------------------------------ stages
+
+    def trace_lights(self, scene: Scene) -> dict[str, float]:
+        """Shadow rays of the pixels and the gather samples; irradiance E_g (G, 3)."""
+        t0 = time.perf_counter()
+        packed, self.notes = packed_scene_lights(scene, self.direct.object_names)
+        _check_lights(packed)
+        self.direct.trace(packed)
+        ids = np.arange(len(self.gather_position)) + GATHER_ID_OFFSET
+        self.irradiance = np.zeros((len(ids), 3))
+        if len(packed) and len(ids):
+            vis = light_visibility(self.direct.tracer, self.gather_position, self.gather_normal,
+                                   ids, packed, self.direct.diagonal)
+            self.irradiance = shade_direct(self.gather_position, self.gather_normal, ids,
+                                           lambda wi: np.ones(wi.shape), packed, vis)
+        return {"shadow_ms": (time.perf_counter() - t0) * 1e3}
+
+    def gather_radiance(self, albedo: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+        """W L (N, 4) float32, L = Σ_n L_n from the irradiance and per-material albedos
+        ``albedo`` (materials, 3); and timings with the bounce count."""
+        t0 = time.perf_counter()
+        kd = albedo[self.gather_material] if len(self.gather_material) else np.zeros((0, 3))
+        total = kd / np.pi * self.irradiance
+        bounce = total
+        kernel_ms, bounces = 0.0, 0
+        for _ in range(self.max_bounces):
+            if not np.any(bounce):
+                break
+            ms_l, ms = self._sparse("ms", self.ms, self._to_haar(bounce))
+            kernel_ms += ms
+            bounce = kd * ms_l[:, :3]
+            total = total + bounce
+            bounces += 1
+            if np.linalg.norm(bounce) <= self.bounce_tolerance * np.linalg.norm(total):
+                break
+        out = self._to_haar(total)
+        return out, {"bounce_ms": (time.perf_counter() - t0) * 1e3,
+                     "bounce_kernel_ms": kernel_ms, "bounces": float(bounces)}
+
+    def _to_haar(self, radiance: np.ndarray) -> np.ndarray:
+        """W L as (N, 4) float32 (RGB, 0), N = haar_length."""
+        out = np.zeros((self.size, 4), np.float32)
+        if len(radiance):
+            out[:, :3] = haar.forward(np.asarray(radiance, np.float64).T).T[:self.size]
+        return out
+
+    def products(self, radiance_w: np.ndarray, frozen: Rows | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+        """D L (pixels, 4) and T L (T rows, or the frozen rows, 4); kernel ms."""
+        dl, ms_d = self._sparse("d", self.d, radiance_w)
+        if frozen is None:
+            tl, ms_t = self._sparse("t", self.t, radiance_w)
+        else:
+            tl, ms_t = self._sparse("frozen", frozen, radiance_w)
+        return dl, tl, ms_d + ms_t
+
+    def coefficients(self, scene: Scene) -> np.ndarray:
+        """c(γ) per material (materials, rmax): [1, c_1(γ), ..., c_k(γ)], 0 for Lambert."""
+        out = np.zeros((len(self.material_names), self.rmax), np.float32)
+        for i, params in enumerate(scene_brdfs(scene, self.material_names)):
+            basis = read_basis(self.basis, self.material_names[i], params)
+            if basis is None:
+                continue
+            c = np.r_[1.0, basis.coefficients(params.gamma)]
+            out[i, :len(c)] = c[:self.rmax]
+        return out
+
+    def freeze(self, coefficients: np.ndarray) -> Rows:
+        """Each glossy pixel's T rows merged into one row Σ_j c_j T_j^w (light edits)."""
+        material = self.direct.material_id[self.t_pixel]
+        first = np.r_[True, self.t_pixel[1:] != self.t_pixel[:-1]] if len(self.t_pixel) \
+            else np.zeros(0, bool)
+        row_in_pixel = np.arange(len(self.t_pixel)) - np.maximum.accumulate(
+            np.where(first, np.arange(len(self.t_pixel)), 0))
+        scale = coefficients[material, row_in_pixel] if len(self.t_pixel) else np.zeros(0)
+        counts = np.diff(self.t.offsets)
+        row_of_entry = np.repeat(np.arange(self.t.count), counts)
+        pixel_of_entry = np.cumsum(first)[row_of_entry] - 1 if len(row_of_entry) else \
+            np.zeros(0, np.int64)
+        key = pixel_of_entry.astype(np.int64) * self.size + self.t.index
+        unique, inverse = np.unique(key, return_inverse=True)
+        value = np.zeros(len(unique))
+        np.add.at(value, inverse, self.t.value * scale[row_of_entry])
+        per_pixel = np.bincount(unique // self.size, minlength=int(first.sum()))
+        rows = Rows.from_counts(per_pixel, unique % self.size, value)
+        self.buffers["frozen"] = {k: self._buffer(getattr(rows, k))
+                                  for k in ("offsets", "index", "value")}
+        return rows
+
+    def combine(self, direct: np.ndarray, dl: np.ndarray, tl: np.ndarray,
+                materials: np.ndarray, coefficients: np.ndarray, frozen: bool
+                ) -> tuple[np.ndarray, float]:
+        """The frame (pixels, 3) float32 and the kernel's milliseconds."""
+        npix = len(direct)
+        first, rows = self.glossy_first, self.glossy_rows
+        if frozen:
+            glossy = first >= 0
+            first = np.where(glossy, np.cumsum(glossy) - 1, -1).astype(np.int32)
+            rows = glossy.astype(np.int32)
+            coefficients = np.ones((len(materials), 1), np.float32)
+        out = np.empty((npix, 3), np.float32)
+        out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
+        event = cl.kernel("d2i.cl", "combine")(
+            self.queue, (npix,), None, self._buffer(direct), self._buffer(dl),
+            self._buffer(self.direct.material_id), self._buffer(materials),
+            self._buffer(first), self._buffer(rows), self._buffer(tl),
+            self._buffer(np.ascontiguousarray(coefficients, np.float32)),
+            np.int32(coefficients.shape[1]), np.int32(npix), out_buf)
+        self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
+        return out, cl.event_ms(event)
+
+    # ------------------------------------------------------------------------ frames
+
+    def render(self, scene: Scene) -> Frame:
+        """A full frame for ``scene``'s lights and materials (nothing cached)."""
+        t0 = time.perf_counter()
+        timings = self.trace_lights(scene)
+        params = scene_brdfs(scene, self.material_names)
+        materials = pack_materials(params)
+        albedo = _albedo(params)
+        radiance_w, bounce_t = self.gather_radiance(albedo)
+        coefficients = self.coefficients(scene)
+        t1 = time.perf_counter()
+        dl, tl, product_ms = self.products(radiance_w)
+        direct, direct_ms, _ = self.direct.shade(materials, np.asarray(scene.camera.position))
+        rgb, combine_ms = self.combine(direct, dl, tl, materials, coefficients, frozen=False)
+        t2 = time.perf_counter()
+        timings.update(bounce_t)
+        timings.update({"product_kernel_ms": product_ms, "direct_kernel_ms": direct_ms,
+                        "combine_kernel_ms": combine_ms, "pixel_ms": (t2 - t1) * 1e3,
+                        "kernel_ms": product_ms + direct_ms + combine_ms
+                        + bounce_t["bounce_kernel_ms"],
+                        "total_ms": (t2 - t0) * 1e3})
+        h, w = self.direct.height, self.direct.width
+        return Frame("d2i", rgb.reshape(h, w, 3), timings, list(self.notes),
+                     self.storage_bytes + 4 * radiance_w.nbytes)
+
+
+def _albedo(params: list[BrdfParams]) -> np.ndarray:
+    return np.array([p.albedo for p in params], np.float64).reshape(-1, 3)
+
+
+def _check_lights(packed: np.ndarray) -> None:
+    if not np.all(np.isfinite(packed)):
+        raise PrtError(None, "a light has a non-finite parameter (position, direction, "
+                       "intensity or radiance): cannot light the scene")
+
+
+def render_d2i(scene: Scene, workdir: Workdir) -> Frame:
+    """One d2i frame of the scene's camera view with its current lights and materials."""
+    return D2iRenderer(scene, workdir).render(scene)
+

@@ -1,0 +1,54 @@
+"""Stage ``bounce``: the single-bounce gather matrix Ms of method d2i (paper 000 §5.2),
+one chunk per block of gather samples (receivers). Schema ``bounce``.
+
+Ms[g, h] is D with gather sample g as the receiver and disk h as the source
+(pipeline/math/transfer.py): V_h(g) (1/π) |A_h|/n Σ G(g, q_i), geometry and visibility
+only, every surface taken as Lambertian (paper 000: "we assume that all the surfaces of
+scene are Lambertian"); L_{n+1} = kd ⊙ Ms L_n applies the receivers' albedos at run
+time. A sample does not light itself (its own disk does not face it). Rows are stored as
+the ``transfer`` stage stores D: Haar CSR rows to ``transfer.keep_tolerance``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.math.frames import tangent_from_normal
+from pipeline.math.transfer import Receivers
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.stages.transfer import (
+    PIXEL_BATCH,
+    ROW_FIELDS,
+    center_visibility,
+    compress_rows,
+    join_arrays,
+    scene_tools,
+)
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    tracer, disks, kernel, epsilon = scene_tools(ctx)
+    start, end = ctx.chunk.span
+    end = min(end, len(disks.center))
+    keep = float(ctx.params["transfer.keep_tolerance"])
+    cap = int(ctx.params["transfer.max_coefficients"])
+    parts = []
+    for s in range(start, end, PIXEL_BATCH):
+        rows = slice(s, min(s + PIXEL_BATCH, end))
+        position, normal = disks.center[rows], disks.normal[rows]
+        receivers = Receivers(position, normal, tangent_from_normal(normal), normal)
+        vis = center_visibility(tracer, position, normal, disks, epsilon)
+        ms, _ = kernel(receivers, vis, None)
+        parts.append(compress_rows(ms, keep, cap))
+    return {k: join_arrays([p[k] for p in parts], dt) for k, dt in ROW_FIELDS.items()}
+
+
+def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+    arrays = {f"ms_{k}": join_arrays([a[k] for _, a in pieces], dt)
+              for k, dt in ROW_FIELDS.items()}
+    count = int(ctx.inputs["gather"].attrs["count"])
+    return Output(arrays, attrs={
+        "gather_count": count,
+        "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
+        "max_coefficients": int(ctx.params["transfer.max_coefficients"])},
+        sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})

@@ -1,0 +1,119 @@
+"""Stage ``haar``: cut the stored Haar rows of T, D and Ms down to the renderer's budgets
+(paper 000 §3.4, §7.2). One chunk. Schema ``compressed_transport``.
+
+The ``transfer`` and ``bounce`` stages keep each row near-losslessly (largest
+coefficients first, to ``transfer.keep_tolerance``); this stage keeps a prefix of each
+row. Because the Haar transform is orthonormal, a row that keeps the coefficients of
+energy E_kept of its full energy E errs in any product t·l by at most √(E − E_kept)·‖l‖
+(pipeline/math/haar.py). Budgets:
+
+``tolerance`` (default): each row keeps the fewest coefficients whose dropped energy,
+    including what the transfer stage already dropped, is at most ``haar.tolerance``² of
+    the row's full energy: no row keeps more than its own accuracy needs (a dark or
+    smooth row keeps few), and a pixel on a diffuse material has no T rows at all.
+``proportional`` (the paper): row 0 (b0) of T, every D row and every Ms row keep
+    ``haar.coefficients``; T row j ≥ 1 keeps ``haar.coefficients`` × σ_j/σ_1 (the PCA
+    singular values of the pixel's material), at least a quarter of it. Paper 000 used
+    (250, 150, 150, 100, 100, 100, 100) for its Cornell floor.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import PrtError
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+
+BUDGETS = ("tolerance", "proportional")
+
+
+def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
+                tolerance: float) -> np.ndarray:
+    """Per CSR row (largest coefficient first): the fewest leading entries whose dropped
+    energy (the rest of the row plus the residual already dropped) is ≤ tolerance² of
+    the row's full energy."""
+    count = count.astype(np.int64)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    energy = np.square(value.astype(np.float64))
+    running = np.cumsum(energy)
+    before = np.concatenate([[0.0], running])[start]
+    kept_total = np.concatenate([[0.0], running])[start + count] - before
+    residual2 = np.square(residual.astype(np.float64))
+    full = kept_total / np.maximum(1.0 - residual2, 1e-12)
+    allowed = full * (1.0 - tolerance * tolerance)  # energy a row must keep
+    row_of = np.repeat(np.arange(len(count)), count)
+    within = running - before[row_of]  # energy of entries up to and including this one
+    short = within < allowed[row_of] * (1 - 1e-12)
+    return np.minimum(np.bincount(row_of, weights=short, minlength=len(count))
+                      .astype(np.int64) + 1, count)
+
+
+def truncate(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.ndarray
+             ) -> dict[str, np.ndarray]:
+    """CSR rows cut to their first ``keep`` entries (≤ count)."""
+    count = count.astype(np.int64)
+    keep = np.minimum(keep.astype(np.int64), count)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    row_of = np.repeat(np.arange(len(count)), count)
+    position = np.arange(len(index)) - start[row_of]
+    mask = position < keep[row_of]
+    return {"count": keep.astype(np.int32), "index": index[mask].astype(np.int32),
+            "value": value[mask].astype(np.float32)}
+
+
+def _budget(ctx: AssembleContext, prefix: str, arrays: dict[str, np.ndarray],
+            proportional: np.ndarray | None) -> dict[str, np.ndarray]:
+    count, value = arrays[f"{prefix}_count"], arrays[f"{prefix}_value"]
+    if ctx.params["haar.budget"] == "tolerance":
+        keep = kept_counts(count, arrays[f"{prefix}_residual"], value,
+                           float(ctx.params["haar.tolerance"]))
+    else:
+        keep = proportional if proportional is not None else \
+            np.full(len(count), int(ctx.params["haar.coefficients"]))
+    out = truncate(count, arrays[f"{prefix}_index"], value, keep)
+    return {f"{prefix}_{k}": v for k, v in out.items()}
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    if ctx.params["haar.budget"] not in BUDGETS:
+        raise PrtError(None, f"haar.budget = {ctx.params['haar.budget']!r}: expected one of "
+                       f"{', '.join(BUDGETS)}")
+    transfer, bounce = ctx.inputs["transfer"], ctx.inputs["bounce"]
+    arrays: dict[str, Any] = {n: transfer.read(n) for n in transfer.names}
+    arrays.update({n: bounce.read(n) for n in bounce.names})
+    out = _budget(ctx, "d", arrays, None)
+    out.update(_budget(ctx, "ms", arrays, None))
+    out.update(_budget(ctx, "t", arrays, _proportional_t(ctx, arrays)))
+    out["t_pixel"] = arrays["t_pixel"]
+    return out
+
+
+def _proportional_t(ctx: AssembleContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
+    """Per T row: haar.coefficients × σ_j/σ_1 of the pixel's material (row 0: all)."""
+    coefficients = int(ctx.params["haar.coefficients"])
+    pixel = arrays["t_pixel"]
+    if len(pixel) == 0:
+        return np.zeros(0, np.int64)
+    material = ctx.inputs["gbuffer"].read("material_id").reshape(-1)[pixel]
+    sv = ctx.inputs["brdf_basis"].read("singular_values")
+    first = np.r_[True, pixel[1:] != pixel[:-1]]
+    row = np.arange(len(pixel)) - np.maximum.accumulate(np.where(first, np.arange(len(pixel)),
+                                                                 0))
+    ratio = np.ones(len(pixel))
+    later = row > 0
+    s = sv[material[later], row[later] - 1] / np.maximum(sv[material[later], 0], 1e-300)
+    ratio[later] = np.maximum(s, 0.25)
+    return np.maximum(np.round(coefficients * ratio), 1).astype(np.int64)
+
+
+def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+    arrays = pieces[0][1]
+    transfer = ctx.inputs["transfer"].attrs
+    return Output(arrays, attrs={
+        "width": transfer["width"], "height": transfer["height"],
+        "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
+        "budget": ctx.params["haar.budget"], "tolerance": float(ctx.params["haar.tolerance"]),
+        "coefficients": int(ctx.params["haar.coefficients"])},
+        sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})
