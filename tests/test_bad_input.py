@@ -76,6 +76,7 @@ def baked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     shutil.copytree(SCENES / "cornell_box", root / "cornell_box")
     doc = load(SCENES / "cornell_box.yaml")
     doc["camera"]["width"] = doc["camera"]["height"] = SIZE
+    doc["settings"] = {"gather.count": 1024}  # small d2i bake
     for spec in doc["objects"].values():  # absolute, so copies of the scene find the meshes
         spec["mesh"] = str((root / spec["mesh"]).resolve())
     scene = dump(doc, root / "cornell_box.yaml")

@@ -22,7 +22,9 @@ def prt(*args, cwd=None) -> subprocess.CompletedProcess:
 def baked(tmp_path_factory):
     """A tiny scene run once through `prt run`: (scene, workdir, frames, first result)."""
     tmp = tmp_path_factory.mktemp("cli")
-    scene = write_scene(tmp, small_scene_dict(size=16))
+    doc = small_scene_dict(size=16)
+    doc["settings"] = {"gather.count": 512}  # a small d2i bake
+    scene = write_scene(tmp, doc)
     first = prt("run", scene, "--workdir", tmp / "w", "--frames", tmp / "f", "-q", cwd=tmp)
     assert first.returncode == 0, first.stderr
     return scene, tmp / "w", tmp / "f", first

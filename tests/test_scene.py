@@ -37,7 +37,7 @@ def test_bunny_grace_scene_sees_bunny_on_ground(tmp_path, monkeypatch):
     assert scene.objects["bunny"].mesh == SHARED_DATA / "meshes" / "bunny_60kf.obj"
     assert scene.lights[0].type == "environment"
     workdir = Workdir(tmp_path / "w")
-    run(scene, load_stagefile(), workdir, progress=False)
+    run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
     geo = open_artifact(workdir.artifact("geometry"))
     bunny = geo.read("object_ranges")[0]
     assert bunny[3] - bunny[2] == 59664
