@@ -531,6 +531,25 @@ def with_material_edits(scene: Scene, edits: list[str]) -> Scene:
     return replace(scene, materials=materials, raw={**scene.raw, "materials": raw})
 
 
+def with_light_offset(scene: Scene, index: int, offset: tuple[float, float, float]) -> Scene:
+    """The scene with light ``index`` moved by ``offset`` (scene units, world frame): a
+    point or spot light's position, a quad light's corner. Directional and environment
+    lights have no position; moving them, or to a non-finite place, is an error."""
+    chk = _Checker(scene.path)
+    light = scene.lights[index]
+    key = {"point": "position", "spot": "position", "quad": "corner"}.get(light.type)
+    if key is None:
+        raise chk.fail(f"lights[{index}]", f"a {light.type} light has no position to move")
+    moved = [float(a) + float(b) for a, b in zip(light.params[key], offset, strict=True)]
+    if not all(math.isfinite(v) for v in moved):
+        raise chk.fail(f"lights[{index}].{key}", f"moved to a non-finite position {moved}")
+    lights = list(scene.lights)
+    lights[index] = Light(light.type, {**light.params, key: moved})
+    raw = list(scene.raw["lights"])
+    raw[index] = {**raw[index], key: moved}
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+
+
 def default_scene_path() -> Path:
     """The embedded default scene (the Cornell box with a glossy floor)."""
     checkout = Path(__file__).resolve().parent.parent / "scenes" / "cornell_box.yaml"

@@ -26,6 +26,7 @@ Edits reuse what did not change (paper §6.2, "freezing", done as caching):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -105,6 +106,7 @@ class D2iRenderer:
                                for k in ("offsets", "index", "value")}
                         for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t))}
         self.irradiance = np.zeros((len(self.gather_material), 3))
+        self.notes: list[str] = []
         self.storage_bytes = self.ms.nbytes + self.d.nbytes + self.t.nbytes
 
     # ------------------------------------------------------------------------ device
@@ -245,25 +247,80 @@ class D2iRenderer:
         """A full frame for ``scene``'s lights and materials (nothing cached)."""
         t0 = time.perf_counter()
         timings = self.trace_lights(scene)
-        params = scene_brdfs(scene, self.material_names)
-        materials = pack_materials(params)
-        albedo = _albedo(params)
-        radiance_w, bounce_t = self.gather_radiance(albedo)
-        coefficients = self.coefficients(scene)
+        radiance_w, bounce_t = self.gather_radiance(_albedo(scene_brdfs(scene,
+                                                                        self.material_names)))
+        timings.update(bounce_t)
         t1 = time.perf_counter()
         dl, tl, product_ms = self.products(radiance_w)
+        frame = self._finish(scene, dl, tl, frozen=False, t0=t0, t1=t1, timings=timings)
+        frame.timings["kernel_ms"] += product_ms
+        frame.timings["product_kernel_ms"] = product_ms
+        return frame
+
+    def brdf_edits(self, scene: Scene) -> Callable[[Scene], Frame]:
+        """BRDF-edit mode: lights fixed, so L, D L and every T_j L are computed once; each
+        frame re-shades the direct term (shadows kept) and recombines with c(γ). Albedo
+        edits change L: such a frame bounces again (still without tracing)."""
+        self.trace_lights(scene)
+        albedo = _albedo(scene_brdfs(scene, self.material_names))
+        radiance_w, _ = self.gather_radiance(albedo)
+        dl, tl, _ = self.products(radiance_w)
+        cache = {"albedo": albedo, "dl": dl, "tl": tl}
+
+        def frame(edited: Scene) -> Frame:
+            t0 = time.perf_counter()
+            timings: dict[str, float] = {"shadow_ms": 0.0}
+            new_albedo = _albedo(scene_brdfs(edited, self.material_names))
+            if not np.array_equal(new_albedo, cache["albedo"]):
+                radiance, bounce_t = self.gather_radiance(new_albedo)
+                timings.update(bounce_t)
+                cache["dl"], cache["tl"], _ = self.products(radiance)
+                cache["albedo"] = new_albedo
+            return self._finish(edited, cache["dl"], cache["tl"], frozen=False, t0=t0,
+                                t1=time.perf_counter(), timings=timings)
+
+        return frame
+
+    def light_edits(self, scene: Scene) -> Callable[[Scene], Frame]:
+        """Light-edit mode: materials fixed, so each glossy pixel's T rows are frozen into
+        one row Σ_j c_j(γ) T_j^w; each frame traces shadows, lights the gather samples,
+        bounces, and takes one D and one frozen-T product per pixel."""
+        frozen = self.freeze(self.coefficients(scene))
+        materials = scene.section("materials")
+
+        def frame(edited: Scene) -> Frame:
+            if edited.section("materials") != materials:
+                raise PrtError(edited.path, "light-edit mode keeps the materials as frozen; "
+                               "render a BRDF-edit sequence to change them")
+            t0 = time.perf_counter()
+            timings = self.trace_lights(edited)
+            radiance_w, bounce_t = self.gather_radiance(
+                _albedo(scene_brdfs(edited, self.material_names)))
+            timings.update(bounce_t)
+            t1 = time.perf_counter()
+            dl, tl, product_ms = self.products(radiance_w, frozen)
+            out = self._finish(edited, dl, tl, frozen=True, t0=t0, t1=t1, timings=timings)
+            out.timings["kernel_ms"] += product_ms
+            out.timings["product_kernel_ms"] = product_ms
+            return out
+
+        return frame
+
+    def _finish(self, scene: Scene, dl: np.ndarray, tl: np.ndarray, frozen: bool, t0: float,
+                t1: float, timings: dict[str, float]) -> Frame:
+        """Direct term and combination: the frame, with ``timings`` completed."""
+        materials = pack_materials(scene_brdfs(scene, self.material_names))
+        coefficients = self.coefficients(scene)
         direct, direct_ms, _ = self.direct.shade(materials, np.asarray(scene.camera.position))
-        rgb, combine_ms = self.combine(direct, dl, tl, materials, coefficients, frozen=False)
+        rgb, combine_ms = self.combine(direct, dl, tl, materials, coefficients, frozen)
         t2 = time.perf_counter()
-        timings.update(bounce_t)
-        timings.update({"product_kernel_ms": product_ms, "direct_kernel_ms": direct_ms,
-                        "combine_kernel_ms": combine_ms, "pixel_ms": (t2 - t1) * 1e3,
-                        "kernel_ms": product_ms + direct_ms + combine_ms
-                        + bounce_t["bounce_kernel_ms"],
-                        "total_ms": (t2 - t0) * 1e3})
+        timings = {**timings, "direct_kernel_ms": direct_ms, "combine_kernel_ms": combine_ms,
+                   "pixel_ms": (t2 - t1) * 1e3, "total_ms": (t2 - t0) * 1e3,
+                   "setup_ms": (t1 - t0) * 1e3,
+                   "kernel_ms": direct_ms + combine_ms + timings.get("bounce_kernel_ms", 0.0)}
         h, w = self.direct.height, self.direct.width
         return Frame("d2i", rgb.reshape(h, w, 3), timings, list(self.notes),
-                     self.storage_bytes + 4 * radiance_w.nbytes)
+                     self.storage_bytes)
 
 
 def _albedo(params: list[BrdfParams]) -> np.ndarray:

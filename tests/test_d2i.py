@@ -1,0 +1,152 @@
+"""Method d2i end to end on a small Cornell box: edit modes against full renders, edits
+against fresh bakes, the OpenCL products against NumPy, and the frame against the
+reference renderer's d2i transport."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import job, metrics
+from pipeline.errors import PrtError
+from pipeline.math import haar
+from pipeline.reference import ReferenceSettings
+from pipeline.render.d2i import D2iRenderer, Rows
+from pipeline.scene import default_scene_path, load_scene, with_light_offset, with_material_edits
+from pipeline.store import open_artifact
+
+SIZE, GATHERS = 24, 1024
+
+
+def _scene(size=SIZE):
+    return load_scene(default_scene_path()).with_image_size(size, size).with_settings(
+        {"gather.count": GATHERS})
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    scene = _scene()
+    workdir = job.workdir_for(scene, tmp_path_factory.mktemp("d2i"))
+    job.bake(scene, workdir, until="haar", quiet=True)
+    return scene, workdir, D2iRenderer(scene, workdir)
+
+
+def _close(a, b, rel=1e-5):
+    """Equal to float32 rounding: within ``rel`` of the image's largest value."""
+    np.testing.assert_allclose(a, b, rtol=0, atol=rel * float(np.abs(b).max()))
+
+
+def test_brdf_edit_mode_gives_the_full_render(baked):
+    scene, _, renderer = baked
+    frame = renderer.brdf_edits(scene)
+    for edit in ("glossy_floor.gamma=80", "glossy_floor.gamma=5", "glossy_floor.specular=0.05",
+                 "white.albedo=0.5,0.5,0.5"):
+        edited = with_material_edits(scene, [edit])
+        _close(frame(edited).rgb, renderer.render(edited).rgb)
+
+
+def test_light_edit_mode_gives_the_full_render(baked):
+    scene, _, renderer = baked
+    frame = renderer.light_edits(scene)
+    for offset in ((60.0, 0.0, 0.0), (-40.0, 0.0, 80.0)):
+        moved = with_light_offset(scene, 0, offset)
+        _close(frame(moved).rgb, renderer.render(moved).rgb)
+    with pytest.raises(PrtError, match="frozen"):
+        frame(with_material_edits(scene, ["glossy_floor.gamma=80"]))
+
+
+def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
+    """Neither γ nor lights enter a stage key: a scene baked from scratch with the edits
+    has bit-identical artifacts, so the edited frame equals the fresh one exactly."""
+    scene, workdir, renderer = baked
+    edited = with_light_offset(with_material_edits(scene, ["glossy_floor.gamma=150"]), 0,
+                               (50.0, 0.0, -30.0))
+    fresh_dir = job.workdir_for(edited, tmp_path / "fresh")
+    job.bake(edited, fresh_dir, until="haar", quiet=True)
+    for name in ("gather", "transfer", "bounce", "haar"):
+        a, b = (open_artifact(w.artifact(name)) for w in (workdir, fresh_dir))
+        assert a.record["key"] == b.record["key"]
+        for array in a.names:
+            np.testing.assert_array_equal(a.read(array), b.read(array))
+    np.testing.assert_array_equal(renderer.render(edited).rgb,
+                                  D2iRenderer(edited, fresh_dir).render(edited).rgb)
+
+
+def test_sparse_product_and_combination_kernels_match_numpy(baked):
+    scene, _, renderer = baked
+    rng = np.random.default_rng(0)
+    radiance = rng.random((renderer.size, 4)).astype(np.float32)
+    for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms)):
+        out, _ = renderer._sparse(name, rows, radiance)
+        counts = np.diff(rows.offsets)
+        expected = np.zeros((rows.count, 4))
+        np.add.at(expected, np.repeat(np.arange(rows.count), counts),
+                  rows.value[:, None].astype(np.float64) * radiance[rows.index])
+        _close(out, expected)
+    # combination: I = direct + kd D L + ρs max(0, Σ c_j T_j L)
+    npix = len(renderer.direct.material_id)
+    direct = rng.random((npix, 3)).astype(np.float32)
+    dl = rng.random((npix, 4)).astype(np.float32)
+    tl = rng.normal(size=(renderer.t.count, 4)).astype(np.float32)
+    from pipeline.math.brdf import pack_materials, scene_brdfs
+
+    materials = pack_materials(scene_brdfs(scene, renderer.material_names))
+    c = renderer.coefficients(scene)
+    out, _ = renderer.combine(direct, dl, tl, materials, c, frozen=False)
+    expected = direct.astype(np.float64).copy()
+    m = renderer.direct.material_id
+    seen = m >= 0
+    expected[seen] += materials[m[seen], 1:4] * dl[seen, :3]
+    for p in np.flatnonzero(renderer.glossy_first >= 0):
+        first, rows = renderer.glossy_first[p], renderer.glossy_rows[p]
+        g = c[m[p], :rows] @ tl[first:first + rows, :3].astype(np.float64)
+        expected[p] += materials[m[p], 4:7] * np.maximum(g, 0)
+    _close(out, expected)
+
+
+def test_frozen_rows_equal_the_weighted_sum_of_basis_rows(baked):
+    scene, _, renderer = baked
+    c = renderer.coefficients(with_material_edits(scene, ["glossy_floor.gamma=42"]))
+    frozen = renderer.freeze(c)
+    dense = lambda rows, r: haar.inverse(_dense_row(rows, r, renderer.size))  # noqa: E731
+    first = np.flatnonzero(renderer.glossy_first >= 0)
+    for k, p in enumerate(first[:20]):
+        start, count = renderer.glossy_first[p], renderer.glossy_rows[p]
+        m = renderer.direct.material_id[p]
+        expected = sum(c[m, j] * dense(renderer.t, start + j) for j in range(count))
+        _close(dense(frozen, k), expected, rel=1e-5)
+
+
+def _dense_row(rows: Rows, r: int, size: int) -> np.ndarray:
+    out = np.zeros(size)
+    lo, hi = rows.offsets[r], rows.offsets[r + 1]
+    np.add.at(out, rows.index[lo:hi], rows.value[lo:hi])
+    return out
+
+
+def test_frame_matches_the_reference_d2i_transport(baked):
+    """Against the reference path tracer's d2i transport (full BRDF at the first vertex,
+    Lambertian after) at 24², 1024 gather samples, 512 reference paths per pixel.
+    Surfaces only (the luminaire's radiance 18 would hide everything else). Measured:
+    mean indirect radiance 3.6 % above the reference's (bias of the coarse gather set and
+    of the area estimate; the reference's noise in the mean is < 1 %), asserted within
+    5 %; surface image 5.2 % relative RMSE, of which the reference's estimated noise is
+    2.6 %, asserted under 8 %."""
+    scene, workdir, renderer = baked
+    frame = renderer.render(scene).rgb
+    direct = job.render_frame(scene, workdir, "direct").rgb
+    ref = job.reference(scene, workdir, ReferenceSettings(
+        "d2i", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image
+    ref_direct = job.reference(scene, workdir, ReferenceSettings(
+        "direct", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image
+    surfaces = renderer.direct.object_id.reshape(SIZE, SIZE) != \
+        renderer.direct.object_names.index("luminaire")
+    indirect, ref_indirect = frame - direct, ref.mean - ref_direct.mean
+    assert indirect[surfaces].mean() == pytest.approx(ref_indirect[surfaces].mean(), rel=0.05)
+    assert metrics.relative_rmse(frame, ref.mean, surfaces) < 0.08
+
+
+def test_non_finite_light_parameters_are_a_clear_error(baked):
+    scene, _, renderer = baked
+    with pytest.raises(PrtError, match="non-finite"):
+        with_light_offset(scene, 0, (float("inf"), 0.0, 0.0))
