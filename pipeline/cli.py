@@ -129,10 +129,20 @@ def inspect_cmd(path, as_json) -> None:
 
 @cli.command("render")
 @SCENE
-@click.option("--method", type=click.Choice(["direct"]), default="direct", show_default=True,
-              help="Rendering method.")
+@click.option("--method", type=click.Choice(["direct", "d2i"]), default="direct",
+              show_default=True, help="Rendering method: direct light only, or paper 000's "
+              "direct-to-indirect transfer with BRDF editing.")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Output EXR (linear); an sRGB PNG preview is written beside it.")
+@click.option("--frames", "sequence", metavar="light:N|gamma[:MATERIAL]:N", default=None,
+              help="d2i only: also render a sequence beside OUT (OUT_light_0000.exr, ...): "
+                   "the first light moved around a circle (light-edit mode), or a "
+                   "material's gamma swept over its baked range (BRDF-edit mode).")
+@click.option("--bounces", type=click.IntRange(min=0), default=32, show_default=True,
+              help="d2i: at most this many diffuse bounces between gather samples.")
+@click.option("--bounce-tolerance", type=click.FloatRange(min=0), default=1e-3,
+              show_default=True,
+              help="d2i: stop bouncing when a bounce adds less than this fraction (L2).")
 @click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
 @click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
               help="Run-time material edit (repeatable): NAME a material or object, KEY "
@@ -143,14 +153,26 @@ def inspect_cmd(path, as_json) -> None:
 @WORKDIR
 @JOBS
 @QUIET
-def render_cmd(scene, method, out, size, edits, as_json, workdir, jobs, quiet) -> None:
-    """Render one frame (baking first whatever the method needs)."""
+def render_cmd(scene, method, out, sequence, bounces, bounce_tolerance, size, edits, as_json,
+               workdir, jobs, quiet) -> None:
+    """Render one frame (baking first whatever the method needs), and optionally a
+    sequence of edits (d2i)."""
     from pipeline import job
     from pipeline.scene import with_material_edits
 
+    if sequence and method != "d2i":
+        raise click.UsageError("--frames needs --method d2i")
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
-    result = job.render(sc, job.workdir_for(sc, workdir), method, out, jobs=jobs, quiet=quiet)
+    wd = job.workdir_for(sc, workdir)
+    options = {"max_bounces": bounces, "bounce_tolerance": bounce_tolerance} \
+        if method == "d2i" else {}
+    result = job.render(sc, wd, method, out, jobs=jobs, quiet=quiet, options=options)
     frame = result.frame
+    if sequence:
+        seq = job.render_sequence(sc, wd, sequence, out, bounces, bounce_tolerance)
+        ms = sorted(t["total_ms"] for t in seq.timings)
+        click.echo(f"Wrote {len(seq.exr)} {seq.kind} frames {seq.exr[0]} .. {seq.exr[-1]} "
+                   f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)
     if as_json:
         click.echo(json.dumps({"method": method, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
@@ -217,11 +239,12 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
 
 @cli.command("evaluate")
 @SCENE
-@click.option("--method", type=click.Choice(["direct"]), default="direct", show_default=True,
-              help="Method to evaluate.")
+@click.option("--method", type=click.Choice(["direct", "d2i"]), default="direct",
+              show_default=True, help="Method to evaluate.")
 @click.option("--sweep", "sweeps", metavar="NAME=V1,V2,...", multiple=True,
               help="Budget values to sweep (repeatable; several make a grid): size (image "
-                   "width, or WxH) or a stage parameter such as brdf_basis.max_k.")
+                   "width, or WxH), a stage parameter such as gather.count, haar.tolerance "
+                   "or brdf_basis.max_k, or render.max_bounces (d2i).")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Folder for results.json, probe.json, the charts and frames.")
 @click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True,

@@ -50,7 +50,9 @@ from pipeline.scene import Scene
 from pipeline.store import Workdir, read_record
 
 # The reference transport that matches what each method models.
-METHOD_TRANSPORT = {"direct": "direct"}
+METHOD_TRANSPORT = {"direct": "direct", "d2i": "d2i"}
+# Budgets named render.X are the method's run-time options X (d2i: render.max_bounces).
+RENDER_PREFIX = "render."
 HEATMAP_MAX = 0.2  # heat maps span relative errors 0 to 20 %
 MITSUBA_MAX_SPP = 4096
 
@@ -92,17 +94,22 @@ def default_budget(scene: Scene, names: list[str]) -> dict[str, Any]:
     from pipeline.stagefile import load_stagefile
 
     params = stage_params(load_stagefile(None), scene)
-    unknown = [n for n in names if n != "size" and n not in params]
+    render_defaults = {"render.max_bounces": 32, "render.bounce_tolerance": 1e-3}
+    unknown = [n for n in names if n != "size" and n not in params and n not in render_defaults]
     if unknown:
-        raise PrtError("--sweep", f"unknown budget {unknown[0]!r} (budgets: size or a stage "
-                       f"parameter: {', '.join(sorted(params))})")
-    return {n: scene.camera.width if n == "size" else params[n] for n in names}
+        raise PrtError("--sweep", f"unknown budget {unknown[0]!r} (budgets: size, "
+                       f"{', '.join(render_defaults)} or a stage parameter: "
+                       f"{', '.join(sorted(params))})")
+    return {n: scene.camera.width if n == "size" else {**params, **render_defaults}[n]
+            for n in names}
 
 
 def apply_budget(scene: Scene, budget: dict[str, Any]) -> Scene:
     """``scene`` with the budget's image size and stage-parameter settings."""
     settings = {}
     for name, value in budget.items():
+        if name.startswith(RENDER_PREFIX):
+            continue
         if name != "size":
             settings[name] = value
             continue
@@ -204,13 +211,18 @@ def _ms(value: float | None) -> str:
 def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
                      settings, bandwidth, quiet) -> dict[str, Any]:
     sc = apply_budget(scene, budget)
+    options = {k[len(RENDER_PREFIX):]: v for k, v in budget.items()
+               if k.startswith(RENDER_PREFIX)}
     wd = Workdir(workdir.root / "sweep" / method / _slug(budget))
     job.bake(sc, wd, until=job.METHODS[method][2], quiet=quiet)
     reads = job.METHOD_READS[method]
-    bake_s = sum(read_record(wd.artifact(name))["seconds"] for name in reads)
+    # bake time: every stage the method's artifacts depend on
+    bake_s = sum(read_record(wd.artifact(p.spec.name))["seconds"]
+                 for p in job.status(sc, wd) if wd.artifact(p.spec.name).exists()
+                 and p.state == "fresh")
     storage = sum(_bytes_on_disk(wd.artifact(name)) for name in reads)
-    job.render_frame(sc, wd, method)  # warm-up: kernel build, file cache
-    frames = [job.render_frame(sc, wd, method) for _ in range(settings.repeats)]
+    job.render_frame(sc, wd, method, options)  # warm-up: kernel build, file cache
+    frames = [job.render_frame(sc, wd, method, options) for _ in range(settings.repeats)]
     frame = frames[-1]
 
     def median(key: str) -> float:
@@ -218,16 +230,22 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
 
     kernel_ms = median("kernel_ms")
     tolerance = settings.reference_tolerance
+    surfaces = ~emitter_pixels(sc, wd)
     while True:
         ref = job.reference(sc, workdir, ReferenceSettings(
             transport, tolerance=tolerance, max_spp=settings.reference_max_spp),
             quiet=quiet).image
         errors = metrics.image_metrics(frame.rgb, ref.mean)
-        # A reference noisier than a third of the error would measure itself: tighten it.
-        if ref.estimate <= errors["rel_rmse"] / 3 or ref.spp >= settings.reference_max_spp:
+        surface_error = metrics.relative_rmse(frame.rgb, ref.mean, surfaces)
+        surface_noise = _noise(ref, surfaces)
+        # A reference noisier than a third of the error would measure itself: tighten it
+        # (on the surfaces, where the estimate over the whole image, dominated by an
+        # emitter's pixels, says too little).
+        if (ref.estimate <= errors["rel_rmse"] / 3 and surface_noise <= surface_error / 3) \
+                or ref.spp >= settings.reference_max_spp:
             break
-        tolerance = errors["rel_rmse"] / 4
-    surfaces = ~emitter_pixels(sc, wd)
+        tolerance = min(errors["rel_rmse"] / 4,
+                        ref.estimate * surface_error / (4 * max(surface_noise, 1e-12)))
     slug = _slug(budget)
     write_exr(out / "frames" / f"{slug}.exr", frame.rgb)
     write_png(out / "frames" / f"{slug}.png", frame.rgb)
@@ -243,8 +261,9 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
         "setup_ms": median("total_ms") - kernel_ms, "repeats": settings.repeats,
         "storage_bytes": storage, "bake_s": bake_s,
         **errors,
-        "rel_rmse_surfaces": metrics.relative_rmse(frame.rgb, ref.mean, surfaces),
-        "reference_rel_rmse": ref.estimate, "reference_spp": ref.spp,
+        "rel_rmse_surfaces": surface_error,
+        "reference_rel_rmse": ref.estimate, "reference_rel_rmse_surfaces": surface_noise,
+        "reference_spp": ref.spp,
         "reference_tolerance": tolerance,
         "kernel_bytes": frame.kernel_bytes, "kernel_gbs": kernel_gbs,
         "bandwidth_fraction": None if kernel_gbs is None
@@ -254,6 +273,13 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
         **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
         "heatmap_max": HEATMAP_MAX,
     }
+
+
+def _noise(ref: Any, mask: np.ndarray) -> float:
+    """The reference's estimated relative RMSE over the pixels in ``mask``."""
+    norm = float(np.sum(np.square(ref.mean[mask], dtype=np.float64)))
+    return float(np.sqrt(np.sum(ref.variance[mask], dtype=np.float64) / norm)) if norm > 0 \
+        else float("inf")
 
 
 def emitter_pixels(scene: Scene, workdir: Workdir) -> np.ndarray:

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pipeline.errors import PrtError
 from pipeline.executors import make_executor
 from pipeline.keys import digest, module_source_hash
@@ -24,6 +26,9 @@ from pipeline.store import Workdir
 # Rendering methods: name -> (module, function, the stage whose artifact it needs).
 METHODS = {"direct": ("pipeline.render.direct", "render_direct", "gbuffer"),
            "d2i": ("pipeline.render.d2i", "render_d2i", "haar")}
+# What `prt run` renders after baking: one frame of this method, and these sequences.
+MAIN_METHOD = "d2i"
+MAIN_SEQUENCES = ("light:8", "gamma:8")
 # The artifacts each method's frame reads (its run-time storage).
 METHOD_READS = {"direct": ("geometry", "gbuffer"),
                 "d2i": ("geometry", "gbuffer", "gather", "brdf_basis", "haar")}
@@ -65,7 +70,8 @@ class RenderResult:
 
 
 def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1,
-           quiet: bool = False, reuse: bool = False) -> RenderResult:
+           quiet: bool = False, reuse: bool = False,
+           options: dict[str, Any] | None = None) -> RenderResult:
     """Bake what ``method`` needs, render one frame, write ``out`` (EXR) and a PNG beside.
 
     With ``reuse``, a frame whose inputs (artifact keys, lights, materials, camera, code)
@@ -84,19 +90,23 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
         return RenderResult(out, png, None, baked)
     from pipeline.images import write_exr, write_png
 
-    frame = render_frame(scene, workdir, method)
+    frame = render_frame(scene, workdir, method, options)
     write_exr(out, frame.rgb)
     write_png(png, frame.rgb)
     meta.write_text(json.dumps({"key": key, "method": method, **frame.timings}, indent=1))
     return RenderResult(out, png, frame, baked)
 
 
-def render_frame(scene: Scene, workdir: Workdir, method: str) -> Frame:
-    """One frame of ``method`` from the (already baked) artifacts in ``workdir``."""
+def render_frame(scene: Scene, workdir: Workdir, method: str,
+                 options: dict[str, Any] | None = None) -> Frame:
+    """One frame of ``method`` from the (already baked) artifacts in ``workdir``;
+    ``options`` are the method's own keyword arguments (d2i: max_bounces,
+    bounce_tolerance)."""
     import importlib
 
     module_name, function, _ = METHODS[method]
-    return getattr(importlib.import_module(module_name), function)(scene, workdir)
+    return getattr(importlib.import_module(module_name), function)(scene, workdir,
+                                                                   **(options or {}))
 
 
 def _stored_key(meta: Path) -> str | None:
@@ -104,6 +114,85 @@ def _stored_key(meta: Path) -> str | None:
         return json.loads(meta.read_text()).get("key")
     except (OSError, ValueError):
         return None
+
+
+SEQUENCE_KINDS = ("light", "gamma")
+
+
+@dataclass
+class SequenceResult:
+    """A written frame sequence: its EXR files (PNG previews beside them), per-frame
+    timings and the edit each frame shows."""
+
+    kind: str
+    exr: list[Path]
+    timings: list[dict[str, float]]
+    edits: list[str]
+
+
+def parse_sequence(text: str) -> tuple[str, str | None, int]:
+    """``light:N`` or ``gamma[:MATERIAL]:N`` -> (kind, material or None, N)."""
+    parts = text.split(":")
+    if parts[0] not in SEQUENCE_KINDS or len(parts) not in (2, 3) or \
+            (parts[0] == "light" and len(parts) != 2) or not parts[-1].isdigit() \
+            or int(parts[-1]) < 1:
+        raise PrtError(None, f"--frames {text}: expected light:N or gamma[:MATERIAL]:N "
+                       "(N ≥ 1 frames)")
+    return parts[0], parts[1] if len(parts) == 3 else None, int(parts[-1])
+
+
+def sequence_scenes(scene: Scene, workdir: Workdir, kind: str, material: str | None,
+                    count: int) -> tuple[list[Scene], list[str]]:
+    """The edited scenes of a sequence and a label for each. ``light``: the first light
+    moved around a horizontal circle of radius 0.1 × the scene's diagonal about where it
+    is (an emitter mesh tied to a quad light stays where it is). ``gamma``: the
+    material's (default: the first glossy one) γ swept geometrically across its
+    gamma_range."""
+    from pipeline.scene import with_light_offset, with_material_edits
+    from pipeline.store import open_artifact
+
+    if kind == "light":
+        if not scene.lights:
+            raise PrtError(scene.path, "a light sequence needs a light to move")
+        geo = open_artifact(workdir.artifact("geometry"), "geometry").attrs
+        radius = 0.1 * float(np.linalg.norm(np.subtract(geo["bbox_max"], geo["bbox_min"])))
+        angles = 2 * np.pi * np.arange(count) / count
+        offsets = [(radius * np.cos(a), 0.0, radius * np.sin(a)) for a in angles]
+        return ([with_light_offset(scene, 0, o) for o in offsets],
+                [f"light 0 moved by ({o[0]:.3g}, {o[1]:.3g}, {o[2]:.3g})" for o in offsets])
+    glossy = [n for n, m in scene.materials.items() if m.model != "lambert"]
+    name = material or (glossy[0] if glossy else None)
+    if name not in glossy:
+        raise PrtError(scene.path, f"a gamma sequence needs a glossy material (found "
+                       f"{name!r}; glossy: {', '.join(glossy) or 'none'})")
+    lo, hi = scene.materials[name].params["gamma_range"]
+    gammas = np.geomspace(lo, hi, count) if count > 1 else \
+        [scene.materials[name].params["gamma"]]
+    edits = [f"{name}.gamma={g:.6g}" for g in gammas]
+    return [with_material_edits(scene, [e]) for e in edits], edits
+
+
+def render_sequence(scene: Scene, workdir: Workdir, spec: str, out: Path,
+                    max_bounces: int = 32, bounce_tolerance: float = 1e-3) -> SequenceResult:
+    """Render a d2i sequence (``light:N`` in light-edit mode, ``gamma[:M]:N`` in
+    BRDF-edit mode) from the baked artifacts; frames go to ``out`` with the suffix
+    ``_<kind>_<i>`` (EXR + PNG)."""
+    from pipeline.images import write_exr, write_png
+    from pipeline.render.d2i import D2iRenderer
+
+    kind, material, count = parse_sequence(spec)
+    scenes, edits = sequence_scenes(scene, workdir, kind, material, count)
+    renderer = D2iRenderer(scene, workdir, max_bounces, bounce_tolerance)
+    frame_of = renderer.light_edits(scene) if kind == "light" else renderer.brdf_edits(scene)
+    paths, timings = [], []
+    for i, edited in enumerate(scenes):
+        frame = frame_of(edited)
+        path = out.with_name(f"{out.stem}_{kind}_{i:04d}.exr")
+        write_exr(path, frame.rgb)
+        write_png(path.with_suffix(".png"), frame.rgb)
+        paths.append(path)
+        timings.append(frame.timings)
+    return SequenceResult(kind, paths, timings, edits)
 
 
 def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
@@ -116,8 +205,11 @@ def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
                   stagefile=stagefile)
     if until or stagefile:
         return report, None
-    result = render(scene, workdir, "direct", frames / f"{scene.name}_direct.exr",
+    result = render(scene, workdir, MAIN_METHOD, frames / f"{scene.name}_{MAIN_METHOD}.exr",
                     jobs=jobs, quiet=quiet, reuse=True)
+    if result.frame is not None:  # the sequences show the same bake: refresh them with it
+        for spec in MAIN_SEQUENCES:
+            render_sequence(scene, workdir, spec, result.exr)
     return report, result
 
 
@@ -206,7 +298,6 @@ def clean(workdir: Workdir) -> int:
 def inspect_artifact(path: Path) -> dict[str, Any]:
     """Schema kind and version, and per array its shape, dtype, chunks, stored bytes and
     statistics (min, max, mean over finite values; NaN count)."""
-    import numpy as np
 
     from pipeline.store import open_artifact, open_group
 

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from helpers import small_scene_dict, write_scene
 
@@ -34,7 +35,7 @@ def test_run_summary_then_noop(baked):
     """The first run lists the stages it ran and the frame; the second runs nothing."""
     scene, workdir, frames, first = baked
     assert "geometry" in first.stdout and "ran" in first.stdout
-    assert f"{frames / 'tiny_direct.exr'}" in first.stdout
+    assert f"{frames / 'tiny_d2i.exr'}" in first.stdout
     again = prt("run", scene, "--workdir", workdir, "--frames", frames, "-q")
     assert again.returncode == 0
     stages = len(load_stagefile().stages)
@@ -155,3 +156,29 @@ def test_evaluate_writes_records_and_charts(baked, tmp_path):
     bad = prt("evaluate", scene, "--sweep", "nonsense.key=1", "--out", out, "--workdir",
               workdir, "-q")
     assert bad.returncode == 2 and "unknown budget 'nonsense.key'" in bad.stderr
+
+
+def test_render_d2i_sequences(baked, tmp_path):
+    """`prt render --method d2i --frames light:3` writes the frame and three light-edit
+    frames that differ from each other; a gamma sweep on a scene's glossy material
+    writes its frames; --frames without d2i is a usage error."""
+    scene, workdir, _, _ = baked
+    out = tmp_path / "d2i.exr"
+    result = prt("render", scene, "--method", "d2i", "--out", out, "--workdir", workdir,
+                 "--frames", "light:3", "-q")
+    assert result.returncode == 0, result.stderr
+    from pipeline.images import read_exr
+
+    frames = [read_exr(tmp_path / f"d2i_light_{i:04d}.exr") for i in range(3)]
+    assert out.is_file() and all((tmp_path / f"d2i_light_{i:04d}.png").is_file()
+                                 for i in range(3))
+    assert not np.allclose(frames[0], frames[1])
+    result = prt("render", scene, "--method", "d2i", "--out", out, "--workdir", workdir,
+                 "--frames", "gamma:shiny:2", "-q")
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "d2i_gamma_0001.exr").is_file()
+    bad = prt("render", scene, "--out", out, "--workdir", workdir, "--frames", "light:2")
+    assert bad.returncode == 2 and "--frames needs --method d2i" in bad.stderr
+    bad = prt("render", scene, "--method", "d2i", "--out", out, "--workdir", workdir,
+              "--frames", "spin:2")
+    assert bad.returncode == 2 and "expected light:N" in bad.stderr
