@@ -6,10 +6,11 @@ samples and the G-buffer:
 1. direct light at the pixels with the exact BRDF and shadows (render/direct.py), and
    irradiance E_g at the gather samples with shadows (NumPy, pipeline/math/lights.py);
 2. L_d = kd_g/π ⊙ E_g, the gather samples' directly lit radiance (Lambertian);
-3. bounces in the Haar domain (paper eq. 17): L_{n+1} = kd_g ⊙ (Ms^w · W L_n), summed
+3. bounces in the Haar domain (paper eq. 17): L_{n+1} = kd_g ⊙ (Ms^w · W (|A| ⊙ L_n)),
+   the rows stored per unit source area (pipeline/stages/transfer.py), summed
    until a bounce adds at most ``bounce_tolerance`` of the total (relative L2) or
    ``max_bounces`` bounces;
-4. per pixel (kernels/d2i.cl): D L and T_j L as sparse products with W L, then
+4. per pixel (kernels/d2i.cl): D L and T_j L as sparse products with W (|A| ⊙ L), then
    I = direct + kd ⊙ D L + ρs ⊙ max(0, Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0).
 
 Edits reuse what did not change (paper §6.2, "freezing", done as caching):
@@ -90,6 +91,7 @@ class D2iRenderer:
         self.gather_position = gather.read("position").astype(np.float64)
         self.gather_normal = gather.read("normal").astype(np.float64)
         self.gather_material = gather.read("material_id")
+        self.gather_area = gather.read("area").astype(np.float64)
         read = transport.read
         self.ms = Rows.from_counts(read("ms_count"), read("ms_index"), read("ms_value"))
         self.d = Rows.from_counts(read("d_count"), read("d_index"), read("d_value"))
@@ -170,10 +172,12 @@ class D2iRenderer:
                      "bounce_kernel_ms": kernel_ms, "bounces": float(bounces)}
 
     def _to_haar(self, radiance: np.ndarray) -> np.ndarray:
-        """W L as (N, 4) float32 (RGB, 0), N = haar_length."""
+        """W (|A| ⊙ L) as (N, 4) float32 (RGB, 0), N = haar_length: the rows of T, D and
+        Ms are stored per unit source area (pipeline/stages/transfer.py)."""
         out = np.zeros((self.size, 4), np.float32)
         if len(radiance):
-            out[:, :3] = haar.forward(np.asarray(radiance, np.float64).T).T[:self.size]
+            weighted = np.asarray(radiance, np.float64) * self.gather_area[:, None]
+            out[:, :3] = haar.forward(weighted.T).T[:self.size]
         return out
 
     def products(self, radiance_w: np.ndarray, frozen: Rows | None = None

@@ -6,7 +6,8 @@ Ms[g, h] is D with gather sample g as the receiver and disk h as the source
 only, every surface taken as Lambertian (paper 000: "we assume that all the surfaces of
 scene are Lambertian"); L_{n+1} = kd ⊙ Ms L_n applies the receivers' albedos at run
 time. A sample does not light itself (its own disk does not face it). Rows are stored as
-the ``transfer`` stage stores D: Haar CSR rows to ``transfer.keep_tolerance``.
+the ``transfer`` stage stores D: per unit source area, as Haar CSR rows to
+``transfer.keep_tolerance``.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         receivers = Receivers(position, normal, tangent_from_normal(normal), normal)
         vis = center_visibility(tracer, position, normal, disks, epsilon)
         ms, _ = kernel(receivers, vis, None)
-        parts.append(compress_rows(ms, keep, cap))
+        parts.append(compress_rows(ms * disks.inverse_area, keep, cap))
     return {k: join_arrays([p[k] for p in parts], dt) for k, dt in ROW_FIELDS.items()}
 
 
