@@ -7,7 +7,8 @@
  *
  * Receivers: 12 floats each: position, normal, tangent, wo (world, unit normal/tangent/wo).
  * Disks:      8 floats each: centre, normal, area, unused.
- * Points:     SUBAREA * 3 floats per disk: its sub-area sample points (world).
+ * Points:     SUBAREA * 3 floats per disk: its sub-area sample points (world); a pair
+ *             with one sample uses the disk's centre instead (a point gather sample).
  * Table:      ROWS * h floats: b0, b1..bk tabulated on the ascending coordinate grid
  *             grid[h] (delta in radians, or Lafortune's lobe base x); the cell of a value
  *             is found from its angle a (delta, or arccos x): f = (a - angle_lo) *
@@ -71,7 +72,7 @@ __kernel void transfer_pairs(__global const float* receivers, const int receiver
     int used = count;
     __global const float* q = points + (size_t)g * SUBAREA * 3;
     for (int i = 0; i < count; ++i) {
-        float3 d = vload3(i, q) - x;
+        float3 d = (count == 1 ? centre : vload3(i, q)) - x;
         float r2 = fmax(dot(d, d), 1e-30f);
         float3 w = d * rsqrt(r2);
         float geo = area * fmax(dot(w, nx), 0.0f) * fmax(-dot(w, ng), 0.0f) / r2;

@@ -39,7 +39,8 @@ solid-angle scale and Ω_s = ``solid_angle``. With n_max > 4 the sum runs in pre
 (every prefix of the pattern is evenly spread), agree within ``tolerance`` × the
 prefix's estimate (T row 0 for glossy receivers, |A_g| G otherwise; paper §5.1: "the
 summation stops when converging within a certain threshold"), or at n_max. n_max = 1 uses
-the disk's first pattern point, not its centre.
+the disk's centre: the point gather sample of Hašan et al. 2006, which is what "without
+sub-area sampling" means (``solid_angle`` = ∞).
 """
 
 from __future__ import annotations
@@ -125,6 +126,10 @@ def transfer(receivers: Receivers, disks: Disks, visibility: np.ndarray,
     ``visibility`` (P, G) of the disk centres (0/1)."""
     counts = sample_counts(receivers, disks, solid_angle)
     geometry, w = _geometry(receivers, disks.points, disks.normal)  # (P, G, M)
+    centre_geometry, centre_w = _geometry(receivers, disks.center[:, None], disks.normal)
+    single = (counts == 1)[..., None]  # one sample: the disk's centre (a point sample)
+    geometry[..., :1] = np.where(single, centre_geometry, geometry[..., :1])
+    w[..., :1, :] = np.where(single[..., None], centre_w, w[..., :1, :])
     per_sample = geometry * disks.area[None, :, None]
     glossy = None
     if table is not None:
