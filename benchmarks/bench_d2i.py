@@ -1,0 +1,209 @@
+"""Benchmark: method d2i at paper 000's Cornell setting (default 400×400, 16k gathers).
+
+Measures, in one run on this machine:
+
+* bake time per stage, and where the transfer stage's time goes (visibility rays,
+  the transfer kernel, Haar compression), timed on a sample of its tiles;
+* storage of T, D and Ms after the haar stage (bytes on disk and raw CSR bytes), beside
+  paper 000 Table 5 (152, 60, 20 MB);
+* frame times, medians of ``REPEATS``: light-edit frames with a point light at the
+  luminaire's centre (moved each frame) and with the scene's 16-sample area light;
+  BRDF-edit frames (the floor's γ changed each frame); split into shadow rays, bounces
+  and per-pixel work;
+* the effective bandwidth of the per-pixel product kernels (bytes of rows read, radiance
+  gathered and products written, over kernel time) as a fraction of the memory-bandwidth
+  probe (pipeline/bandwidth.py), run in the same process.
+
+Run from the project root: python benchmarks/bench_d2i.py [--size 400] [--gathers 16384]
+Writes benchmarks/results/d2i_bench_<size>.json. Bakes into --workdir (default
+.prt/bench_d2i_<size>); a second run reuses the bake unless --rebake.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import job
+from pipeline.bandwidth import probe
+from pipeline.render.d2i import D2iRenderer
+from pipeline.runner import stage_chunks, stage_params
+from pipeline.scene import (
+    Light,
+    default_scene_path,
+    load_scene,
+    with_light_offset,
+    with_material_edits,
+)
+from pipeline.stagefile import load_stagefile
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+REPEATS = 9
+PAPER_TABLE5_MB = {"T": 152, "D": 60, "Ms": 20}
+PROFILED_TILES = 4
+
+
+def transfer_breakdown(scene, workdir) -> dict[str, float]:
+    """Seconds of visibility, kernel and compression over a few transfer tiles, run again
+    in this process (the stage's own run is not instrumented)."""
+    import pipeline.stages.transfer as stage
+    from pipeline.runner import plan
+    from pipeline.stages import ChunkContext
+    from pipeline.store import open_artifact
+
+    spent = {"visibility": 0.0, "kernel": 0.0, "compress": 0.0}
+
+    def timed(name, fn):
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[name] += time.perf_counter() - start
+        return wrapper
+
+    originals = (stage.center_visibility, stage.compress_rows, stage.TransferKernel.__call__)
+    stage.center_visibility = timed("visibility", stage.center_visibility)
+    stage.compress_rows = timed("compress", stage.compress_rows)
+    stage.TransferKernel.__call__ = timed("kernel", stage.TransferKernel.__call__)
+    try:
+        stagefile = load_stagefile(None)
+        p = next(p for p in plan(scene, stagefile, workdir) if p.spec.name == "transfer")
+        params = stage_params(stagefile, scene)
+        chunks = stage_chunks(p.spec, scene, params)
+        inputs = {n: open_artifact(workdir.artifact(n)) for n in p.spec.inputs}
+        picks = [chunks[i] for i in np.linspace(0, len(chunks) - 1, PROFILED_TILES).astype(int)]
+        start = time.perf_counter()
+        for chunk in picks:
+            stage.run_chunk(ChunkContext(params=p.params, scene=p.sections[chunk.id],
+                                         inputs=inputs, chunk=chunk))
+        total = time.perf_counter() - start
+    finally:
+        stage.center_visibility, stage.compress_rows, stage.TransferKernel.__call__ = originals
+    return {**{k: v / total for k, v in spent.items()}, "seconds_per_tile": total / len(picks),
+            "tiles_profiled": len(picks)}
+
+
+def storage(workdir) -> dict[str, dict[str, float]]:
+    from pipeline.store import open_artifact
+
+    art = open_artifact(workdir.artifact("haar"))
+    root = workdir.artifact("haar")
+    out = {}
+    for label, prefix in (("T", "t_"), ("D", "d_"), ("Ms", "ms_")):
+        names = [n for n in art.names if n.startswith(prefix)]
+        disk = sum(f.stat().st_size for n in names for f in (root / n).rglob("*") if f.is_file())
+        raw = sum(art.array(n).nbytes for n in names)
+        entries = int(art.array(prefix + "value").shape[0])
+        rows = int(art.array(prefix + "count").shape[0])
+        out[label] = {"disk_mb": disk / 1e6, "raw_mb": raw / 1e6, "rows": rows,
+                      "coefficients": entries, "per_row": entries / max(rows, 1),
+                      "paper_mb": PAPER_TABLE5_MB[label]}
+    return out
+
+
+def point_light_scene(scene):
+    """The scene with its area light replaced by a point light of equal power 5 mm below
+    the luminaire's centre (a Lambertian emitter of radiance L and area A has power πLA,
+    a point light of intensity I has 4πI: I = LA/4). For timing: it lights the ceiling
+    too, which the one-sided luminaire does not."""
+    quad = scene.lights[0].params
+    corner, u, v = (np.asarray(quad[k], float) for k in ("corner", "edge_u", "edge_v"))
+    area = float(np.linalg.norm(np.cross(u, v)))
+    centre = corner + 0.5 * (u + v) - np.array([0.0, 5.0, 0.0])
+    intensity = [float(r) * area / 4.0 for r in quad["radiance"]]
+    light = Light("point", {"position": centre.tolist(), "intensity": intensity})
+    raw = {**scene.raw, "lights": [{"type": "point", "position": centre.tolist(),
+                                    "intensity": intensity}]}
+    from dataclasses import replace
+
+    return replace(scene, lights=(light,), raw=raw)
+
+
+def frame_times(scene, workdir) -> dict[str, dict[str, float]]:
+    renderer = D2iRenderer(scene, workdir)
+    renderer.render(scene)  # builds kernels
+    results = {}
+    for label, sc in (("light_edit_point", point_light_scene(scene)),
+                      ("light_edit_area16", scene)):
+        frame_of = renderer.light_edits(sc)
+        frames = [frame_of(with_light_offset(sc, 0, (30.0 * np.cos(a), 0.0, 30.0 * np.sin(a))))
+                  for a in np.linspace(0, 2 * np.pi, REPEATS + 1)]
+        results[label] = _medians(frames[1:])
+    frame_of = renderer.brdf_edits(scene)
+    glossy = next(n for n, m in scene.materials.items() if m.model != "lambert")
+    frames = [frame_of(with_material_edits(scene, [f"{glossy}.gamma={g:.4g}"]))
+              for g in np.geomspace(3, 300, REPEATS + 1)]
+    results["brdf_edit"] = _medians(frames[1:])
+    rows = renderer.d.nbytes + renderer.freeze(renderer.coefficients(scene)).nbytes
+    entries = len(renderer.d.index) + len(renderer.freeze(renderer.coefficients(scene)).index)
+    moved = rows + 16 * entries + 16 * len(renderer.d.offsets) * 2
+    results["product_kernel_bytes_light_edit"] = float(moved)
+    return results
+
+
+def _medians(frames) -> dict[str, float]:
+    keys = frames[0].timings.keys()
+    return {k: statistics.median(f.timings[k] for f in frames) for k in keys}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--size", type=int, default=400)
+    parser.add_argument("--gathers", type=int, default=16384)
+    parser.add_argument("--workdir", type=Path, default=None)
+    parser.add_argument("--rebake", action="store_true")
+    args = parser.parse_args()
+    scene = load_scene(default_scene_path()).with_image_size(args.size, args.size) \
+        .with_settings({"gather.count": args.gathers})
+    workdir = job.workdir_for(scene, args.workdir or Path(".prt") / f"bench_d2i_{args.size}")
+    if args.rebake:
+        job.clean(workdir)
+    start = time.perf_counter()
+    report = job.bake(scene, workdir, until="haar", quiet=True)
+    bake_wall = time.perf_counter() - start
+    from pipeline.store import read_record
+
+    stage_seconds = {p.spec.name: read_record(workdir.artifact(p.spec.name))["seconds"]
+                     for p in job.status(scene, workdir)
+                     if workdir.artifact(p.spec.name).exists()}
+    bandwidth = probe()
+    times = frame_times(scene, workdir)
+    kernel_ms = times["light_edit_point"]["product_kernel_ms"]
+    gbs = times["product_kernel_bytes_light_edit"] / (kernel_ms * 1e-3) / 1e9
+    result = {
+        "machine": platform.machine(), "cpus": os.cpu_count(), "size": args.size,
+        "gathers": args.gathers, "stages_ran_now": [r.name for r in report if r.action == "ran"],
+        "bake_wall_s_now": bake_wall, "stage_seconds": stage_seconds,
+        "bake_s_total": sum(stage_seconds.values()),
+        "transfer_breakdown": transfer_breakdown(scene, workdir),
+        "storage": storage(workdir), "frames": times, "bandwidth_probe": bandwidth,
+        "product_kernel_gbs": gbs,
+        "product_kernel_bandwidth_fraction": gbs / bandwidth["opencl_copy_gbs"],
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    out = RESULTS / f"d2i_bench_{args.size}.json"
+    out.write_text(json.dumps(result, indent=1))
+    print(json.dumps({k: result[k] for k in ("bake_s_total", "stage_seconds",
+                                             "transfer_breakdown")}, indent=1))
+    for label, t in times.items():
+        if isinstance(t, dict):
+            print(f"{label:<20} total {t['total_ms']:.1f} ms  (shadow {t['shadow_ms']:.1f}, "
+                  f"bounce {t.get('bounce_ms', 0):.1f}, pixels {t['pixel_ms']:.1f})")
+    for label, s in result["storage"].items():
+        print(f"{label:<3} {s['disk_mb']:.1f} MB on disk, {s['raw_mb']:.1f} MB raw, "
+              f"{s['per_row']:.0f} coefficients per row (paper {s['paper_mb']} MB)")
+    print(f"product kernel {gbs:.2f} GB/s = {result['product_kernel_bandwidth_fraction']:.0%} "
+          f"of the probe; wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
