@@ -85,6 +85,7 @@ class D2iRenderer:
         transport = open_artifact(workdir.artifact("haar"), "compressed_transport")
         gather = open_artifact(workdir.artifact("gather"), "gather")
         self.basis = open_artifact(workdir.artifact("brdf_basis"), "brdf_basis")
+        self.bases: dict[str, Any] = {}  # material -> BrdfBasis (None: Lambertian)
         self.direct = DirectShader(workdir)
         self.material_names = self.direct.material_names
         self.size = int(transport.attrs["haar_length"])
@@ -194,7 +195,10 @@ class D2iRenderer:
         """c(γ) per material (materials, rmax): [1, c_1(γ), ..., c_k(γ)], 0 for Lambert."""
         out = np.zeros((len(self.material_names), self.rmax), np.float32)
         for i, params in enumerate(scene_brdfs(scene, self.material_names)):
-            basis = read_basis(self.basis, self.material_names[i], params)
+            name = self.material_names[i]
+            if name not in self.bases:  # the basis depends on what the bake keyed on only
+                self.bases[name] = read_basis(self.basis, name, params)
+            basis = self.bases[name]
             if basis is None:
                 continue
             c = np.r_[1.0, basis.coefficients(params.gamma)]
