@@ -115,3 +115,14 @@ def event_ms(event: Any) -> float:
     """Milliseconds between an event's start and end (profiling clock); waits for it."""
     event.wait()
     return (event.profile.end - event.profile.start) * 1e-6
+
+
+def read_only_buffer(array: Any) -> Any:
+    """A read-only device copy of a NumPy array (one zero element if it is empty:
+    OpenCL has no empty buffers)."""
+    import numpy as np
+    import pyopencl as cl
+
+    a = np.ascontiguousarray(array)
+    return cl.Buffer(context(), cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                     hostbuf=a if a.size else np.zeros(1, a.dtype))

@@ -105,7 +105,7 @@ class D2iRenderer:
             pixels, first, rows = np.unique(self.t_pixel, return_index=True, return_counts=True)
             self.glossy_first[pixels], self.glossy_rows[pixels] = first, rows
         self.rmax = int(max(self.glossy_rows.max(initial=0), 1))
-        self.buffers = {name: {k: self._buffer(getattr(rows, k))
+        self.buffers = {name: {k: cl.read_only_buffer(getattr(rows, k))
                                for k in ("offsets", "index", "value")}
                         for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t))}
         self.irradiance = np.zeros((len(self.gather_material), 3))
@@ -113,12 +113,6 @@ class D2iRenderer:
         self.storage_bytes = self.ms.nbytes + self.d.nbytes + self.t.nbytes
 
     # ------------------------------------------------------------------------ device
-
-    def _buffer(self, a: np.ndarray) -> Any:
-        mf = self.pcl.mem_flags
-        a = np.ascontiguousarray(a)
-        return self.pcl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                               hostbuf=a if a.size else np.zeros(1, a.dtype))
 
     def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray) -> tuple[np.ndarray, float]:
         """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms."""
@@ -129,7 +123,7 @@ class D2iRenderer:
         out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
         event = cl.kernel("d2i.cl", "sparse_rows")(
             self.queue, (rows.count,), None, buf["offsets"], buf["index"], buf["value"],
-            self._buffer(radiance_w), np.int32(rows.count), out_buf)
+            cl.read_only_buffer(radiance_w), np.int32(rows.count), out_buf)
         self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
         return out, cl.event_ms(event)
 
@@ -223,7 +217,7 @@ class D2iRenderer:
         np.add.at(value, inverse, self.t.value * scale[row_of_entry])
         per_pixel = np.bincount(unique // self.size, minlength=int(first.sum()))
         rows = Rows.from_counts(per_pixel, unique % self.size, value)
-        self.buffers["frozen"] = {k: self._buffer(getattr(rows, k))
+        self.buffers["frozen"] = {k: cl.read_only_buffer(getattr(rows, k))
                                   for k in ("offsets", "index", "value")}
         return rows
 
@@ -241,10 +235,10 @@ class D2iRenderer:
         out = np.empty((npix, 3), np.float32)
         out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
         event = cl.kernel("d2i.cl", "combine")(
-            self.queue, (npix,), None, self._buffer(direct), self._buffer(dl),
-            self._buffer(self.direct.material_id), self._buffer(materials),
-            self._buffer(first), self._buffer(rows), self._buffer(tl),
-            self._buffer(np.ascontiguousarray(coefficients, np.float32)),
+            self.queue, (npix,), None, cl.read_only_buffer(direct), cl.read_only_buffer(dl),
+            cl.read_only_buffer(self.direct.material_id), cl.read_only_buffer(materials),
+            cl.read_only_buffer(first), cl.read_only_buffer(rows), cl.read_only_buffer(tl),
+            cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
             np.int32(coefficients.shape[1]), np.int32(npix), out_buf)
         self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
         return out, cl.event_ms(event)

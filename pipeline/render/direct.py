@@ -13,7 +13,6 @@ edit re-shades without tracing again (method d2i uses it for its direct term).
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 
@@ -60,16 +59,10 @@ class DirectShader:
         self.diagonal = float(np.linalg.norm(np.subtract(geo.attrs["bbox_max"],
                                                          geo.attrs["bbox_min"])))
         self.ctx, self.queue = cl.context(), cl.queue()
-        self.gbuffer = [self._buffer(a) for a in (self.position, self.normal, self.tangent,
+        self.gbuffer = [cl.read_only_buffer(a) for a in (self.position, self.normal, self.tangent,
                                                   self.object_id, self.material_id)]
         self.lights = np.zeros((0, 18), np.float32)
         self.visibility = np.zeros((len(self.position), 1), np.uint8)
-
-    def _buffer(self, a: np.ndarray) -> Any:
-        mf = self.pcl.mem_flags
-        a = np.ascontiguousarray(a)
-        return self.pcl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                               hostbuf=a if a.size else np.zeros(1, a.dtype))
 
     def trace(self, packed_lights: np.ndarray) -> None:
         """Shadow rays from every pixel to every light sample."""
@@ -89,9 +82,9 @@ class DirectShader:
         out_buf = pcl.Buffer(self.ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
         rows = self.lights if len(self.lights) else np.zeros((1, 18), np.float32)
         kernel = cl.kernel("direct.cl", "direct_lighting")
-        event = kernel(self.queue, (n,), None, *self.gbuffer, self._buffer(materials),
-                       self._buffer(rows), np.int32(len(self.lights)),
-                       self._buffer(self.visibility), np.int32(self.visibility.shape[1]),
+        event = kernel(self.queue, (n,), None, *self.gbuffer, cl.read_only_buffer(materials),
+                       cl.read_only_buffer(rows), np.int32(len(self.lights)),
+                       cl.read_only_buffer(self.visibility), np.int32(self.visibility.shape[1]),
                        np.array([*camera, 0.0], np.float32), np.int32(n), out_buf)
         pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
         moved = sum(a.nbytes for a in (self.position, self.normal, self.tangent,

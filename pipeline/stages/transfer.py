@@ -39,13 +39,17 @@ from pipeline import cl
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials
 from pipeline.math.brdf_pca import read_basis
-from pipeline.math.transfer import GlossyTable, Receivers, subarea_points
+from pipeline.math.transfer import (
+    FIRST_CHECK,
+    GlossyTable,
+    Receivers,
+    subarea_points,
+)
 from pipeline.raytrace import RayTracer
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
-FIRST_CHECK = 4      # kernels/transfer.cl's first convergence prefix (as math.transfer)
 
 
 @dataclass
@@ -119,16 +123,9 @@ class TransferKernel:
 
         self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
         self.count, self.subarea = len(disks.packed), disks.points.shape[1]
-        self.disks = self._buffer(disks.packed)
-        self.points = self._buffer(disks.points)
+        self.disks = cl.read_only_buffer(disks.packed)
+        self.points = cl.read_only_buffer(disks.points)
         self.solid_angle, self.tolerance = np.float32(solid_angle), np.float32(tolerance)
-
-    def _buffer(self, a: np.ndarray) -> Any:
-        """A read-only device copy of ``a`` (one zero element if ``a`` is empty)."""
-        mf = self.pcl.mem_flags
-        a = a if a.size else np.zeros(1, a.dtype)
-        return self.pcl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                               hostbuf=np.ascontiguousarray(a))
 
     def __call__(self, receivers: Receivers, visibility: np.ndarray,
                  table: GlossyTable | None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -159,10 +156,11 @@ class TransferKernel:
         d_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, d.nbytes)
         t_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, t.nbytes)
         kernel = cl.kernel("transfer.cl", "transfer_pairs", defines)
-        kernel(self.queue, (self.count, n), None, self._buffer(packed), np.int32(n),
+        kernel(self.queue, (self.count, n), None, cl.read_only_buffer(packed), np.int32(n),
                self.disks, np.int32(self.count), self.points,
-               self._buffer(np.ascontiguousarray(visibility, np.uint8)),
-               self._buffer(material), self._buffer(grid), self._buffer(values),
+               cl.read_only_buffer(np.ascontiguousarray(visibility, np.uint8)),
+               cl.read_only_buffer(material), cl.read_only_buffer(grid),
+               cl.read_only_buffer(values),
                np.int32(len(grid)), np.float32(angle_lo), np.float32(angle_scale),
                self.solid_angle, self.tolerance, d_buf, t_buf)
         pcl.enqueue_copy(self.queue, d, d_buf)
