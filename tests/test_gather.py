@@ -57,10 +57,12 @@ def test_glossy_samples_leave_near_the_mirror_direction(cornell):
 
 def test_areas_cover_the_visible_surfaces_of_each_object(cornell):
     """Σ|A_g| per object is its one-sided area minus what no ray can reach (the boxes'
-    bottoms, the floor under them, the ceiling behind the luminaire) plus the band of
-    about REACH × spacing around hidden regions that the assignment still accepts. The
-    Cornell walls have nothing hidden: within 3 % (the surface samples are random);
-    floor and ceiling within their hidden areas."""
+    bottoms, the floor under them, the ceiling behind the luminaire). The walls have
+    nothing hidden: measured exact to 1e-6 (every surface sample finds a gather sample
+    its source pixel sees), asserted within 1 %. Measured at 48², 2048 gathers: floor
+    1.2 % under its visible area, the large box 0.3 %, the ceiling 4.5 % (ceiling points
+    beside the luminaire, 0.5 mm below it, are hidden from the source pixels of their
+    nearest gather samples); asserted within 3, 3 and 6 %."""
     _, gather, geo, _ = cornell
     v = geo.read("vertices").astype(float)
     f = geo.read("faces")
@@ -70,12 +72,12 @@ def test_areas_cover_the_visible_surfaces_of_each_object(cornell):
     truth = {n: face_area[geo.read("face_object") == i].sum() for i, n in enumerate(names)}
     got = {n: gather.read("area")[gather.read("object_id") == i].sum()
            for i, n in enumerate(names)}
-    for wall in ("back", "redwall", "greenwall"):
-        assert got[wall] == pytest.approx(truth[wall], rel=0.03)
+    for wall in ("back", "redwall", "greenwall", "luminaire"):
+        assert got[wall] == pytest.approx(truth[wall], rel=0.01)
     footprint = 165.0 * 165.0  # each box's base (mm²)
-    assert truth["floor"] - 2 * footprint < got["floor"] < truth["floor"]
-    assert truth["ceiling"] - 130 * 105 * 1.05 < got["ceiling"] < truth["ceiling"]
+    assert got["floor"] == pytest.approx(truth["floor"] - 2 * footprint, rel=0.03)
     assert got["largebox"] == pytest.approx(truth["largebox"] - footprint, rel=0.03)
+    assert got["ceiling"] == pytest.approx(truth["ceiling"] - 130 * 105, rel=0.06)
     assert gather.attrs["total_area"] == pytest.approx(gather.read("area").sum(), rel=1e-6)
     np.testing.assert_allclose(gather.read("radius"), np.sqrt(gather.read("area") / np.pi),
                                rtol=1e-6)

@@ -26,12 +26,17 @@ Areas |A_g|. Uniform surface samples, one on every triangle plus more in proport
 area (``gather.area_samples`` per gather sample in all), each carrying the area it stands
 for, are taken on both sides of the surface. Each is assigned to the nearest of its
 ``NEIGHBOURS`` nearest gather samples on the same object whose normal faces the same way
-(n_g · n_s > ``FACING``), if it lies within ``REACH`` × g's local spacing (the distance
-from g to its ``SPACING_K``-th nearest neighbour on the object). Surface samples with none
+(n_g · n_s > ``FACING``), that lies within ``REACH`` × g's local spacing (the distance
+from g to its ``SPACING_K``-th nearest neighbour on the object) and whose shooting view
+sample (the pixel g's ray left from) sees the surface sample. Surface samples with none
 are dropped: the insides of closed meshes, the outsides of the Cornell box's walls, and
 regions no gather ray reaches (the floor under a box, the ceiling behind the luminaire).
 For a Poisson spread of gather samples the chance that a point of a sampled region lies
-farther than the reach from every sample is ≈ exp(−4π·SPACING_K/3) ≈ 4e-6. |A_g| is the
+farther than the reach from every sample is ≈ exp(−4π·SPACING_K/3) ≈ 4e-6. The
+visibility test removes the band around hidden regions that the reach alone lets in:
+without it the floor kept a ≈ 20 mm band around each box's footprint, and at 64², 4096
+gathers the floor's and the boxes' indirect light came out 6–7 % high against the
+reference (with it: floor +1.7 %, boxes 0.4 %, walls 2–4 % low). |A_g| is the
 sum of the areas assigned to g; the attribute ``dropped_area`` records what was dropped.
 
 Disks and sub-area samples. K_g is the disk of area |A_g| (radius √(|A_g|/π)) about g in
@@ -93,9 +98,12 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
 
     order = _order(samples["position"], samples["object_id"], vertices)
     samples = {k: v[order] for k, v in samples.items()}
+    source = samples["source_pixel"]
+    seen_from = (position[source] + RAY_EPSILON * diagonal * normal[source],)
     area, dropped = _areas(samples["position"], samples["normal"], samples["object_id"],
                            vertices, geo["faces"], geo["face_object"],
-                           int(ctx.params["gather.area_samples"]) * count, ctx.rng)
+                           int(ctx.params["gather.area_samples"]) * count, ctx.rng,
+                           _Seen(tracer, seen_from[0], RAY_EPSILON * diagonal))
     subarea_max = int(ctx.params["gather.subarea_max"])
     if subarea_max & (subarea_max - 1):
         raise PrtError(None, f"gather.subarea_max = {subarea_max}: expected a power of two")
@@ -168,9 +176,28 @@ def _order(position: np.ndarray, object_id: np.ndarray, vertices: np.ndarray) ->
     return np.lexsort((rank, object_id))
 
 
+class _Seen:
+    """Whether surface points are visible from the view samples their gather samples were
+    shot from (``origin`` (G, 3), already offset off the surface)."""
+
+    def __init__(self, tracer: RayTracer, origin: np.ndarray, epsilon: float) -> None:
+        self.tracer, self.origin, self.epsilon = tracer, origin, epsilon
+
+    def __call__(self, gather: np.ndarray, point: np.ndarray, normal: np.ndarray
+                 ) -> np.ndarray:
+        start = point + self.epsilon * normal
+        ray = self.origin[gather] - start
+        length = np.linalg.norm(ray, axis=1)
+        ok = length > 0
+        seen = np.zeros(len(point), bool)
+        seen[ok] = ~self.tracer.occluded(start[ok], ray[ok] / length[ok, None],
+                                         length[ok] * (1 - 1e-4))
+        return seen
+
+
 def _areas(position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
            vertices: np.ndarray, faces: np.ndarray, face_object: np.ndarray, total: int,
-           rng: np.random.Generator) -> tuple[np.ndarray, float]:
+           rng: np.random.Generator, seen: _Seen) -> tuple[np.ndarray, float]:
     """|A_g| (G,) from two-sided uniform surface samples, and the area dropped."""
     p0, p1, p2 = (vertices[faces[:, i]] for i in range(3))
     cross = np.cross(p1 - p0, p2 - p0)
@@ -198,13 +225,19 @@ def _areas(position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
         dist, near = tree.query(points[mine], k=k)
         dist, near = dist.reshape(len(mine), k), near.reshape(len(mine), k)
         for side in (1.0, -1.0):
-            facing = np.einsum("nkc,nc->nk", normal[own][near],
-                               side * face_normal[face[mine]]) > FACING
-            first = np.argmax(facing, axis=1)
-            row = np.arange(len(mine))
-            g = near[row, first]
-            ok = facing[row, first] & (dist[row, first] <= reach[g])
-            kept = np.bincount(g[ok], weights=weight[mine][ok], minlength=len(own))
+            n_side = side * face_normal[face[mine]]
+            usable = (np.einsum("nkc,nc->nk", normal[own][near], n_side) > FACING) & \
+                (dist <= reach[near])
+            chosen = np.full(len(mine), -1)
+            for j in range(k):  # nearest usable gather sample whose view sample sees it
+                todo = np.flatnonzero((chosen < 0) & usable[:, j])
+                if len(todo) == 0:
+                    continue
+                ok = seen(own[near[todo, j]], points[mine][todo], n_side[todo])
+                chosen[todo[ok]] = near[todo[ok], j]
+            assigned = chosen >= 0
+            kept = np.bincount(chosen[assigned], weights=weight[mine][assigned],
+                               minlength=len(own))
             area[own] += kept
             dropped -= float(kept.sum())
     return area, dropped
