@@ -57,37 +57,31 @@ def inverse(coefficients: np.ndarray, n: int | None = None) -> np.ndarray:
     return out[..., :size if n is None else n]
 
 
-def largest(coefficients: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """The ``count`` largest-magnitude coefficients of each row of (rows, N): indices
-    (rows, count) ascending within each row, and their values. Rows with fewer non-zero
-    coefficients are padded with index 0 and value 0, which add nothing to a product."""
+def truncate(coefficients: np.ndarray, tolerance: float, cap: int) -> dict[str, np.ndarray]:
+    """Keep each row's largest coefficients of (rows, N), largest first, until the dropped
+    ones hold at most ``tolerance`` of the row's norm (relative L2), and never more than
+    ``cap``. CSR result: ``count`` (rows,) int32, flat ``index`` int32 and ``value``
+    float32 (Σ count,), and ``residual`` (rows,) float32, the dropped coefficients' norm
+    over the row's norm (0 for an all-zero row, which keeps nothing)."""
     coefficients = np.asarray(coefficients)
-    rows, size = coefficients.shape
-    count = min(int(count), size)
-    if count == 0:
-        return np.zeros((rows, 0), np.int64), np.zeros((rows, 0), coefficients.dtype)
-    part = np.argpartition(-np.abs(coefficients), count - 1, axis=1)[:, :count]
-    part.sort(axis=1)
-    values = np.take_along_axis(coefficients, part, axis=1)
-    return np.where(values != 0, part, 0), values
-
-
-def count_for_energy(coefficients: np.ndarray, tolerance: float) -> np.ndarray:
-    """Per row of (rows, N): the fewest largest coefficients whose dropped rest has a
-    root energy ≤ ``tolerance`` × the row's norm (relative L2 truncation error)."""
-    energy = np.sort(np.square(np.asarray(coefficients, np.float64)), axis=1)[:, ::-1]
-    kept = np.cumsum(energy, axis=1)
-    total = kept[:, -1:]
-    dropped = total - kept  # after keeping 1, 2, ... coefficients
-    enough = dropped <= (tolerance * tolerance) * total
-    counts = np.argmax(enough, axis=1) + 1
-    return np.where(total[:, 0] > 0, counts, 0)
-
-
-def sparse_dot(indices: np.ndarray, values: np.ndarray, dense: np.ndarray) -> np.ndarray:
-    """Σ_j values[..., j] · dense[indices[..., j]] over the last axis; ``dense`` (N,) or
-    (N, C) gives (...,) or (..., C)."""
-    gathered = np.asarray(dense)[indices]
-    if gathered.ndim == values.ndim:
-        return np.sum(values * gathered, axis=-1)
-    return np.einsum("...j,...jc->...c", values, gathered)
+    n, size = coefficients.shape
+    cap = min(int(cap), size)
+    if cap == 0 or n == 0:
+        return {"count": np.zeros(n, np.int32), "index": np.zeros(0, np.int32),
+                "value": np.zeros(0, np.float32), "residual": np.zeros(n, np.float32)}
+    top = np.argpartition(-np.abs(coefficients), cap - 1, axis=1)[:, :cap] if cap < size \
+        else np.broadcast_to(np.arange(size), (n, size)).copy()
+    values = np.take_along_axis(coefficients, top, axis=1)
+    order = np.argsort(-np.abs(values), axis=1, kind="stable")
+    top, values = np.take_along_axis(top, order, axis=1), np.take_along_axis(values, order, 1)
+    total = np.sum(np.square(coefficients, dtype=np.float64), axis=1)
+    dropped = total[:, None] - np.cumsum(np.square(values, dtype=np.float64), axis=1)
+    enough = dropped <= (tolerance * tolerance) * total[:, None]
+    count = np.where(enough.any(axis=1), np.argmax(enough, axis=1) + 1, cap)
+    count = np.where(total > 0, count, 0)
+    keep = np.arange(cap)[None, :] < count[:, None]
+    last = np.take_along_axis(dropped, np.clip(count - 1, 0, cap - 1)[:, None], 1)[:, 0]
+    residual = np.where(count > 0, np.sqrt(np.maximum(last, 0) / np.maximum(total, 1e-300)),
+                        0.0)
+    return {"count": count.astype(np.int32), "index": top[keep].astype(np.int32),
+            "value": values[keep].astype(np.float32), "residual": residual.astype(np.float32)}

@@ -181,32 +181,9 @@ def _grid_angles(params: BrdfParams, grid: np.ndarray) -> tuple[float, float]:
 
 def compress_rows(rows: np.ndarray, keep_tolerance: float, max_coefficients: int
                   ) -> dict[str, np.ndarray]:
-    """Haar rows of dense rows (n, G), CSR: ``count`` (n,) int32 kept per row, flat
-    ``index`` int32 and ``value`` float32 (Σ count,) (each row's largest first), and
-    ``residual`` (n,) float32, the dropped coefficients' norm over the row's norm."""
-    coefficients = haar.forward(rows.astype(np.float32))
-    n, size = coefficients.shape
-    cap = min(max_coefficients, size)
-    magnitude = np.abs(coefficients)
-    top = np.argpartition(-magnitude, cap - 1, axis=1)[:, :cap] if cap < size \
-        else np.broadcast_to(np.arange(size), (n, size)).copy()
-    top_values = np.take_along_axis(coefficients, top, axis=1)
-    order = np.argsort(-np.abs(top_values), axis=1, kind="stable")
-    top = np.take_along_axis(top, order, axis=1)
-    top_values = np.take_along_axis(top_values, order, axis=1)
-    total = np.sum(np.square(coefficients, dtype=np.float64), axis=1)
-    dropped = total[:, None] - np.cumsum(np.square(top_values, dtype=np.float64), axis=1)
-    enough = dropped <= (keep_tolerance ** 2) * total[:, None]
-    count = np.where(enough.any(axis=1), np.argmax(enough, axis=1) + 1, cap)
-    count = np.where(total > 0, count, 0)
-    keep = np.arange(cap)[None, :] < count[:, None]
-    last = np.clip(count - 1, 0, cap - 1)
-    residual = np.where(count > 0, np.take_along_axis(dropped, last[:, None], 1)[:, 0], 0.0)
-    return {"index": top[keep].astype(np.int32),
-            "value": top_values[keep].astype(np.float32),
-            "count": count.astype(np.int32),
-            "residual": np.sqrt(np.maximum(residual, 0) / np.maximum(total, 1e-300))
-            .astype(np.float32)}
+    """Dense rows (n, G) as truncated Haar rows (pipeline.math.haar.truncate, CSR)."""
+    return haar.truncate(haar.forward(rows.astype(np.float32)), keep_tolerance,
+                         max_coefficients)
 
 
 # ---------------------------------------------------------------------------- the stage
