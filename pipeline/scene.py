@@ -157,10 +157,13 @@ class Scene:
         of the file's content: editing the file changes the value, moving the scene and
         its files elsewhere does not. Missing paths give ``None``."""
         node: Any = self.raw
-        for part in dotted.split("."):
+        parts = dotted.split(".")
+        for part in parts:
             if not isinstance(node, dict) or part not in node:
                 return None
             node = node[part]
+        if parts[-1] in ("mesh", "file") and isinstance(node, str):
+            return {"sha256": file_hash(Path(node))}
         return _with_file_hashes(node)
 
 

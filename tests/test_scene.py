@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import PROJECT, SHARED_DATA, small_scene_dict, write_scene
 
-from pipeline.runner import run
+from pipeline.runner import plan, run
 from pipeline.scene import load_scene
 from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
@@ -66,12 +66,20 @@ def test_mesh_section_key_follows_content_not_location(tmp_path):
         shutil.copy(PROJECT / "scenes" / "cornell_box" / "cbox_floor.obj", tmp_path / name)
     doc = copy.deepcopy(small_scene_dict())
     doc["objects"]["floor"] = {"mesh": "cbox_floor.obj", "material": "grey"}
-    a = load_scene(write_scene(tmp_path / "a", doc)).section("objects.floor")
-    b = load_scene(write_scene(tmp_path / "b", doc)).section("objects.floor")
+    scene_a = load_scene(write_scene(tmp_path / "a", doc))
+    scene_b = load_scene(write_scene(tmp_path / "b", doc))
+    a, b = scene_a.section("objects.floor"), scene_b.section("objects.floor")
     assert a == b
+    # the leaf that stages declare (objects.*.mesh), and so the stage keys, too
+    assert scene_a.section("objects.floor.mesh") == scene_b.section("objects.floor.mesh")
+    keys = [{p.spec.name: p.key for p in plan(s, load_stagefile(), Workdir(tmp_path / "w"))}
+            for s in (scene_a, scene_b)]
+    assert keys[0] == keys[1]
     with open(tmp_path / "b" / "cbox_floor.obj", "a") as f:
         f.write("v 1 2 3\n")
-    assert load_scene(tmp_path / "b" / "scene.yaml").section("objects.floor") != a
+    edited = load_scene(tmp_path / "b" / "scene.yaml")
+    assert edited.section("objects.floor") != a
+    assert edited.section("objects.floor.mesh") != scene_a.section("objects.floor.mesh")
 
 
 @pytest.mark.parametrize("samples", [3, 0])
