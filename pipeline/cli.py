@@ -62,14 +62,15 @@ def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, quie
     sc = job.open_scene(scene)
     wd = job.workdir_for(sc, workdir)
     frames = frames or Path("frames") / sc.name
-    report, rendered = job.main_job(sc, wd, frames, until, tuple(force), jobs, quiet,
-                                    stagefile)
+    report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force), jobs,
+                                               quiet, stagefile)
     if as_json:
         click.echo(json.dumps({
             "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
                         "reused_chunks": r.reused_chunks, "seconds": round(r.seconds, 4),
                         "reason": r.reason} for r in report],
-            "frame": None if rendered is None else str(rendered.exr)}))
+            "frame": None if rendered is None else str(rendered.exr),
+            "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences}}))
         return
     ran = [r for r in report if r.action == "ran"]
     for r in report:
@@ -84,6 +85,9 @@ def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, quie
     if rendered is not None:
         state = "up to date" if rendered.frame is None else "rendered"
         click.echo(f"Frame {state}: {rendered.exr} (preview {rendered.png})")
+    for q in sequences:
+        click.echo(f"Sequence {q.kind}: {len(q.exr)} frames {q.exr[0].name} .. "
+                   f"{q.exr[-1].name} (EXR + PNG)")
 
 
 @cli.command("status")

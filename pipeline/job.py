@@ -198,19 +198,19 @@ def render_sequence(scene: Scene, workdir: Workdir, spec: str, out: Path,
 def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
              force: tuple[str, ...], jobs: int, quiet: bool,
              stagefile: str | Path | None = None
-             ) -> tuple[list[StageRun], RenderResult | None]:
+             ) -> tuple[list[StageRun], RenderResult | None, list[SequenceResult]]:
     """``prt run``: bake every stale stage, then (unless ``until``, or with a custom
-    stage file) bring the scene's frames in ``frames`` up to date."""
+    stage file) bring the scene's frame and its edit sequences in ``frames`` up to date
+    (the sequences are rendered again whenever the frame is)."""
     report = bake(scene, workdir, until=until, force=force, jobs=jobs, quiet=quiet,
                   stagefile=stagefile)
     if until or stagefile:
-        return report, None
+        return report, None, []
     result = render(scene, workdir, MAIN_METHOD, frames / f"{scene.name}_{MAIN_METHOD}.exr",
                     jobs=jobs, quiet=quiet, reuse=True)
-    if result.frame is not None:  # the sequences show the same bake: refresh them with it
-        for spec in MAIN_SEQUENCES:
-            render_sequence(scene, workdir, spec, result.exr)
-    return report, result
+    sequences = [] if result.frame is None else \
+        [render_sequence(scene, workdir, spec, result.exr) for spec in MAIN_SEQUENCES]
+    return report, result, sequences
 
 
 REFERENCE_CODE = ("pipeline.reference", "pipeline.math.brdf", "pipeline.math.brdf_sampling",

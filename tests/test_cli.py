@@ -36,6 +36,9 @@ def test_run_summary_then_noop(baked):
     scene, workdir, frames, first = baked
     assert "geometry" in first.stdout and "ran" in first.stdout
     assert f"{frames / 'tiny_d2i.exr'}" in first.stdout
+    for kind in ("light", "gamma"):  # the main job also writes both edit sequences
+        assert f"Sequence {kind}: 8 frames tiny_d2i_{kind}_0000.exr .. " in first.stdout
+        assert (frames / f"tiny_d2i_{kind}_0007.png").is_file()
     again = prt("run", scene, "--workdir", workdir, "--frames", frames, "-q")
     assert again.returncode == 0
     stages = len(load_stagefile().stages)
