@@ -87,7 +87,7 @@ def test_haar_stage_cut_agrees_with_truncating_from_scratch():
     """The haar stage cuts stored rows (kept near-losslessly, with their residual) to a
     tolerance; that gives the same counts as truncating the full rows to that tolerance,
     and its CSR prefix cut keeps exactly those coefficients."""
-    from pipeline.stages.haar import kept_counts, truncate
+    from pipeline.stages.haar import cut_rows, kept_counts
 
     rows = np.cumsum(np.random.default_rng(6).normal(size=(8, 512)), axis=1)
     w = haar.forward(rows)
@@ -96,6 +96,6 @@ def test_haar_stage_cut_agrees_with_truncating_from_scratch():
         direct = haar.truncate(w, tolerance, 512)
         counts = kept_counts(stored["count"], stored["residual"], stored["value"], tolerance)
         np.testing.assert_array_equal(counts, direct["count"])
-        cut = truncate(stored["count"], stored["index"], stored["value"], counts)
+        cut = cut_rows(stored["count"], stored["index"], stored["value"], counts)
         np.testing.assert_array_equal(cut["index"], direct["index"])
         np.testing.assert_allclose(cut["value"], direct["value"])

@@ -99,11 +99,11 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     order = _order(samples["position"], samples["object_id"], vertices)
     samples = {k: v[order] for k, v in samples.items()}
     source = samples["source_pixel"]
-    seen_from = (position[source] + RAY_EPSILON * diagonal * normal[source],)
+    seen_from = position[source] + RAY_EPSILON * diagonal * normal[source]
     area, dropped = _areas(samples["position"], samples["normal"], samples["object_id"],
                            vertices, geo["faces"], geo["face_object"],
                            int(ctx.params["gather.area_samples"]) * count, ctx.rng,
-                           _Seen(tracer, seen_from[0], RAY_EPSILON * diagonal))
+                           _Seen(tracer, seen_from, RAY_EPSILON * diagonal))
     subarea_max = int(ctx.params["gather.subarea_max"])
     if subarea_max & (subarea_max - 1):
         raise PrtError(None, f"gather.subarea_max = {subarea_max}: expected a power of two")

@@ -50,7 +50,7 @@ def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
                       .astype(np.int64) + 1, count)
 
 
-def truncate(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.ndarray
+def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.ndarray
              ) -> dict[str, np.ndarray]:
     """CSR rows cut to their first ``keep`` entries (≤ count)."""
     count = count.astype(np.int64)
@@ -72,7 +72,7 @@ def _budget(ctx: AssembleContext, prefix: str, arrays: dict[str, np.ndarray],
     else:
         keep = proportional if proportional is not None else \
             np.full(len(count), int(ctx.params["haar.coefficients"]))
-    out = truncate(count, arrays[f"{prefix}_index"], value, keep)
+    out = cut_rows(count, arrays[f"{prefix}_index"], value, keep)
     return {f"{prefix}_{k}": v for k, v in out.items()}
 
 

@@ -188,14 +188,17 @@ def compress_rows(rows: np.ndarray, keep_tolerance: float, max_coefficients: int
 
 # ---------------------------------------------------------------------------- the stage
 
-_CACHE: dict[str, Any] = {}
+_CACHE: dict[str, tuple[str, Any]] = {}
 
 
-def _cached(key: str, build) -> Any:
-    """One object per process and input key (the Embree scene, the uploaded disks)."""
-    if key not in _CACHE:
-        _CACHE[key] = build()
-    return _CACHE[key]
+def _cached(kind: str, key: str, build) -> Any:
+    """The object of ``kind`` for input ``key`` (the Embree scene, the uploaded disks, the
+    kernel), built once per process; a new key replaces the old object, so that a process
+    baking many variants (`prt evaluate` sweeps) holds one of each."""
+    if kind not in _CACHE or _CACHE[kind][0] != key:
+        _CACHE.pop(kind, None)
+        _CACHE[kind] = (key, build())
+    return _CACHE[kind][1]
 
 
 def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
@@ -223,12 +226,12 @@ def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, GatherDisks, TransferK
     """The Embree scene, the gather disks, the transfer kernel over them (each built once
     per process and input key) and the ray offset (scene units)."""
     geometry, gather = ctx.inputs["geometry"], ctx.inputs["gather"]
-    tracer = _cached("tracer" + geometry.record["key"], lambda: RayTracer(
+    tracer = _cached("tracer", geometry.record["key"], lambda: RayTracer(
         geometry.read("vertices"), geometry.read("faces")))
-    disks = _cached("disks" + gather.record["key"], lambda: GatherDisks.from_artifact(gather))
+    disks = _cached("disks", gather.record["key"], lambda: GatherDisks.from_artifact(gather))
     solid_angle = ctx.params["transfer.subarea_solid_angle"]
     tolerance = ctx.params["transfer.subarea_tolerance"]
-    kernel = _cached(f"kernel{gather.record['key']}{solid_angle}{tolerance}",
+    kernel = _cached("kernel", f"{gather.record['key']}{solid_angle}{tolerance}",
                      lambda: TransferKernel(disks, solid_angle, tolerance))
     bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
     return tracer, disks, kernel, RAY_EPSILON * float(np.linalg.norm(bbox))
