@@ -191,10 +191,12 @@ def render_cmd(scene, method, out, sequence, bounces, bounce_tolerance, size, ed
 
 @cli.command("reference")
 @SCENE
-@click.option("--transport", type=click.Choice(["direct", "env-direct", "d2i", "full"]),
+@click.option("--transport", type=click.Choice(["direct", "env-direct", "d2i", "d2i-indirect",
+                                                  "full"]),
               default="full", show_default=True,
               help="Light transport: direct (all lights, one reflection), env-direct "
-                   "(environment only), d2i (full BRDF first, Lambertian after), full.")
+                   "(environment only), d2i (full BRDF first, Lambertian after), "
+                   "d2i-indirect (d2i less its direct part), full.")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Output EXR (linear); a PNG preview and a JSON record go beside it.")
 @click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")

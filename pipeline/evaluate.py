@@ -14,13 +14,17 @@ own, renders ``repeats`` frames after one warm-up and records:
   a quarter of the method's error whenever it exceeds a third of it (up to the sample
   cap), so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
+* d2i also: ``rel_rmse_indirect``, its indirect image (frame less the direct method's
+  frame) against the reference's ``d2i-indirect`` transport on those pixels, tightened
+  the same way, and ``indirect_mean_ratio`` (mean radiance over the reference's);
 * ``kernel_gbs`` = ``kernel_bytes`` / kernel time, and ``bandwidth_fraction`` of the
   memory-bandwidth probe run at the start (pipeline/bandwidth.py);
 * what a user would do instead: ``pathtrace_ms_equal_error``, the wall time the reference
   renderer (a different seed, progressive) needs until its estimated error falls to the
-  method's ``rel_rmse`` (``pathtrace_rel_rmse``: its error then, measured against the
-  reference), and ``mitsuba_ms_equal_error`` where every material is Lambertian and
-  Mitsuba 3 is installed (spp doubled until its error is at most the method's).
+  method's headline error (:data:`HEADLINE_ERROR`: d2i's on the surfaces;
+  ``pathtrace_rel_rmse``: its error then, measured against the reference), and
+  ``mitsuba_ms_equal_error`` where every material is Lambertian and Mitsuba 3 is installed
+  (spp doubled until its error is at most the method's).
 
 Budget names: ``size`` (image width; the height follows the camera's aspect ratio, or
 ``WxH``) or any stage parameter of stages.yaml (``brdf_basis.max_k``, ...), applied as a
@@ -51,6 +55,10 @@ from pipeline.store import Workdir, read_record
 
 # The reference transport that matches what each method models.
 METHOD_TRANSPORT = {"direct": "direct", "d2i": "d2i"}
+# The error each method's charts lead with, and the path tracer is timed to reach: the
+# whole frame (direct), the pixels not seeing an emitter (d2i: the Cornell luminaire
+# would otherwise be all of ‖R‖). d2i also charts its indirect image's error.
+HEADLINE_ERROR = {"direct": "rel_rmse", "d2i": "rel_rmse_surfaces"}
 # Budgets named render.X are the method's run-time options X (d2i: render.max_bounces).
 RENDER_PREFIX = "render."
 HEATMAP_MAX = 0.2  # heat maps span relative errors 0 to 20 %
@@ -132,16 +140,21 @@ def _bytes_on_disk(path: Path) -> int:
 
 
 def _pathtrace_equal_error(scene: Scene, geometry: dict, transport: str, target: float,
-                           reference: np.ndarray, max_spp: int) -> dict[str, Any]:
-    """Time the reference renderer (seed 1) needs to reach estimated error ``target``."""
+                           reference: Any, mask: np.ndarray | None,
+                           max_spp: int) -> dict[str, Any]:
+    """Time the reference renderer (seed 1) needs until its estimated error over ``mask``
+    (None: every pixel) is ``target``. It stops on its whole-image estimate, which falls
+    in proportion with the masked one (both as 1/√spp): the target is scaled by their
+    ratio in the converged ``reference``."""
     from pipeline.reference import render
 
-    image = render(scene, geometry, ReferenceSettings(transport, tolerance=target,
+    scale = 1.0 if mask is None else reference.estimate / max(_noise(reference, mask), 1e-30)
+    image = render(scene, geometry, ReferenceSettings(transport, tolerance=target * scale,
                                                       max_spp=max_spp, min_spp=1, seed=1))
-    reached = image.estimate <= target
+    reached = image.estimate <= target * scale
     return {"pathtrace_ms_equal_error": image.seconds * 1e3 if reached else None,
-            "pathtrace_spp": image.spp, "pathtrace_estimate": image.estimate,
-            "pathtrace_rel_rmse": metrics.relative_rmse(image.mean, reference)}
+            "pathtrace_spp": image.spp, "pathtrace_estimate": image.estimate / scale,
+            "pathtrace_rel_rmse": metrics.relative_rmse(image.mean, reference.mean, mask)}
 
 
 def _mitsuba_equal_error(scene: Scene, geometry: dict, transport: str, target: float,
@@ -229,23 +242,15 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
         return statistics.median(f.timings[key] for f in frames)
 
     kernel_ms = median("kernel_ms")
-    tolerance = settings.reference_tolerance
     surfaces = ~emitter_pixels(sc, wd)
-    while True:
-        ref = job.reference(sc, workdir, ReferenceSettings(
-            transport, tolerance=tolerance, max_spp=settings.reference_max_spp),
-            quiet=quiet).image
-        errors = metrics.image_metrics(frame.rgb, ref.mean)
-        surface_error = metrics.relative_rmse(frame.rgb, ref.mean, surfaces)
-        surface_noise = _noise(ref, surfaces)
-        # A reference noisier than a third of the error would measure itself: tighten it
-        # (on the surfaces, where the estimate over the whole image, dominated by an
-        # emitter's pixels, says too little).
-        if (ref.estimate <= errors["rel_rmse"] / 3 and surface_noise <= surface_error / 3) \
-                or ref.spp >= settings.reference_max_spp:
-            break
-        tolerance = min(errors["rel_rmse"] / 4,
-                        ref.estimate * surface_error / (4 * max(surface_noise, 1e-12)))
+    ref = _converged_reference(sc, workdir, transport, frame.rgb, [None, surfaces], settings,
+                               quiet)
+    errors = metrics.image_metrics(frame.rgb, ref.mean)
+    surface_error = metrics.relative_rmse(frame.rgb, ref.mean, surfaces)
+    indirect = _indirect_record(sc, wd, workdir, frame.rgb, surfaces, settings, quiet) \
+        if method == "d2i" else {}
+    headline_mask = surfaces if HEADLINE_ERROR[method] == "rel_rmse_surfaces" else None
+    headline = metrics.relative_rmse(frame.rgb, ref.mean, headline_mask)
     slug = _slug(budget)
     write_exr(out / "frames" / f"{slug}.exr", frame.rgb)
     write_png(out / "frames" / f"{slug}.png", frame.rgb)
@@ -262,17 +267,55 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
         "storage_bytes": storage, "bake_s": bake_s,
         **errors,
         "rel_rmse_surfaces": surface_error,
-        "reference_rel_rmse": ref.estimate, "reference_rel_rmse_surfaces": surface_noise,
-        "reference_spp": ref.spp,
-        "reference_tolerance": tolerance,
+        "reference_rel_rmse": ref.estimate,
+        "reference_rel_rmse_surfaces": _noise(ref, surfaces), "reference_spp": ref.spp,
+        **indirect,
         "kernel_bytes": frame.kernel_bytes, "kernel_gbs": kernel_gbs,
         "bandwidth_fraction": None if kernel_gbs is None
         else kernel_gbs / bandwidth["opencl_copy_gbs"],
-        **_pathtrace_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean,
+        **_pathtrace_equal_error(sc, geometry, transport, headline, ref, headline_mask,
                                  settings.pathtrace_max_spp),
         **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
         "heatmap_max": HEATMAP_MAX,
     }
+
+
+def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: np.ndarray,
+                         masks: list[np.ndarray | None], settings: EvaluateSettings,
+                         quiet: bool) -> Any:
+    """The reference image of ``transport`` whose estimated error, over each of ``masks``
+    (None: every pixel), is at most a third of ``image``'s error there, or the one at
+    the sample cap. A noisier reference would measure itself; the masks matter because
+    the estimate over the whole image, dominated by an emitter's pixels, says little
+    about the surfaces."""
+    tolerance = settings.reference_tolerance
+    while True:
+        ref = job.reference(scene, workdir, ReferenceSettings(
+            transport, tolerance=tolerance, max_spp=settings.reference_max_spp),
+            quiet=quiet).image
+        full = np.ones(image.shape[:2], bool)
+        ratios = [_noise(ref, full if m is None else m)
+                  / max(metrics.relative_rmse(image, ref.mean, m), 1e-12) for m in masks]
+        if max(ratios) <= 1 / 3 or ref.spp >= settings.reference_max_spp:
+            return ref
+        # every estimate falls as 1/√spp: aim the worst mask at a quarter of its error
+        tolerance = ref.estimate / (4 * max(ratios))
+
+
+def _indirect_record(scene: Scene, wd: Workdir, workdir: Workdir, frame: np.ndarray,
+                     surfaces: np.ndarray, settings: EvaluateSettings, quiet: bool
+                     ) -> dict[str, Any]:
+    """d2i's indirect image (its frame less the direct method's frame, which shares its
+    direct shader) against the reference's ``d2i-indirect`` transport, on ``surfaces``:
+    ``rel_rmse_indirect``, that reference's noise, and the ratio of mean radiances."""
+    indirect = frame - job.render_frame(scene, wd, "direct").rgb
+    ref = _converged_reference(scene, workdir, "d2i-indirect", indirect, [surfaces],
+                               settings, quiet)
+    return {"rel_rmse_indirect": metrics.relative_rmse(indirect, ref.mean, surfaces),
+            "reference_rel_rmse_indirect": _noise(ref, surfaces),
+            "reference_spp_indirect": ref.spp,
+            "indirect_mean_ratio": float(indirect[surfaces].mean()
+                                         / max(ref.mean[surfaces].mean(), 1e-30))}
 
 
 def _noise(ref: Any, mask: np.ndarray) -> float:
@@ -303,38 +346,51 @@ CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
 
 
 def write_charts(records: list[dict[str, Any]], out: Path) -> None:
-    """Relative RMSE against frame time, storage and bake time (log-log PNGs); the frame
-    time chart also shows the path tracers' time to equal error."""
+    """Each method's headline error against frame time, storage and bake time (log-log
+    PNGs; the frame time chart also shows the path tracers' time to equal error), and,
+    where records have it, the indirect image's error (``indirect_error_vs_*.png``)."""
+    for key, label, name in CHARTS:
+        _chart(records, key, label, out / name, None)
+        if any("rel_rmse_indirect" in r for r in records):
+            _chart([r for r in records if "rel_rmse_indirect" in r], key, label,
+                   out / f"indirect_{name}", "rel_rmse_indirect")
+
+
+def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
+           error_key: str | None) -> None:
+    """One log-log chart of error (``error_key``, or each method's headline) vs ``key``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    for key, label, name in CHARTS:
-        fig, ax = plt.subplots(figsize=(5.5, 4.0), dpi=120)
-        for method in sorted({r["method"] for r in records}):
-            rows = sorted((r for r in records if r["method"] == method), key=lambda r: r[key])
-            ax.plot([r[key] for r in rows], [r["rel_rmse"] for r in rows], "o-", label=method)
-            for r in rows:
-                text = ", ".join(f"{k}={v}" for k, v in r["budget"].items())
-                ax.annotate(text, (r[key], r["rel_rmse"]), fontsize=7,
-                            textcoords="offset points", xytext=(4, 4))
-                if r["default"]:
-                    ax.plot(r[key], r["rel_rmse"], "*", ms=14, color="gold", mec="k",
-                            label="default budget")
-            if key == "frame_ms":
-                for tracer, field_name in (("reference path tracer", "pathtrace_ms_equal_error"),
-                                           ("Mitsuba 3", "mitsuba_ms_equal_error")):
-                    pts = [(r[field_name], r["rel_rmse"]) for r in rows if r.get(field_name)]
-                    if pts:
-                        ax.plot(*zip(*sorted(pts), strict=True), "s--",
-                                label=f"{tracer}, equal error")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel(label)
-        ax.set_ylabel("relative RMSE vs reference")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out / name)
-        plt.close(fig)
+    fig, ax = plt.subplots(figsize=(5.5, 4.0), dpi=120)
+    for method in sorted({r["method"] for r in records}):
+        error = error_key or HEADLINE_ERROR[method]
+        rows = sorted((r for r in records if r["method"] == method), key=lambda r: r[key])
+        ax.plot([r[key] for r in rows], [r[error] for r in rows], "o-",
+                label=f"{method} ({error})")
+        for r in rows:
+            text = ", ".join(f"{k}={v}" for k, v in r["budget"].items())
+            ax.annotate(text, (r[key], r[error]), fontsize=7,
+                        textcoords="offset points", xytext=(4, 4))
+            if r["default"]:
+                ax.plot(r[key], r[error], "*", ms=14, color="gold", mec="k",
+                        label="default budget")
+        if key == "frame_ms" and error_key is None:
+            for tracer, field_name in (("reference path tracer", "pathtrace_ms_equal_error"),
+                                       ("Mitsuba 3", "mitsuba_ms_equal_error")):
+                pts = [(r[field_name], r[error]) for r in rows if r.get(field_name)]
+                if pts:
+                    ax.plot(*zip(*sorted(pts), strict=True), "s--",
+                            label=f"{tracer}, equal error")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(label)
+    ax.set_ylabel("relative RMSE vs reference"
+                  + (" (indirect image)" if error_key == "rel_rmse_indirect" else ""))
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -14,6 +14,9 @@ Transports (what a path may carry):
 ``d2i``         paper 000's transport: the first surface seen from the camera reflects
                 with its full BRDF; every later vertex is Lambertian with its diffuse
                 albedo kd (the glossy lobe dropped), any number of bounces.
+``d2i-indirect`` the same paths without their direct part (no emission or environment
+                seen from the camera or after one bounce, no light sampled at the first
+                vertex): d2i minus direct, with only the indirect light's noise.
 ``full``        path tracing with the full BRDF at every vertex.
 
 Estimator. At every shading vertex, next-event estimation samples each light once
@@ -59,7 +62,7 @@ from pipeline.math.lights import TYPE_CODES, pack_lights, smoothstep
 from pipeline.raytrace import RayTracer
 from pipeline.scene import Scene
 
-TRANSPORTS = ("direct", "env-direct", "d2i", "full")
+TRANSPORTS = ("direct", "env-direct", "d2i", "d2i-indirect", "full")
 PIXEL_FILTERS = ("center", "box")
 RAY_EPSILON = 1e-4  # origin offset, relative to the scene diagonal
 PATHS_PER_PASS = 1 << 17
@@ -214,6 +217,9 @@ class PathTracer:
         self.s = settings
         self.use_local = settings.transport != "env-direct"
         self.one_vertex = settings.transport in ("direct", "env-direct")
+        self.lambert_bounces = settings.transport in ("d2i", "d2i-indirect")
+        # vertices (0: seen from the camera) whose light arrives without a bounce
+        self.skip_direct = settings.transport == "d2i-indirect"
         self.rays = 0
 
     # ------------------------------------------------------------------------ lights
@@ -317,9 +323,10 @@ class PathTracer:
             self._add_emission(radiance, alive, throughput, vtx, hits.t[hit], brdf_pdf, depth)
             if self.one_vertex and depth == 1 or depth == self.s.max_depth:
                 break
-            table = self.ts.lambert if self.s.transport == "d2i" and depth > 0 \
+            table = self.ts.lambert if self.lambert_bounces and depth > 0 \
                 else self.ts.materials
-            radiance[alive] += throughput * self.next_event(vtx, table, rng)
+            if not (self.skip_direct and depth == 0):
+                radiance[alive] += throughput * self.next_event(vtx, table, rng)
             wi_local, brdf_pdf, weight = self._sample_brdf(vtx, table, rng)
             throughput = throughput * weight
             if depth + 1 >= self.s.rr_depth:
@@ -354,13 +361,16 @@ class PathTracer:
         return _Vertex(x, n, t, ng, -d, material, prim)
 
     def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> None:
-        if not self.ts.environments or (self.one_vertex and depth > 1):
+        if not self.ts.environments or (self.one_vertex and depth > 1) \
+                or (self.skip_direct and depth <= 1):
             return
         for env in self.ts.environments:
             weight = np.ones(len(d)) if depth == 0 else _power(brdf_pdf, env.pdf(d))
             radiance[index] += throughput * env.radiance(d) * weight[:, None]
 
     def _add_emission(self, radiance, index, throughput, vtx, dist, brdf_pdf, depth) -> None:
+        if self.skip_direct and depth <= 1:
+            return
         ts = self.ts
         obj = ts.face_object[vtx.prim]
         test_emission = ts.emission[obj]

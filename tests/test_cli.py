@@ -161,6 +161,28 @@ def test_evaluate_writes_records_and_charts(baked, tmp_path):
     assert bad.returncode == 2 and "unknown budget 'nonsense.key'" in bad.stderr
 
 
+def test_evaluate_d2i_records_its_indirect_error(baked, tmp_path):
+    """A d2i sweep over bounces records the indirect image's error against the
+    reference's d2i-indirect transport, and more bounces bring more indirect light; the
+    indirect charts are written."""
+    scene, workdir, _, _ = baked
+    out = tmp_path / "eval"
+    result = prt("evaluate", scene, "--method", "d2i", "--sweep", "render.max_bounces=0,8",
+                 "--out", out, "--repeats", "1", "--reference-max-spp", "64", "--workdir",
+                 workdir, "-q")
+    assert result.returncode == 0, result.stderr
+    records = {r["budget"]["render.max_bounces"]: r
+               for r in json.loads((out / "results.json").read_text())}
+    assert set(records) == {0, 8, 32}
+    for r in records.values():
+        assert 0 < r["rel_rmse_indirect"] < 1 and r["reference_spp_indirect"] >= 16
+        assert 0 < r["rel_rmse_surfaces"] < 1
+    # no bounce: only the gather samples' direct light reflected once
+    assert records[0]["indirect_mean_ratio"] < records[8]["indirect_mean_ratio"]
+    for chart in ("indirect_error_vs_frame_time", "indirect_error_vs_storage"):
+        assert (out / f"{chart}.png").is_file()
+
+
 def test_render_d2i_sequences(baked, tmp_path):
     """`prt render --method d2i --frames light:3` writes the frame and three light-edit
     frames that differ from each other; a gamma sweep on a scene's glossy material

@@ -190,3 +190,22 @@ def test_d2i_transport_lies_between_direct_and_full_light(small_cornell):
     assert relative_rmse(results["d2i"].mean, results["full"].mean) < 3 * max(
         results["d2i"].estimate, results["full"].estimate)
     assert results["d2i"].mean.sum() > 1.1 * results["direct"].mean.sum()
+
+
+def test_d2i_indirect_transport_is_d2i_less_direct(small_cornell):
+    """d2i-indirect drops exactly the direct part: direct + d2i-indirect agrees with d2i
+    within the three images' noise (z-scores over the surface pixels, band as in the
+    module docstring), and it carries no light where d2i equals direct (the luminaire
+    seen from the camera)."""
+    scene, geometry = small_cornell
+    results = {t: render(scene, geometry, ReferenceSettings(t, tolerance=0, max_spp=64,
+                                                            seed=s))
+               for s, t in enumerate(("direct", "d2i", "d2i-indirect"))}
+    total = results["direct"].mean + results["d2i-indirect"].mean
+    variance = sum(r.variance for r in results.values())
+    mask = (variance > 0) & np.isfinite(variance)
+    z_mean, z_sq = _z_scores(total, results["d2i"].mean, variance, mask)
+    assert abs(z_mean) < 0.15 and 0.7 < z_sq < 1.4
+    indirect = results["d2i-indirect"].mean
+    assert indirect.max() < 0.2 * results["direct"].mean.max()
+    assert indirect.sum() > 0.05 * results["direct"].mean.sum()
