@@ -7,7 +7,8 @@ both share one direct shader), and compares with the reference renderer at ``--s
 * full image and surfaces (pixels not seeing an emitter) against ``--transport d2i``;
 * the indirect-only image against ``--transport d2i-indirect`` (the reference's
   indirect light alone, so its noise is the indirect light's only);
-* per object, mean indirect radiance of d2i over the reference's.
+* per object, the indirect image's error and its mean radiance over the reference's (on
+  a glossy object, the glossy indirect error of paper 000 Fig. 2).
 
 Every error is also given with the reference's own noise taken out in quadrature
 (√(e² − noise²)), the estimate of d2i's error against the converged answer.
@@ -86,10 +87,17 @@ def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, out)
     from pipeline.store import open_artifact
 
     object_id = open_artifact(wd.artifact("gbuffer"), "gbuffer").read("object_id")
-    result["per_object_indirect_ratio"] = {
-        name: float(indirect[object_id == i].mean() / indirect_ref.mean[object_id == i].mean())
-        for i, name in enumerate(geometry["object_names"])
-        if (object_id == i).any() and surfaces[object_id == i].all()}
+    result["per_object_indirect"] = {}
+    for i, name in enumerate(geometry["object_names"]):
+        mask = object_id == i
+        if not mask.any() or not surfaces[mask].all():
+            continue
+        error = metrics.relative_rmse(indirect, indirect_ref.mean, mask)
+        noise = _noise(indirect_ref.variance, indirect_ref.mean, mask)
+        result["per_object_indirect"][name] = {
+            "mean_ratio": float(indirect[mask].mean() / indirect_ref.mean[mask].mean()),
+            "rel_rmse": error, "reference_noise": noise,
+            "noise_corrected": _corrected(error, noise)}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     stem = out.with_suffix("")
