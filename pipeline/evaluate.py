@@ -1,8 +1,9 @@
 """``prt evaluate``: a method's error against its cost as its budgets vary (DESIGN §8).
 
 For every budget of a sweep (the cartesian product of ``--sweep NAME=V1,V2,...``, plus
-the method's default budget) it bakes what the method needs in a work directory of its
-own, renders ``repeats`` frames after one warm-up and records:
+the method's default budget) it bakes what the method needs in the sweep's work
+directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), renders
+``repeats`` frames after one warm-up and records:
 
 * ``frame_ms``, ``kernel_ms``, ``setup_ms``: medians over the frames (setup = everything
   but the OpenCL kernels: loading artifacts, shadow rays, transfers);
@@ -226,7 +227,9 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
     sc = apply_budget(scene, budget)
     options = {k[len(RENDER_PREFIX):]: v for k, v in budget.items()
                if k.startswith(RENDER_PREFIX)}
-    wd = Workdir(workdir.root / "sweep" / method / _slug(budget))
+    # one work directory for all budgets: a budget re-bakes only the stages whose keys
+    # it changes (a haar.tolerance sweep re-runs haar, not transfer)
+    wd = Workdir(workdir.root / "sweep" / method)
     job.bake(sc, wd, until=job.METHODS[method][2], quiet=quiet)
     reads = job.METHOD_READS[method]
     # bake time: every stage the method's artifacts depend on

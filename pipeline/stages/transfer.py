@@ -87,8 +87,11 @@ def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
     """V (P, G) uint8: 1 where receiver p and disk centre g face each other
     (n_p·ω > 0, n_g·ω < 0) and nothing lies between them. The facing tests are two
     matrix products; rays run from p to g, both offset by ``epsilon`` along their
-    normals, and stop 1e-4 of their length short. Groups of receivers run on all cores
-    (NumPy and Embree release the GIL), each building its rays and tracing them."""
+    normals, with the unnormalised direction (end − start) and t_far = 1 − 1e-4 (Embree's
+    t is in units of the direction's length: no square roots). Points that coincide
+    fail the strict facing test, so no ray has zero length. Groups of receivers run on
+    all cores (NumPy and Embree release the GIL), each building its rays and tracing
+    them."""
     x, n = position.astype(np.float32), normal.astype(np.float32)
     c, ng = disks.center.astype(np.float32), disks.normal.astype(np.float32)
     start_of = x + np.float32(epsilon) * n
@@ -99,15 +102,14 @@ def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
     def group(rows: slice) -> None:
         facing = (n[rows] @ c.T > np.sum(n[rows] * x[rows], axis=1)[:, None]) & \
             (x[rows] @ ng.T > c_side)
-        p_idx, g_idx = np.nonzero(facing)
+        flat = np.flatnonzero(facing)
+        p_idx, g_idx = np.divmod(flat, len(c))
         start = np.take(start_of[rows], p_idx, axis=0)
         ray = np.take(end_of, g_idx, axis=0)
         ray -= start
-        length = np.sqrt(np.einsum("ij,ij->i", ray, ray))
-        ray /= np.maximum(length, 1e-30)[:, None]
-        length *= np.float32(1 - 1e-4)
-        free = ~tracer.occluded(start, ray, length, threads=1) & (length > 0)
-        vis[rows][p_idx[free], g_idx[free]] = 1
+        t_far = np.full(len(flat), 1 - 1e-4, np.float32)
+        free = ~tracer.occluded(start, ray, t_far, threads=1)
+        vis[rows].reshape(-1)[flat[free]] = 1
 
     step = max(1, -(-len(x) // (4 * tracer.threads)))
     with ThreadPoolExecutor(tracer.threads) as pool:
