@@ -1,4 +1,4 @@
-"""The gather stage (paper 000 §5.1): groups, glossy shooting, areas, Hilbert order,
+"""The gather stage (paper 000 §5.1): groups, glossy shooting, areas, chart order,
 disks and sub-area sample sets; and the space-filling curve it orders by."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline import job
-from pipeline.math.spacecurve import hilbert_index
+from pipeline.math.spacecurve import chart_order, hilbert_index
 from pipeline.math.transfer import disk_pattern, subarea_points
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.store import open_artifact
@@ -101,14 +101,38 @@ def test_gather_is_deterministic(cornell, tmp_path):
         np.testing.assert_array_equal(first.read(name), second.read(name))
 
 
-def test_hilbert_curve_steps_to_a_neighbouring_cell_every_time():
+@pytest.mark.parametrize("dims", [2, 3])
+def test_hilbert_curve_steps_to_a_neighbouring_cell_every_time(dims):
     for bits in (1, 2, 3, 4):
         side = np.arange(1 << bits)
-        cells = np.stack(np.meshgrid(side, side, side, indexing="ij"), -1).reshape(-1, 3)
+        cells = np.stack(np.meshgrid(*[side] * dims, indexing="ij"), -1).reshape(-1, dims)
         index = hilbert_index(cells, bits)
         assert sorted(index.tolist()) == list(range(len(cells)))
         walk = cells[np.argsort(index)].astype(int)
         assert np.all(np.abs(np.diff(walk, axis=0)).sum(axis=1) == 1)
+
+
+def test_chart_order_fills_squares_on_each_face_of_a_cube():
+    """Points on a grid over the six faces of a cube: ordered face by face (one chart
+    each), and within a face every aligned run of 4^l points is a square of cells."""
+    side = (np.arange(8) + 0.5) / 8
+    u, v = (a.ravel() for a in np.meshgrid(side, side, indexing="ij"))
+    points, normals = [], []
+    for axis in range(3):
+        for sign in (0.0, 1.0):
+            p = np.insert(np.stack([u, v], 1), axis, sign, axis=1)
+            n = np.zeros_like(p)
+            n[:, axis] = 1.0 if sign else -1.0
+            points.append(p)
+            normals.append(n)
+    points, normals = np.concatenate(points), np.concatenate(normals)
+    order = chart_order(points, normals, np.zeros(len(points), int), np.zeros(3), np.ones(3),
+                        bits=3)
+    face = np.argmax(np.abs(normals), 1) * 2 + (normals.sum(1) > 0)
+    assert np.all(np.diff(face[order]) >= 0)
+    for run in order.reshape(-1, 16):  # runs of 4² points: 4 × 4 squares of cells
+        plane = np.delete(points[run], np.argmax(np.abs(normals[run[0]])), axis=1)
+        assert np.ptp(plane, axis=0) == pytest.approx([3 / 8, 3 / 8])
 
 
 def test_disk_pattern_prefixes_are_evenly_spread():

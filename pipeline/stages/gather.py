@@ -18,9 +18,10 @@ none, and then has less (or no) indirect light to gather; ``count`` says how man
 gather sample's normal is the shading normal of the hit turned towards the ray's origin:
 the side of the surface that was seen.
 
-Order. Samples are sorted by object, then along a 3D Hilbert curve through the scene's
-bounding box (pipeline/math/spacecurve.py), so that rows of T, D and Ms are smooth in the
-gather index (DESIGN §7).
+Order. Samples are sorted by object, then by the chart of their normal (its largest
+component's axis and sign), then along a 2D Hilbert curve in that chart's plane
+(pipeline/math/spacecurve.py, ``chart_order``), so that rows of T, D and Ms are smooth in
+the gather index (DESIGN §7) and runs of samples fill squares on planar surfaces.
 
 Areas |A_g|. Uniform surface samples, one on every triangle plus more in proportion to
 area (``gather.area_samples`` per gather sample in all), each carrying the area it stands
@@ -55,7 +56,7 @@ from scipy.spatial import cKDTree
 from pipeline.errors import PrtError
 from pipeline.math.brdf_sampling import cos_power_direction, frame_to_world
 from pipeline.math.frames import tangent_from_normal
-from pipeline.math.spacecurve import hilbert_order
+from pipeline.math.spacecurve import chart_order
 from pipeline.math.transfer import disk_pattern
 from pipeline.raytrace import RayTracer
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
@@ -96,7 +97,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
                              np.ones(len(glossy["face"]), np.int8)]
     found = len(samples["face"])
 
-    order = _order(samples["position"], samples["object_id"], vertices)
+    order = chart_order(samples["position"], samples["normal"], samples["object_id"],
+                        vertices.min(0), vertices.max(0))
     samples = {k: v[order] for k, v in samples.items()}
     source = samples["source_pixel"]
     seen_from = position[source] + RAY_EPSILON * diagonal * normal[source]
@@ -166,14 +168,6 @@ class _Shooter:
         n = np.where(np.sum(n * d[ok], 1, keepdims=True) > 0, -n, n)
         return {"position": p, "normal": n, "face": face,
                 "object_id": self.geo["face_object"][face], "source_pixel": pixel[ok]}
-
-
-def _order(position: np.ndarray, object_id: np.ndarray, vertices: np.ndarray) -> np.ndarray:
-    """Sort by object, then along the Hilbert curve through the scene's bounding box."""
-    curve = hilbert_order(position, vertices.min(0), vertices.max(0))
-    rank = np.empty(len(curve), np.int64)
-    rank[curve] = np.arange(len(curve))
-    return np.lexsort((rank, object_id))
 
 
 class _Seen:
