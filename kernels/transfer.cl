@@ -3,12 +3,16 @@
  * the convergence rule). One work-item per (receiver p, gather disk g) pair.
  *
  * Defines: ROWS = rows of T (k + 1; 0 for receivers that only need D or Ms),
- *          SUBAREA = points per disk pattern (a power of two), FIRST_CHECK = 4.
+ *          SUBAREA = points per disk pattern (a power of two), FIRST_CHECK = 4,
+ *          POLYGON_SIDES = vertices of the polygon that stands for a disk,
+ *          PLANE_MARGIN = receivers nearer a disk's plane (x its radius) get nothing.
  *
  * Receivers: 12 floats each: position, normal, tangent, wo (world, unit normal/tangent/wo).
  * Disks:      8 floats each: centre, normal, area, unused.
  * Points:     SUBAREA * 3 floats per disk: its sub-area sample points (world); a pair
  *             with one sample uses the disk's centre instead (a point gather sample).
+ * Polygons:   POLYGON_SIDES * 3 floats per disk: the equal-area polygon's vertices; a
+ *             pair with more than one sample integrates G exactly over it.
  * Table:      ROWS * h floats: b0, b1..bk tabulated on the ascending coordinate grid
  *             grid[h] (delta in radians, or Lafortune's lobe base x); the cell of a value
  *             is found from its angle a (delta, or arccos x): f = (a - angle_lo) *
@@ -32,9 +36,73 @@ inline float table_lookup(__global const float* row, __global const float* grid,
     return row[i] + w * (row[i + 1] - row[i]);
 }
 
+#if ROWS > 0
+/* rows[j] += geo * f_F(wi, wo) b_j(coordinate(wi, wo)) for every row j. */
+inline void accumulate_rows(float* rows, __global const float* material,
+                            __global const float* grid, __global const float* table,
+                            const int h, const float angle_lo, const float angle_scale,
+                            float3 wi, float3 wo, float geo) {
+    float fixed = geo * brdf_fixed(material, wi, wo);
+    if (fixed == 0.0f) return;
+    float angle = brdf_coordinate_angle(material, wi, wo);
+#ifdef REVERSED_GRID
+    float coord = cos(angle);
+#else
+    float coord = angle;
+#endif
+    for (int j = 0; j < ROWS; ++j)
+        rows[j] += fixed * table_lookup(table + j * h, grid, h, coord, angle, angle_lo,
+                                        angle_scale);
+}
+#endif
+
+/* Lambert's formula term of the edge a -> b (relative to the receiver). */
+inline float edge_term(float3 a, float3 b, float3 n) {
+    float3 ua = normalize(a), ub = normalize(b);
+    float3 c = cross(ua, ub);
+    float s = length(c);
+    return s > 0.0f ? atan2(s, dot(ua, ub)) * dot(c, n) / s : 0.0f;
+}
+
+/* The integral of G over the polygon clipped to the receiver's upper half-space
+ * (pipeline.math.transfer.polygon_geometry), and the clipped polygon's vertex mean
+ * (relative to x) in *centroid. */
+inline float polygon_geometry(__global const float* poly, float3 x, float3 n,
+                              float3* centroid) {
+    float3 first = (float3)(0.0f), prev = (float3)(0.0f), sum = (float3)(0.0f);
+    float total = 0.0f;
+    int emitted = 0;
+    float3 v = vload3(0, poly) - x;
+    float h = dot(v, n);
+    for (int i = 0; i < POLYGON_SIDES; ++i) {
+        float3 v_next = vload3((i + 1) % POLYGON_SIDES, poly) - x;
+        float h_next = dot(v_next, n);
+        for (int part = 0; part < 2; ++part) {
+            float3 point;
+            if (part == 0) {
+                if (h < 0.0f) continue;
+                point = v;
+            } else {
+                if ((h >= 0.0f) == (h_next >= 0.0f)) continue;
+                point = v + (h / (h - h_next)) * (v_next - v);
+            }
+            if (emitted == 0) first = point; else total += edge_term(prev, point, n);
+            prev = point;
+            sum += point;
+            emitted += 1;
+        }
+        v = v_next;
+        h = h_next;
+    }
+    if (emitted > 1) total += edge_term(prev, first, n);
+    *centroid = emitted > 0 ? sum / (float)emitted : (float3)(0.0f);
+    return 0.5f * fabs(total);
+}
+
 __kernel void transfer_pairs(__global const float* receivers, const int receiver_count,
                              __global const float* disks, const int disk_count,
                              __global const float* points,
+                             __global const float* polygons,
                              __global const uchar* visibility,      /* receiver x disk */
                              __global const float* material,        /* MATERIAL_FLOATS */
                              __global const float* grid, __global const float* table,
@@ -62,13 +130,17 @@ __kernel void transfer_pairs(__global const float* receivers, const int receiver
     float omega = area / fmax(dot(dc, dc), 1e-30f);
     int count = 1;
     while (count < SUBAREA && (float)count * solid_angle < omega) count *= 2;
+    float exact = 0.0f;
+    float3 centroid = dc;
+    /* a receiver in the disk's plane (to PLANE_MARGIN of its radius) sees it edge-on */
+    if (count > 1 && dot(ng, -dc) > PLANE_MARGIN * sqrt(area / BRDF_PI))
+        exact = polygon_geometry(polygons + (size_t)g * POLYGON_SIDES * 3, x, nx, &centroid);
 
 #if ROWS > 0
     float3 wo = to_local(wo_world, nx, tx);
     float sum[ROWS], half_sum[ROWS];
     for (int j = 0; j < ROWS; ++j) { sum[j] = 0.0f; half_sum[j] = 0.0f; }
-#endif
-    float geo_sum = 0.0f, geo_half = 0.0f;
+    float geo_sum = 0.0f;
     int used = count;
     __global const float* q = points + (size_t)g * SUBAREA * 3;
     for (int i = 0; i < count; ++i) {
@@ -77,43 +149,44 @@ __kernel void transfer_pairs(__global const float* receivers, const int receiver
         float3 w = d * rsqrt(r2);
         float geo = area * fmax(dot(w, nx), 0.0f) * fmax(-dot(w, ng), 0.0f) / r2;
         geo_sum += geo;
-#if ROWS > 0
-        float3 wi = to_local(w, nx, tx);
-        float fixed = geo * brdf_fixed(material, wi, wo);
-        if (fixed != 0.0f) {
-            float angle = brdf_coordinate_angle(material, wi, wo);
-#ifdef REVERSED_GRID
-            float coord = cos(angle);
-#else
-            float coord = angle;
-#endif
-            for (int j = 0; j < ROWS; ++j)
-                sum[j] += fixed * table_lookup(table + j * h, grid, h, coord, angle, angle_lo,
-                                               angle_scale);
-        }
-#endif
+        accumulate_rows(sum, material, grid, table, h, angle_lo, angle_scale,
+                        to_local(w, nx, tx), wo, geo);
         int n = i + 1;
         if (n >= FIRST_CHECK && (n & (n - 1)) == 0 && n < count) {
             if (n >= 2 * FIRST_CHECK) {
-#if ROWS > 0
                 float mean = sum[0] / n, first = half_sum[0] / (n / 2);
-#else
-                float mean = geo_sum / n, first = geo_half / (n / 2);
-#endif
                 if (fabs(2.0f * mean - 2.0f * first) <= tolerance * fabs(mean)) {
                     used = n;
                     break;
                 }
             }
-            geo_half = geo_sum;
-#if ROWS > 0
             for (int j = 0; j < ROWS; ++j) half_sum[j] = sum[j];
-#endif
         }
     }
-    d_out[pair] = fmin(geo_sum / used, FORM_FACTOR_CAP) * (1.0f / BRDF_PI);
-#if ROWS > 0
-    for (int j = 0; j < ROWS; ++j)
-        t_out[((size_t)p * ROWS + j) * disk_count + g] = sum[j] / used;
+    if (count == 1) {
+        for (int j = 0; j < ROWS; ++j)
+            t_out[((size_t)p * ROWS + j) * disk_count + g] = sum[j];
+    } else if (geo_sum > 0.0f) {
+        /* the exact geometry integral times the samples' G-weighted BRDF mean */
+        for (int j = 0; j < ROWS; ++j)
+            t_out[((size_t)p * ROWS + j) * disk_count + g] = exact * sum[j] / geo_sum;
+    } else {
+        /* no sample sees the clipped polygon: the BRDF towards its centroid */
+        float at_centroid[ROWS];
+        for (int j = 0; j < ROWS; ++j) at_centroid[j] = 0.0f;
+        accumulate_rows(at_centroid, material, grid, table, h, angle_lo, angle_scale,
+                        to_local(normalize(centroid), nx, tx), wo, 1.0f);
+        for (int j = 0; j < ROWS; ++j)
+            t_out[((size_t)p * ROWS + j) * disk_count + g] = exact * at_centroid[j];
+    }
+    float point = geo_sum;
+#else
+    float point = 0.0f;
+    if (count == 1) {
+        float r2 = fmax(dot(dc, dc), 1e-30f);
+        float3 w = dc * rsqrt(r2);
+        point = area * fmax(dot(w, nx), 0.0f) * fmax(-dot(w, ng), 0.0f) / r2;
+    }
 #endif
+    d_out[pair] = (count > 1 ? exact : fmin(point, FORM_FACTOR_CAP)) * (1.0f / BRDF_PI);
 }

@@ -128,12 +128,13 @@ def test_frame_matches_the_reference_d2i_transport(baked):
     """Against the reference path tracer's d2i transport (full BRDF at the first vertex,
     Lambertian after) at 24², 1024 gather samples, 512 reference paths per pixel.
     Surfaces only (the luminaire's radiance 18 would hide everything else); the indirect
-    image against the d2i-indirect transport. Measured: mean indirect radiance 0.8 %
-    below the reference's (the reference's noise in the mean is < 1 %; before gather
-    areas were checked for visibility it was 3.5 % above), asserted within 5 %; surface
-    image 4.7 % relative RMSE, of which the reference's
-    estimated noise is 2.6 %, asserted under 8 %. With haar.tolerance 0.05 the surface
-    error was 9.2 %: this test watches truncation too."""
+    image against the d2i-indirect transport. 1024 gather samples are few: the mean
+    indirect radiance depends on the random gather set, measured over five (gather.count
+    1022..1026, each its own seed) from 1.5 % to 6.4 % below the reference's (mean
+    3.3 %; the reference's noise in the mean is < 1 %), asserted within 8 %; surface
+    image ≈ 5 % relative RMSE, of which the reference's estimated noise is 2.6 %,
+    asserted under 8 %. With haar.tolerance 0.05 the surface error was 9.2 %: this test
+    watches truncation too."""
     scene, workdir, renderer = baked
     frame = renderer.render(scene).rgb
     direct = job.render_frame(scene, workdir, "direct").rgb
@@ -144,7 +145,7 @@ def test_frame_matches_the_reference_d2i_transport(baked):
     surfaces = renderer.direct.object_id.reshape(SIZE, SIZE) != \
         renderer.direct.object_names.index("luminaire")
     indirect = frame - direct
-    assert indirect[surfaces].mean() == pytest.approx(ref_indirect[surfaces].mean(), rel=0.05)
+    assert indirect[surfaces].mean() == pytest.approx(ref_indirect[surfaces].mean(), rel=0.08)
     assert metrics.relative_rmse(frame, ref.mean, surfaces) < 0.08
 
 

@@ -41,8 +41,10 @@ from pipeline.math.brdf import BrdfParams, pack_materials
 from pipeline.math.brdf_pca import read_basis
 from pipeline.math.transfer import (
     FIRST_CHECK,
+    PLANE_MARGIN,
     GlossyTable,
     Receivers,
+    disk_polygons,
     subarea_points,
 )
 from pipeline.raytrace import RayTracer
@@ -55,13 +57,15 @@ PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows
 @dataclass
 class GatherDisks:
     """The gather artifact's disks as the kernel wants them: ``packed`` (G, 8) float32
-    (centre, normal, area, 0), sub-area ``points`` (G, M, 3) float32; and
-    ``inverse_area`` (G,) float32, 1/|A_g| (0 where |A_g| = 0)."""
+    (centre, normal, area, 0), sub-area ``points`` (G, M, 3) float32, the equal-area
+    ``polygon`` vertices (G, S, 3) float32; and ``inverse_area`` (G,) float32, 1/|A_g|
+    (0 where |A_g| = 0)."""
 
     center: np.ndarray
     normal: np.ndarray
     packed: np.ndarray
     points: np.ndarray
+    polygon: np.ndarray
 
     @property
     def inverse_area(self) -> np.ndarray:
@@ -73,13 +77,15 @@ class GatherDisks:
         center = gather.read("position").astype(np.float64)
         normal = gather.read("normal").astype(np.float64)
         area = gather.read("area").astype(np.float64)
-        points = subarea_points(center, normal, gather.read("disk_tangent").astype(np.float64),
-                                gather.read("radius").astype(np.float64),
+        tangent = gather.read("disk_tangent").astype(np.float64)
+        points = subarea_points(center, normal, tangent, gather.read("radius").astype(np.float64),
                                 gather.read("disk_rotation").astype(np.float64),
                                 gather.read("disk_pattern").astype(np.float64))
         packed = np.zeros((len(area), 8), np.float32)
         packed[:, 0:3], packed[:, 3:6], packed[:, 6] = center, normal, area
-        return cls(center, normal, packed, np.ascontiguousarray(points, np.float32))
+        polygon = disk_polygons(center, normal, tangent, area)
+        return cls(center, normal, packed, np.ascontiguousarray(points, np.float32),
+                   np.ascontiguousarray(polygon, np.float32))
 
 
 def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
@@ -127,6 +133,8 @@ class TransferKernel:
         self.count, self.subarea = len(disks.packed), disks.points.shape[1]
         self.disks = cl.read_only_buffer(disks.packed)
         self.points = cl.read_only_buffer(disks.points)
+        self.polygons = cl.read_only_buffer(disks.polygon)
+        self.sides = disks.polygon.shape[1]
         self.solid_angle, self.tolerance = np.float32(solid_angle), np.float32(tolerance)
 
     def __call__(self, receivers: Receivers, visibility: np.ndarray,
@@ -139,7 +147,8 @@ class TransferKernel:
         if n == 0 or self.count == 0:
             return (np.zeros((n, self.count), np.float32),
                     np.zeros((n, rows, self.count), np.float32) if rows else None)
-        defines = {"ROWS": rows, "SUBAREA": self.subarea, "FIRST_CHECK": FIRST_CHECK}
+        defines = {"ROWS": rows, "SUBAREA": self.subarea, "FIRST_CHECK": FIRST_CHECK,
+                   "POLYGON_SIDES": self.sides, "PLANE_MARGIN": f"{PLANE_MARGIN}f"}
         if table is None:
             material = np.zeros((1, 16), np.float32)
             grid = np.zeros(2, np.float32)
@@ -159,7 +168,7 @@ class TransferKernel:
         t_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, t.nbytes)
         kernel = cl.kernel("transfer.cl", "transfer_pairs", defines)
         kernel(self.queue, (self.count, n), None, cl.read_only_buffer(packed), np.int32(n),
-               self.disks, np.int32(self.count), self.points,
+               self.disks, np.int32(self.count), self.points, self.polygons,
                cl.read_only_buffer(np.ascontiguousarray(visibility, np.uint8)),
                cl.read_only_buffer(material), cl.read_only_buffer(grid),
                cl.read_only_buffer(values),
