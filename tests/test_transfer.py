@@ -16,6 +16,7 @@ from pipeline.math.transfer import (
     disk_pattern,
     disk_polygons,
     polygon_geometry,
+    split_near,
     subarea_points,
     transfer,
 )
@@ -252,3 +253,18 @@ def _sample_mean_geometry(receivers, disks):
     w = d / np.sqrt(r2)[:, None]
     g = np.maximum(w @ receivers.normal[0], 0) * np.maximum(-(w @ disks.normal[0]), 0) / r2
     return disks.area[0] * g.mean()
+
+
+def test_near_entries_are_split_off_exactly_and_the_far_part_stays_smooth():
+    """A smooth row with a spike (one entry carrying half the product, as beside a
+    contact): far + near = row; the spike alone is near, replaced in the far part by its
+    neighbours' mean; a row without a dominant entry has no near entries."""
+    area = np.full(1000, 2.0)  # 1000 entries: each of a smooth row carries ≈ 0.1 %
+    row = 1.0 + 0.001 * np.arange(1000)
+    spiky = row.copy()
+    spiky[20] = 1000.0
+    far, near = split_near(np.stack([row, spiky]), area)
+    np.testing.assert_allclose(far + near, np.stack([row, spiky]))
+    assert not near[0].any()
+    assert np.flatnonzero(near[1]).tolist() == [20]
+    assert far[1, 20] == pytest.approx(0.5 * (row[19] + row[21]))

@@ -13,7 +13,8 @@ samples and the G-buffer:
    (two ratios within ``RATIO_SETTLED``), the bounces are a power iteration that has
    found its dominant eigenvector, and the rest of the series is summed in closed form,
    L_n ρ/(1 − ρ): a few products instead of the ≈ 10 that the tolerance takes;
-4. per pixel (kernels/d2i.cl): D L and T_j L as sparse products with W (|A| ⊙ L), then
+4. per pixel (kernels/d2i.cl): D L and T_j L as sparse products with W (|A| ⊙ L) (and,
+   for a row's near entries, with |A| ⊙ L itself), then
    I = direct + kd ⊙ D L + ρs ⊙ max(0, Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0).
 
 Edits reuse what did not change (paper §6.2, "freezing", done as caching):
@@ -92,11 +93,13 @@ class D2iRenderer:
         self.bases: dict[str, Any] = {}  # material -> BrdfBasis (None: Lambertian)
         self.direct = DirectShader(workdir)
         self.material_names = self.direct.material_names
-        self.size = int(transport.attrs["haar_length"])
+        self.haar_length = int(transport.attrs["haar_length"])
         self.gather_position = gather.read("position").astype(np.float64)
         self.gather_normal = gather.read("normal").astype(np.float64)
         self.gather_material = gather.read("material_id")
         self.gather_area = gather.read("area").astype(np.float64)
+        # the radiance vector the rows index: Haar coefficients, then gather values
+        self.size = self.haar_length + len(self.gather_area)
         read = transport.read
         self.ms = Rows.from_counts(read("ms_count"), read("ms_index"), read("ms_value"))
         self.d = Rows.from_counts(read("d_count"), read("d_index"), read("d_value"))
@@ -176,12 +179,15 @@ class D2iRenderer:
                      "bounce_kernel_ms": kernel_ms, "bounces": float(bounces)}
 
     def _to_haar(self, radiance: np.ndarray) -> np.ndarray:
-        """W (|A| ⊙ L) as (N, 4) float32 (RGB, 0), N = haar_length: the rows of T, D and
-        Ms are stored per unit source area (pipeline/stages/transfer.py)."""
+        """[W (|A| ⊙ L); |A| ⊙ L] as (N + G, 4) float32 (RGB, 0), N = haar_length: the
+        rows of T, D and Ms are stored per unit source area, their far parts as Haar
+        coefficients (indices < N), their near entries in the gather domain (N + g)
+        (pipeline/stages/transfer.py)."""
         out = np.zeros((self.size, 4), np.float32)
         if len(radiance):
             weighted = np.asarray(radiance, np.float64) * self.gather_area[:, None]
-            out[:, :3] = haar.forward(weighted.T).T[:self.size]
+            out[:self.haar_length, :3] = haar.forward(weighted.T).T[:self.haar_length]
+            out[self.haar_length:, :3] = weighted
         return out
 
     def products(self, radiance_w: np.ndarray, frozen: Rows | None = None

@@ -40,7 +40,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         receivers = Receivers(position, normal, tangent_from_normal(normal), normal)
         vis = center_visibility(tracer, position, normal, disks, epsilon)
         ms, _ = kernel(receivers, vis, None)
-        parts.append(compress_rows(ms * disks.inverse_area, keep, cap))
+        parts.append(compress_rows(ms * disks.inverse_area, disks.area, keep, cap))
     return {k: join_arrays([p[k] for p in parts], dt) for k, dt in ROW_FIELDS.items()}
 
 

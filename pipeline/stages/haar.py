@@ -1,10 +1,11 @@
 """Stage ``haar``: cut the stored Haar rows of T, D and Ms down to the renderer's budgets
 (paper 000 §3.4, §7.2). One chunk. Schema ``compressed_transport``.
 
-The ``transfer`` and ``bounce`` stages keep each row near-losslessly (largest
-coefficients first, to ``transfer.keep_tolerance``); this stage keeps a prefix of each
-row. Because the Haar transform is orthonormal, a row that keeps the coefficients of
-energy E_kept of its full energy E errs in any product t·l by at most √(E − E_kept)·‖l‖
+The ``transfer`` and ``bounce`` stages keep each row near-losslessly (its near entries
+in the gather domain, then Haar coefficients largest first, to
+``transfer.keep_tolerance``); this stage keeps a prefix of each row, near entries always.
+Because the Haar transform is orthonormal, a row that keeps the coefficients of energy
+E_kept of its full energy E errs in any product t·l by at most √(E − E_kept)·‖l‖
 (pipeline/math/haar.py). Budgets:
 
 ``tolerance`` (default): each row keeps the fewest coefficients whose dropped energy,
@@ -30,13 +31,15 @@ BUDGETS = ("tolerance", "proportional")
 
 
 def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
-                tolerance: float) -> np.ndarray:
+                tolerance: float, near: np.ndarray | None = None) -> np.ndarray:
     """Per CSR row (largest coefficient first): the fewest leading entries whose dropped
     energy (the rest of the row plus the residual already dropped) is ≤ tolerance² of
-    the row's full energy."""
+    the row's full energy. Entries flagged ``near`` (a row's leading gather-domain
+    entries, pipeline/stages/transfer.py) are always kept and count for no energy."""
     count = count.astype(np.int64)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    energy = np.square(value.astype(np.float64))
+    near = np.zeros(len(value), bool) if near is None else near
+    energy = np.where(near, 0.0, np.square(value.astype(np.float64)))
     running = np.cumsum(energy)
     before = np.concatenate([[0.0], running])[start]
     kept_total = np.concatenate([[0.0], running])[start + count] - before
@@ -46,8 +49,8 @@ def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
     row_of = np.repeat(np.arange(len(count)), count)
     within = running - before[row_of]  # energy of entries up to and including this one
     short = within < allowed[row_of] * (1 - 1e-12)
-    return np.minimum(np.bincount(row_of, weights=short, minlength=len(count))
-                      .astype(np.int64) + 1, count)
+    needed = np.bincount(row_of, weights=short | near, minlength=len(count)).astype(np.int64)
+    return np.minimum(needed + 1, count)
 
 
 def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.ndarray
@@ -66,12 +69,15 @@ def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.n
 def _budget(ctx: AssembleContext, prefix: str, arrays: dict[str, np.ndarray],
             proportional: np.ndarray | None) -> dict[str, np.ndarray]:
     count, value = arrays[f"{prefix}_count"], arrays[f"{prefix}_value"]
+    near = arrays[f"{prefix}_index"] >= int(ctx.inputs["transfer"].attrs["haar_length"])
     if ctx.params["haar.budget"] == "tolerance":
         keep = kept_counts(count, arrays[f"{prefix}_residual"], value,
-                           float(ctx.params["haar.tolerance"]))
+                           float(ctx.params["haar.tolerance"]), near)
     else:
-        keep = proportional if proportional is not None else \
-            np.full(len(count), int(ctx.params["haar.coefficients"]))
+        near_count = np.bincount(np.repeat(np.arange(len(count)), count), weights=near,
+                                 minlength=len(count)).astype(np.int64)
+        keep = near_count + (proportional if proportional is not None else
+                             np.full(len(count), int(ctx.params["haar.coefficients"])))
     out = cut_rows(count, arrays[f"{prefix}_index"], value, keep)
     return {f"{prefix}_{k}": v for k, v in out.items()}
 

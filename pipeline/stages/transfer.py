@@ -45,6 +45,7 @@ from pipeline.math.transfer import (
     GlossyTable,
     Receivers,
     disk_polygons,
+    split_near,
     subarea_points,
 )
 from pipeline.raytrace import RayTracer
@@ -66,6 +67,10 @@ class GatherDisks:
     packed: np.ndarray
     points: np.ndarray
     polygon: np.ndarray
+
+    @property
+    def area(self) -> np.ndarray:
+        return self.packed[:, 6]
 
     @property
     def inverse_area(self) -> np.ndarray:
@@ -190,11 +195,41 @@ def _grid_angles(params: BrdfParams, grid: np.ndarray) -> tuple[float, float]:
     return lo, (len(grid) - 1) / (hi - lo)
 
 
-def compress_rows(rows: np.ndarray, keep_tolerance: float, max_coefficients: int
-                  ) -> dict[str, np.ndarray]:
-    """Dense rows (n, G) as truncated Haar rows (pipeline.math.haar.truncate, CSR)."""
-    return haar.truncate(haar.forward(rows.astype(np.float32)), keep_tolerance,
-                         max_coefficients)
+def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
+                  max_coefficients: int) -> dict[str, np.ndarray]:
+    """Dense rows (n, G) per unit source area as CSR rows over the renderer's radiance
+    vector (Haar coefficients, then gather-domain values): each row's near entries
+    (pipeline.math.transfer.split_near) first, as index haar_length + g, then its far
+    part's Haar coefficients truncated by pipeline.math.haar.truncate (largest first;
+    ``residual`` is relative to the far part)."""
+    far, near = split_near(rows.astype(np.float64), area)
+    haar_rows = haar.truncate(haar.forward(far.astype(np.float32)), keep_tolerance,
+                              max_coefficients)
+    near_row, near_column = np.nonzero(near)
+    near_count = np.bincount(near_row, minlength=len(rows))
+    offset = haar.padded_length(rows.shape[1])
+    return merge_rows({"count": near_count, "index": near_column + offset,
+                       "value": near[near_row, near_column]}, haar_rows)
+
+
+def merge_rows(first: dict[str, np.ndarray], second: dict[str, np.ndarray]
+               ) -> dict[str, np.ndarray]:
+    """CSR rows whose entries are ``first``'s, then ``second``'s (same row count);
+    ``residual`` from ``second``."""
+    count = first["count"].astype(np.int64) + second["count"]
+    row_a = np.repeat(np.arange(len(count)), first["count"])
+    row_b = np.repeat(np.arange(len(count)), second["count"])
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    pos_a = start[row_a] + np.arange(len(row_a)) - np.concatenate(
+        [[0], np.cumsum(first["count"])[:-1]]).astype(np.int64)[row_a]
+    pos_b = start[row_b] + first["count"][row_b] + np.arange(len(row_b)) - np.concatenate(
+        [[0], np.cumsum(second["count"])[:-1]]).astype(np.int64)[row_b]
+    index = np.empty(int(count.sum()), np.int32)
+    value = np.empty(int(count.sum()), np.float32)
+    index[pos_a], value[pos_a] = first["index"], first["value"]
+    index[pos_b], value[pos_b] = second["index"], second["value"]
+    return {"count": count.astype(np.int32), "index": index, "value": value,
+            "residual": second["residual"]}
 
 
 # ---------------------------------------------------------------------------- the stage
@@ -279,11 +314,12 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
             sel = batch[own]
             receivers = Receivers(position[sel], normal[sel], tangent[sel], wo[sel])
             d, t = kernel(receivers, vis[own], tables.get(int(mat)))
-            d_parts.append((sel, compress_rows(d * disks.inverse_area, keep, cap), 1))
+            d_parts.append((sel, compress_rows(d * disks.inverse_area, disks.area, keep,
+                                               cap), 1))
             if t is not None:
                 rows = t.shape[1]
                 t = t.reshape(-1, t.shape[-1]) * disks.inverse_area
-                t_parts.append((sel, compress_rows(t, keep, cap), rows))
+                t_parts.append((sel, compress_rows(t, disks.area, keep, cap), rows))
     unseen = np.flatnonzero(material < 0)
     d_parts.append((unseen, {"count": np.zeros(len(unseen), np.int32),
                              "residual": np.zeros(len(unseen), np.float32),
