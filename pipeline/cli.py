@@ -255,21 +255,19 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
               help="Folder for results.json, probe.json, the charts and frames.")
 @click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True,
               help="Timed frames per budget (medians are reported).")
-@click.option("--reference-tolerance", type=click.FloatRange(min=0), default=0.005,
-              show_default=True, help="Estimated relative RMSE of the reference images.")
 @click.option("--reference-max-spp", type=click.IntRange(min=1), default=4096,
               show_default=True, help="Sample cap of the reference images.")
 @click.option("--size", metavar="WxH", help="Image size of every budget that does not sweep "
                                             "size [default: the scene camera's].")
 @WORKDIR
 @QUIET
-def evaluate_cmd(scene, method, sweeps, out, repeats, reference_tolerance, reference_max_spp,
-                 size, workdir, quiet) -> None:
+def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, workdir,
+                 quiet) -> None:
     """Chart a method's error against frame time, storage and bake time over budgets."""
     from pipeline import evaluate, job
 
     sc = job.open_scene(scene, parse_size(size))
-    settings = evaluate.EvaluateSettings(repeats, reference_tolerance, reference_max_spp)
+    settings = evaluate.EvaluateSettings(repeats, reference_max_spp)
     records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), method,
                                 evaluate.parse_sweep(list(sweeps)), out, settings, quiet)
     click.echo(f"Wrote {out / 'results.json'} ({len(records)} budgets) and charts "

@@ -11,9 +11,9 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
   recorded by the stages that made them (those of the whole chain);
 * ``rel_rmse`` (headline), ``psnr_db``, ``flip`` against the reference renderer's image
   of the method's transport at the same size (pipeline/reference.py, cached), and
-  ``reference_rel_rmse``, that reference's own estimated error: it is rendered again at
-  a quarter of the method's error whenever it exceeds a third of it (up to the sample
-  cap), so that the error measures the method, not the reference;
+  ``reference_rel_rmse``, that reference's own estimated error: it is rendered at 64,
+  256, 1024, ... paths per pixel (up to the cap) until that error is at most a third of
+  the method's, so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
 * d2i also: ``rel_rmse_indirect``, its indirect image (frame less the direct method's
   frame) against the reference's ``d2i-indirect`` transport on those pixels, tightened
@@ -64,15 +64,15 @@ HEADLINE_ERROR = {"direct": "rel_rmse", "d2i": "rel_rmse_surfaces"}
 RENDER_PREFIX = "render."
 HEATMAP_MAX = 0.2  # heat maps span relative errors 0 to 20 %
 MITSUBA_MAX_SPP = 4096
+REFERENCE_FIRST_SPP = 64  # references render at 64, 256, 1024, ... paths per pixel
 
 
 @dataclass(frozen=True)
 class EvaluateSettings:
-    """``repeats`` timed frames per budget; the reference's ``reference_tolerance`` and
+    """``repeats`` timed frames per budget; the references' sample cap
     ``reference_max_spp``; the path tracer's ``pathtrace_max_spp``."""
 
     repeats: int = 5
-    reference_tolerance: float = 0.005
     reference_max_spp: int = 4096
     pathtrace_max_spp: int = 4096
 
@@ -290,19 +290,18 @@ def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: 
     (None: every pixel), is at most a third of ``image``'s error there, or the one at
     the sample cap. A noisier reference would measure itself; the masks matter because
     the estimate over the whole image, dominated by an emitter's pixels, says little
-    about the surfaces."""
-    tolerance = settings.reference_tolerance
+    about the surfaces. References are rendered at fixed sample counts (64, 256, 1024,
+    ... up to the cap) so that every budget of a sweep finds the same cached images."""
+    spp = min(REFERENCE_FIRST_SPP, settings.reference_max_spp)
     while True:
         ref = job.reference(scene, workdir, ReferenceSettings(
-            transport, tolerance=tolerance, max_spp=settings.reference_max_spp),
-            quiet=quiet).image
+            transport, tolerance=0.0, min_spp=spp, max_spp=spp), quiet=quiet).image
         full = np.ones(image.shape[:2], bool)
         ratios = [_noise(ref, full if m is None else m)
                   / max(metrics.relative_rmse(image, ref.mean, m), 1e-12) for m in masks]
-        if max(ratios) <= 1 / 3 or ref.spp >= settings.reference_max_spp:
+        if max(ratios) <= 1 / 3 or spp >= settings.reference_max_spp:
             return ref
-        # every estimate falls as 1/√spp: aim the worst mask at a quarter of its error
-        tolerance = ref.estimate / (4 * max(ratios))
+        spp = min(4 * spp, settings.reference_max_spp)
 
 
 def _indirect_record(scene: Scene, wd: Workdir, workdir: Workdir, frame: np.ndarray,
