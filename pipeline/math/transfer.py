@@ -246,19 +246,21 @@ def split_near(rows: np.ndarray, area: np.ndarray, fraction: float = NEAR_FRACTI
     weight = np.abs(rows) * area[None, :]
     total = weight.sum(axis=1, keepdims=True)
     near = (weight >= fraction * total) & (total > 0)
-    if not near.any():
-        return rows, np.zeros_like(rows)
+    rows_near = np.flatnonzero(near.any(axis=1))
+    far = rows.copy()
+    if len(rows_near) == 0:
+        return far, np.zeros_like(rows)
+    sub, mask = rows[rows_near], near[rows_near]  # the few rows that have near entries
     columns = np.arange(rows.shape[1])
-    left = np.maximum.accumulate(np.where(near, -1, columns[None, :]), axis=1)
-    right = np.minimum.accumulate(np.where(near, rows.shape[1], columns[None, :])[:, ::-1],
+    left = np.maximum.accumulate(np.where(mask, -1, columns[None, :]), axis=1)
+    right = np.minimum.accumulate(np.where(mask, rows.shape[1], columns[None, :])[:, ::-1],
                                   axis=1)[:, ::-1]
     has_left, has_right = left >= 0, right < rows.shape[1]
-    left_value = np.take_along_axis(rows, np.maximum(left, 0), axis=1) * has_left
-    right_value = np.take_along_axis(rows, np.minimum(right, rows.shape[1] - 1), axis=1) \
+    left_value = np.take_along_axis(sub, np.maximum(left, 0), axis=1) * has_left
+    right_value = np.take_along_axis(sub, np.minimum(right, rows.shape[1] - 1), axis=1) \
         * has_right
     neighbours = np.maximum(has_left.astype(int) + has_right, 1)
-    replacement = (left_value + right_value) / neighbours
-    far = np.where(near, replacement, rows)
+    far[rows_near] = np.where(mask, (left_value + right_value) / neighbours, sub)
     return far, rows - far
 
 

@@ -202,9 +202,8 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
     (pipeline.math.transfer.split_near) first, as index haar_length + g, then its far
     part's Haar coefficients truncated by pipeline.math.haar.truncate (largest first;
     ``residual`` is relative to the far part)."""
-    far, near = split_near(rows.astype(np.float64), area)
-    haar_rows = haar.truncate(haar.forward(far.astype(np.float32)), keep_tolerance,
-                              max_coefficients)
+    far, near = split_near(rows, area)
+    haar_rows = haar.truncate(haar.forward(far), keep_tolerance, max_coefficients)
     near_row, near_column = np.nonzero(near)
     near_count = np.bincount(near_row, minlength=len(rows))
     offset = haar.padded_length(rows.shape[1])
