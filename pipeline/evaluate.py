@@ -365,6 +365,7 @@ def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     fig, ax = plt.subplots(figsize=(5.5, 4.0), dpi=120)
     for method in sorted({r["method"] for r in records}):
@@ -388,6 +389,7 @@ def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
                             label=f"{tracer}, equal error")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ax.xaxis.set_minor_formatter(NullFormatter())  # labelled minor ticks overlap
     ax.set_xlabel(label)
     ax.set_ylabel("relative RMSE vs reference"
                   + (" (indirect image)" if error_key == "rel_rmse_indirect" else ""))
