@@ -253,7 +253,7 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
     indirect = _indirect_record(sc, wd, workdir, frame.rgb, surfaces, settings, quiet) \
         if method == "d2i" else {}
     headline_mask = surfaces if HEADLINE_ERROR[method] == "rel_rmse_surfaces" else None
-    headline = metrics.relative_rmse(frame.rgb, ref.mean, headline_mask)
+    headline = errors["rel_rmse"] if headline_mask is None else surface_error
     slug = _slug(budget)
     write_exr(out / "frames" / f"{slug}.exr", frame.rgb)
     write_png(out / "frames" / f"{slug}.png", frame.rgb)

@@ -215,19 +215,13 @@ def merge_rows(first: dict[str, np.ndarray], second: dict[str, np.ndarray]
                ) -> dict[str, np.ndarray]:
     """CSR rows whose entries are ``first``'s, then ``second``'s (same row count);
     ``residual`` from ``second``."""
-    count = first["count"].astype(np.int64) + second["count"]
-    row_a = np.repeat(np.arange(len(count)), first["count"])
-    row_b = np.repeat(np.arange(len(count)), second["count"])
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    pos_a = start[row_a] + np.arange(len(row_a)) - np.concatenate(
-        [[0], np.cumsum(first["count"])[:-1]]).astype(np.int64)[row_a]
-    pos_b = start[row_b] + first["count"][row_b] + np.arange(len(row_b)) - np.concatenate(
-        [[0], np.cumsum(second["count"])[:-1]]).astype(np.int64)[row_b]
-    index = np.empty(int(count.sum()), np.int32)
-    value = np.empty(int(count.sum()), np.float32)
-    index[pos_a], value[pos_a] = first["index"], first["value"]
-    index[pos_b], value[pos_b] = second["index"], second["value"]
-    return {"count": count.astype(np.int32), "index": index, "value": value,
+    rows = np.arange(len(first["count"]))
+    row_of = np.concatenate([np.repeat(rows, first["count"]), np.repeat(rows, second["count"])])
+    order = np.argsort(row_of, kind="stable")  # within a row, first's entries lead
+    return {"count": (first["count"] + second["count"]).astype(np.int32),
+            "index": np.concatenate([first["index"], second["index"]])[order].astype(np.int32),
+            "value": np.concatenate([first["value"], second["value"]])[order]
+            .astype(np.float32),
             "residual": second["residual"]}
 
 
