@@ -66,8 +66,17 @@ def queue() -> Any:
 
 
 def _source_hash(folder: Path) -> str:
+    """Hash of the folder's kernel sources and headers; re-read only when a file's name,
+    size or modification time changes (a frame builds many kernels: stat, not read)."""
+    paths = sorted(folder.glob("*.[ch]*"))
+    signature = tuple((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in paths)
+    return _hash_sources(tuple(paths), signature)
+
+
+@cache
+def _hash_sources(paths: tuple[Path, ...], signature: tuple) -> str:
     h = hashlib.sha256()
-    for path in sorted(folder.glob("*.[ch]*")):
+    for path in paths:
         h.update(path.name.encode())
         h.update(path.read_bytes())
     return h.hexdigest()

@@ -263,8 +263,27 @@ def test_near_entries_are_split_off_exactly_and_the_far_part_stays_smooth():
     row = 1.0 + 0.001 * np.arange(1000)
     spiky = row.copy()
     spiky[20] = 1000.0
-    far, near = split_near(np.stack([row, spiky]), area)
+    far, (near_row, near_column, near_value) = split_near(np.stack([row, spiky]), area)
+    near = np.zeros_like(far)
+    near[near_row, near_column] = near_value
     np.testing.assert_allclose(far + near, np.stack([row, spiky]))
-    assert not near[0].any()
-    assert np.flatnonzero(near[1]).tolist() == [20]
+    assert near_row.tolist() == [1] and near_column.tolist() == [20]
     assert far[1, 20] == pytest.approx(0.5 * (row[19] + row[21]))
+
+
+def test_runs_of_near_entries_take_the_far_neighbours_beside_the_run():
+    """Adjacent near entries form a run, filled with the mean of the far entries on
+    either side of it; at a row's ends only the one side that exists counts."""
+    area = np.full(1000, 2.0)
+    row = 1.0 + 0.001 * np.arange(1000)
+    spikes = row.copy()
+    runs = [[0, 1], [500, 501, 502], [999]]
+    for run in runs:
+        spikes[run] = 1000.0
+    far, (near_row, near_column, near_value) = split_near(np.stack([row, spikes]), area)
+    assert near_row.tolist() == [1] * 6 and near_column.tolist() == sum(runs, [])
+    np.testing.assert_allclose(far[1, [0, 1]], row[2])
+    np.testing.assert_allclose(far[1, 500:503], 0.5 * (row[499] + row[503]))
+    np.testing.assert_allclose(far[1, 999], row[998])
+    np.testing.assert_allclose(far[1, near_column] + near_value, spikes[near_column])
+    np.testing.assert_array_equal(far[0], row)

@@ -229,10 +229,11 @@ def polygon_geometry(x: np.ndarray, n: np.ndarray, polygon: np.ndarray
 
 
 def split_near(rows: np.ndarray, area: np.ndarray, fraction: float = NEAR_FRACTION
-               ) -> tuple[np.ndarray, np.ndarray]:
+               ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Split rows (n, G) per unit source area into a smooth far part (n, G) and near
-    entries (n, G), zero but where an entry's share of the row's product with a uniform
-    radiance, |t_g| |A_g| / Σ_h |t_h| |A_h|, is at least ``fraction``; rows = far + near.
+    entries ``(row, column, value)`` (each (m,), row-major order): an entry is near where
+    its share of the row's product with a uniform radiance, |t_g| |A_g| / Σ_h |t_h| |A_h|,
+    is at least ``fraction``; rows = far + the near entries.
 
     A receiver beside a disk (a floor pixel at a box's foot, a corner) has one or two
     entries a thousand times the rest (per unit area: E_g/(π |A_g|) of a disk that fills
@@ -241,27 +242,27 @@ def split_near(rows: np.ndarray, area: np.ndarray, fraction: float = NEAR_FRACTI
     uniform offset across it — cheap in L2, spread over 16k entries, but multiplied by
     the scene's total power in the product (measured at 256²: rows of 15 coefficients,
     D L negative). Near entries are kept exactly (the renderer multiplies them with the
-    gather-domain radiance); in the far part each is replaced by the mean of its nearest
-    far neighbours in gather order, so that it stays smooth."""
+    gather-domain radiance); in the far part each run of adjacent near entries is
+    replaced by the mean of the far entries on either side of it in gather order, so
+    that it stays smooth. At most 1/``fraction`` entries of a row are near, so the work
+    beyond the threshold test is per near entry, not per column."""
     weight = np.abs(rows) * area[None, :]
     total = weight.sum(axis=1, keepdims=True)
-    near = (weight >= fraction * total) & (total > 0)
-    rows_near = np.flatnonzero(near.any(axis=1))
+    row, column = np.nonzero((weight >= fraction * total) & (total > 0))
     far = rows.copy()
-    if len(rows_near) == 0:
-        return far, np.zeros_like(rows)
-    sub, mask = rows[rows_near], near[rows_near]  # the few rows that have near entries
-    columns = np.arange(rows.shape[1])
-    left = np.maximum.accumulate(np.where(mask, -1, columns[None, :]), axis=1)
-    right = np.minimum.accumulate(np.where(mask, rows.shape[1], columns[None, :])[:, ::-1],
-                                  axis=1)[:, ::-1]
-    has_left, has_right = left >= 0, right < rows.shape[1]
-    left_value = np.take_along_axis(sub, np.maximum(left, 0), axis=1) * has_left
-    right_value = np.take_along_axis(sub, np.minimum(right, rows.shape[1] - 1), axis=1) \
-        * has_right
-    neighbours = np.maximum(has_left.astype(int) + has_right, 1)
-    far[rows_near] = np.where(mask, (left_value + right_value) / neighbours, sub)
-    return far, rows - far
+    if len(row) == 0:
+        return far, (row, column, rows[row, column])
+    size = rows.shape[1]
+    starts = np.r_[True, (np.diff(column) != 1) | (np.diff(row) != 0)]  # runs of near
+    run = np.cumsum(starts) - 1
+    run_row, left = row[starts], column[starts] - 1
+    right = column[np.r_[starts[1:], True]] + 1
+    has_left, has_right = left >= 0, right < size
+    neighbours = rows[run_row, np.maximum(left, 0)] * has_left + \
+        rows[run_row, np.minimum(right, size - 1)] * has_right
+    fill = neighbours / np.maximum(has_left.astype(int) + has_right, 1)
+    far[row, column] = fill[run]
+    return far, (row, column, rows[row, column] - far[row, column])
 
 
 def _converged_counts(values: np.ndarray, counts: np.ndarray, tolerance: float) -> np.ndarray:

@@ -29,6 +29,7 @@ stage.
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -53,6 +54,7 @@ from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
+COMPRESS_BLOCK = 32  # rows per thread at least when compressing on several cores
 
 
 @dataclass
@@ -201,14 +203,26 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
     vector (Haar coefficients, then gather-domain values): each row's near entries
     (pipeline.math.transfer.split_near) first, as index haar_length + g, then its far
     part's Haar coefficients truncated by pipeline.math.haar.truncate (largest first;
-    ``residual`` is relative to the far part)."""
-    far, near = split_near(rows, area)
+    ``residual`` is relative to the far part). Row blocks run on all cores (NumPy's
+    loops, partitions and sorts release the GIL)."""
+    threads = min(os.cpu_count() or 1, max(len(rows) // COMPRESS_BLOCK, 1))
+    if threads == 1:
+        return _compress_block(rows, area, keep_tolerance, max_coefficients)
+    with ThreadPoolExecutor(threads) as pool:
+        parts = list(pool.map(lambda block: _compress_block(block, area, keep_tolerance,
+                                                            max_coefficients),
+                              np.array_split(rows, threads)))
+    return {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
+
+
+def _compress_block(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
+                    max_coefficients: int) -> dict[str, np.ndarray]:
+    far, (near_row, near_column, near_value) = split_near(rows, area)
     haar_rows = haar.truncate(haar.forward(far), keep_tolerance, max_coefficients)
-    near_row, near_column = np.nonzero(near)
     near_count = np.bincount(near_row, minlength=len(rows))
     offset = haar.padded_length(rows.shape[1])
     return merge_rows({"count": near_count, "index": near_column + offset,
-                       "value": near[near_row, near_column]}, haar_rows)
+                       "value": near_value}, haar_rows)
 
 
 def merge_rows(first: dict[str, np.ndarray], second: dict[str, np.ndarray]
