@@ -10,9 +10,10 @@ Measures, in one run on this machine:
   luminaire's centre (moved each frame) and with the scene's 16-sample area light;
   BRDF-edit frames (the floor's γ changed each frame); split into shadow rays, bounces
   and per-pixel work;
-* the effective bandwidth of the per-pixel product kernels (bytes of rows read, radiance
-  gathered and products written, over kernel time) as a fraction of the memory-bandwidth
-  probe (pipeline/bandwidth.py), run in the same process.
+* the effective bandwidth of the per-pixel product kernels of a light-edit frame (the
+  bytes they must move: rows, the radiance vector once per launch, the products; over
+  their kernel time) as a fraction of the memory-bandwidth probe (pipeline/bandwidth.py),
+  run in the same process.
 
 Run from the project root: python benchmarks/bench_d2i.py [--size 400] [--gathers 16384]
 Writes benchmarks/results/d2i_bench_<size>.json. Bakes into --workdir (default
@@ -33,7 +34,7 @@ import numpy as np
 
 from pipeline import job
 from pipeline.bandwidth import probe
-from pipeline.render.d2i import D2iRenderer
+from pipeline.render.d2i import D2iRenderer, Rows
 from pipeline.runner import stage_chunks, stage_params
 from pipeline.scene import (
     Light,
@@ -46,7 +47,7 @@ from pipeline.stagefile import load_stagefile
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
-REPEATS = 9
+REPEATS = 25
 PAPER_TABLE5_MB = {"T": 152, "D": 60, "Ms": 20}
 PROFILED_TILES = 4
 
@@ -143,11 +144,17 @@ def frame_times(scene, workdir) -> dict[str, dict[str, float]]:
     frames = [frame_of(with_material_edits(scene, [f"{glossy}.gamma={g:.4g}"]))
               for g in np.geomspace(3, 300, REPEATS + 1)]
     results["brdf_edit"] = _medians(frames[1:])
-    rows = renderer.d.nbytes + renderer.freeze(renderer.coefficients(scene)).nbytes
-    entries = len(renderer.d.index) + len(renderer.freeze(renderer.coefficients(scene)).index)
-    moved = rows + 16 * entries + 16 * len(renderer.d.offsets) * 2
-    results["product_kernel_bytes_light_edit"] = float(moved)
+    results["product_kernel_bytes_light_edit"] = float(product_bytes(
+        renderer, renderer.freeze(renderer.coefficients(point_light_scene(scene)))))
     return results
+
+
+def product_bytes(renderer: D2iRenderer, frozen: Rows) -> int:
+    """Bytes a light-edit frame's two product kernels (D rows, frozen T rows) must move
+    at least: every row's offsets, indices and values, the float4 radiance vector once
+    per launch (it stays in cache while the rows stream past), the float4 outputs."""
+    launches = (renderer.d, frozen)
+    return sum(rows.nbytes + 16 * renderer.size + 16 * rows.count for rows in launches)
 
 
 def _medians(frames) -> dict[str, float]:

@@ -1,32 +1,7 @@
-/* Method d2i's run-time products (paper 000 eq. 9, 17): sparse Haar rows against a
- * radiance vector in the Haar domain, and the per-pixel combination
- *   I = direct + kd * (D L) + rho_s * max(0, sum_j c_j(gamma) (T_j L)).
- * Rows are CSR (offsets[r] .. offsets[r + 1] into index / value); radiance is float4
- * (RGB, w unused) per Haar coefficient. */
+/* Method d2i's per-pixel combination (paper 000 eq. 9):
+ *   I = direct + kd * (D L) + rho_s * max(0, sum_j c_j(gamma) (T_j L)),
+ * from the sparse products D L and T_j L (kernels/sparse_rows.cl). */
 #include "brdf.h"
-
-/* out[r] = sum over row r of value * radiance[index]  (one work-item per row).
- * Four independent partial sums, four entries per step: one accumulator would chain
- * every add on the previous one (latency-bound, about half the speed on PoCL's CPU
- * device); so the loop keeps several loads in flight and runs at the rows' streaming
- * rate (benchmarks/bench_d2i.py). Written as mul + add: fma() is slower on PoCL. */
-__kernel void sparse_rows(__global const int* offsets, __global const int* index,
-                          __global const float* value, __global const float4* radiance,
-                          const int rows, __global float4* out)
-{
-    int r = get_global_id(0);
-    if (r >= rows) return;
-    float4 a0 = (float4)(0.0f), a1 = a0, a2 = a0, a3 = a0;
-    int e = offsets[r], end = offsets[r + 1];
-    for (; e + 4 <= end; e += 4) {
-        a0 += value[e] * radiance[index[e]];
-        a1 += value[e + 1] * radiance[index[e + 1]];
-        a2 += value[e + 2] * radiance[index[e + 2]];
-        a3 += value[e + 3] * radiance[index[e + 3]];
-    }
-    for (; e < end; ++e) a0 += value[e] * radiance[index[e]];
-    out[r] = (a0 + a1) + (a2 + a3);
-}
 
 /* One work-item per pixel. glossy_first[p] is the pixel's first row in tl (-1 for none),
  * glossy_rows[p] its row count; coefficients holds c(gamma) per material (row stride

@@ -75,7 +75,11 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked):
     scene, _, renderer = baked
     rng = np.random.default_rng(0)
     radiance = rng.random((renderer.size, 4)).astype(np.float32)
-    for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms)):
+    assert renderer.d.index.dtype == np.uint16  # a small radiance vector: 16-bit indices
+    wide = Rows(renderer.d.offsets, renderer.d.index.astype(np.int32), renderer.d.value)
+    renderer.upload("d_int32", wide)  # the index type of radiance vectors beyond 2^16
+    for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms),
+                       ("d_int32", wide)):
         out, _ = renderer._sparse(name, rows, radiance)
         counts = np.diff(rows.offsets)
         expected = np.zeros((rows.count, 4))

@@ -18,6 +18,18 @@ def test_round_trip_is_exact_without_truncation(n):
     np.testing.assert_allclose(haar.inverse(coefficients, n), rows, rtol=0, atol=1e-13)
 
 
+@pytest.mark.parametrize("n", [1, 3, 16, 17, 100, 4096, 5000])
+def test_blocked_forward_equals_the_level_by_level_transform(n):
+    """forward runs four levels per matrix product; the plain butterfly is the
+    definition (1e-12: float64 rounding of up to 13 levels, summed differently)."""
+    rows = np.random.default_rng(n).normal(size=(2, n))
+    padded = np.zeros((2, haar.padded_length(n)))
+    padded[:, :n] = rows
+    np.testing.assert_allclose(haar.forward(rows), haar._forward_levels(padded), rtol=0,
+                               atol=1e-12 * np.abs(rows).sum())
+    assert haar.forward(rows[0]).shape == (haar.padded_length(n),)
+
+
 def test_transform_is_orthonormal_so_dot_products_survive():
     rng = np.random.default_rng(1)
     t, light = rng.normal(size=(4, 300)), rng.normal(size=300)
@@ -99,3 +111,19 @@ def test_haar_stage_cut_agrees_with_truncating_from_scratch():
         cut = cut_rows(stored["count"], stored["index"], stored["value"], counts)
         np.testing.assert_array_equal(cut["index"], direct["index"])
         np.testing.assert_allclose(cut["value"], direct["value"])
+
+
+def test_cut_keeps_near_entries_and_counts_them_for_no_energy():
+    """Rows with leading near entries (gather-domain values, always kept): a row of near
+    entries then a smooth tail keeps its near entries and the tail's own prefix; a row
+    of near entries alone keeps them; an empty row keeps nothing."""
+    from pipeline.stages.haar import kept_counts
+
+    tail = np.array([8.0, 4.0, 2.0, 1.0, 0.5])  # energy 85.25
+    value = np.r_[[1e3, 1e3], tail, [5.0, 5.0], tail]
+    near = np.r_[[True, True], np.zeros(5, bool), [True, True], np.zeros(5, bool)]
+    count = np.array([7, 2, 0, 5])
+    residual = np.zeros(4)
+    kept = kept_counts(count, residual, value, 0.1, near)
+    # tolerance 0.1: a tail may drop 0.01 × 85.25 = 0.85; 0.5² may go, 0.5² + 1² not
+    np.testing.assert_array_equal(kept, [2 + 4, 2, 0, 4])

@@ -246,9 +246,12 @@ def split_near(rows: np.ndarray, area: np.ndarray, fraction: float = NEAR_FRACTI
     replaced by the mean of the far entries on either side of it in gather order, so
     that it stays smooth. At most 1/``fraction`` entries of a row are near, so the work
     beyond the threshold test is per near entry, not per column."""
-    weight = np.abs(rows) * area[None, :]
-    total = weight.sum(axis=1, keepdims=True)
-    row, column = np.nonzero((weight >= fraction * total) & (total > 0))
+    weight = np.abs(rows)
+    weight *= area[None, :]
+    bar = fraction * weight.sum(axis=1)
+    candidates = np.flatnonzero((weight.max(axis=1, initial=0) >= bar) & (bar > 0))
+    local, column = np.nonzero(weight[candidates] >= bar[candidates, None])
+    row = candidates[local]
     far = rows.copy()
     if len(row) == 0:
         return far, (row, column, rows[row, column])

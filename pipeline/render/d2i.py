@@ -13,8 +13,8 @@ samples and the G-buffer:
    (two ratios within ``RATIO_SETTLED``), the bounces are a power iteration that has
    found its dominant eigenvector, and the rest of the series is summed in closed form,
    L_n ρ/(1 − ρ): a few products instead of the ≈ 10 that the tolerance takes;
-4. per pixel (kernels/d2i.cl): D L and T_j L as sparse products with W (|A| ⊙ L) (and,
-   for a row's near entries, with |A| ⊙ L itself), then
+4. per pixel: D L and T_j L as sparse products (kernels/sparse_rows.cl) with
+   W (|A| ⊙ L) (and, for a row's near entries, with |A| ⊙ L itself), then (kernels/d2i.cl)
    I = direct + kd ⊙ D L + ρs ⊙ max(0, Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0).
 
 Edits reuse what did not change (paper §6.2, "freezing", done as caching):
@@ -55,18 +55,22 @@ RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapola
 
 @dataclass
 class Rows:
-    """CSR rows on the host: ``offsets`` (rows + 1,) int32, ``index`` int32, ``value``
-    float32."""
+    """CSR rows on the host: ``offsets`` (rows + 1,) int32, ``index`` uint16 where the
+    radiance vector has at most 2^16 entries (a quarter fewer bytes for the products to
+    stream), else int32, ``value`` float32."""
 
     offsets: np.ndarray
     index: np.ndarray
     value: np.ndarray
 
     @classmethod
-    def from_counts(cls, count: np.ndarray, index: np.ndarray, value: np.ndarray) -> Rows:
+    def from_counts(cls, count: np.ndarray, index: np.ndarray, value: np.ndarray,
+                    size: int) -> Rows:
+        """Rows over a radiance vector of ``size`` entries."""
         offsets = np.concatenate([[0], np.cumsum(count, dtype=np.int64)]).astype(np.int32)
-        return cls(offsets, np.ascontiguousarray(index, np.int32),
+        return cls(offsets, np.ascontiguousarray(index, index_dtype(size)),
                    np.ascontiguousarray(value, np.float32))
+
 
     @property
     def count(self) -> int:
@@ -75,6 +79,11 @@ class Rows:
     @property
     def nbytes(self) -> int:
         return self.offsets.nbytes + self.index.nbytes + self.value.nbytes
+
+
+def index_dtype(size: int) -> type:
+    """The narrowest index type of rows over a radiance vector of ``size`` entries."""
+    return np.uint16 if size <= 1 << 16 else np.int32
 
 
 class D2iRenderer:
@@ -101,9 +110,9 @@ class D2iRenderer:
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
         read = transport.read
-        self.ms = Rows.from_counts(read("ms_count"), read("ms_index"), read("ms_value"))
-        self.d = Rows.from_counts(read("d_count"), read("d_index"), read("d_value"))
-        self.t = Rows.from_counts(read("t_count"), read("t_index"), read("t_value"))
+        self.ms, self.d, self.t = (
+            Rows.from_counts(read(f"{m}_count"), read(f"{m}_index"), read(f"{m}_value"),
+                             self.size) for m in ("ms", "d", "t"))
         self.t_pixel = read("t_pixel")
         npix = len(self.direct.material_id)
         self.glossy_first = np.full(npix, -1, np.int32)
@@ -112,14 +121,19 @@ class D2iRenderer:
             pixels, first, rows = np.unique(self.t_pixel, return_index=True, return_counts=True)
             self.glossy_first[pixels], self.glossy_rows[pixels] = first, rows
         self.rmax = int(max(self.glossy_rows.max(initial=0), 1))
-        self.buffers = {name: {k: cl.read_only_buffer(getattr(rows, k))
-                               for k in ("offsets", "index", "value")}
-                        for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t))}
+        self.buffers: dict[str, dict[str, Any]] = {}
+        for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t)):
+            self.upload(name, rows)
         self.irradiance = np.zeros((len(self.gather_material), 3))
         self.notes: list[str] = []
         self.storage_bytes = self.ms.nbytes + self.d.nbytes + self.t.nbytes
 
     # ------------------------------------------------------------------------ device
+
+    def upload(self, name: str, rows: Rows) -> None:
+        """Device copies of ``rows``, for ``_sparse(name, rows, ...)``."""
+        self.buffers[name] = {k: cl.read_only_buffer(getattr(rows, k))
+                              for k in ("offsets", "index", "value")}
 
     def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray) -> tuple[np.ndarray, float]:
         """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms."""
@@ -128,7 +142,8 @@ class D2iRenderer:
             return out, 0.0
         buf = self.buffers[name]
         out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
-        event = cl.kernel("d2i.cl", "sparse_rows")(
+        index_type = "ushort" if rows.index.dtype == np.uint16 else "int"
+        event = cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type})(
             self.queue, (rows.count,), None, buf["offsets"], buf["index"], buf["value"],
             cl.read_only_buffer(radiance_w), np.int32(rows.count), out_buf)
         self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
@@ -231,9 +246,8 @@ class D2iRenderer:
         value = np.zeros(len(unique))
         np.add.at(value, inverse, self.t.value * scale[row_of_entry])
         per_pixel = np.bincount(unique // self.size, minlength=int(first.sum()))
-        rows = Rows.from_counts(per_pixel, unique % self.size, value)
-        self.buffers["frozen"] = {k: cl.read_only_buffer(getattr(rows, k))
-                                  for k in ("offsets", "index", "value")}
+        rows = Rows.from_counts(per_pixel, unique % self.size, value, self.size)
+        self.upload("frozen", rows)
         return rows
 
     def combine(self, direct: np.ndarray, dl: np.ndarray, tl: np.ndarray,

@@ -35,21 +35,26 @@ def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
     """Per CSR row (largest coefficient first): the fewest leading entries whose dropped
     energy (the rest of the row plus the residual already dropped) is ≤ tolerance² of
     the row's full energy. Entries flagged ``near`` (a row's leading gather-domain
-    entries, pipeline/stages/transfer.py) are always kept and count for no energy."""
+    entries, pipeline/stages/transfer.py) are always kept and count for no energy.
+
+    The energy kept up to each entry grows along a row, so the entries still short of
+    the energy a row must keep are a prefix of it: one binary search per row in the
+    running energy of all entries, rather than a comparison per entry."""
     count = count.astype(np.int64)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    end = np.cumsum(count)
+    start = end - count
     near = np.zeros(len(value), bool) if near is None else near
-    energy = np.where(near, 0.0, np.square(value.astype(np.float64)))
-    running = np.cumsum(energy)
-    before = np.concatenate([[0.0], running])[start]
-    kept_total = np.concatenate([[0.0], running])[start + count] - before
+    energy = np.square(value, dtype=np.float64)
+    energy[near] = 0.0
+    running = np.concatenate([[0.0], np.cumsum(energy)])  # energy of the entries before i
+    kept_total = running[end] - running[start]
     residual2 = np.square(residual.astype(np.float64))
     full = kept_total / np.maximum(1.0 - residual2, 1e-12)
     allowed = full * (1.0 - tolerance * tolerance)  # energy a row must keep
-    row_of = np.repeat(np.arange(len(count)), count)
-    within = running - before[row_of]  # energy of entries up to and including this one
-    short = within < allowed[row_of] * (1 - 1e-12)
-    needed = np.bincount(row_of, weights=short | near, minlength=len(count)).astype(np.int64)
+    # entries i of the row with running[i + 1] − running[start] < allowed
+    short = np.searchsorted(running[1:], running[start] + allowed * (1 - 1e-12)) - start
+    near_before = np.concatenate([[0], np.cumsum(near, dtype=np.int64)])
+    needed = np.maximum(np.clip(short, 0, count), near_before[end] - near_before[start])
     return np.minimum(needed + 1, count)
 
 

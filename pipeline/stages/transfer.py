@@ -54,7 +54,7 @@ from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
-COMPRESS_BLOCK = 32  # rows per thread at least when compressing on several cores
+COMPRESS_BLOCK = 128  # rows per compression task: its temporaries stay in cache
 
 
 @dataclass
@@ -113,16 +113,16 @@ def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
     vis = np.zeros((len(x), len(c)), np.uint8)
 
     def group(rows: slice) -> None:
-        facing = (n[rows] @ c.T > np.sum(n[rows] * x[rows], axis=1)[:, None]) & \
-            (x[rows] @ ng.T > c_side)
-        flat = np.flatnonzero(facing)
-        p_idx, g_idx = np.divmod(flat, len(c))
-        start = np.take(start_of[rows], p_idx, axis=0)
+        facing = n[rows] @ c.T > np.sum(n[rows] * x[rows], axis=1)[:, None]
+        facing &= x[rows] @ ng.T > c_side
+        p_idx, g_idx = np.nonzero(facing)
+        start = np.repeat(start_of[rows], np.count_nonzero(facing, axis=1), axis=0)
         ray = np.take(end_of, g_idx, axis=0)
         ray -= start
-        t_far = np.full(len(flat), 1 - 1e-4, np.float32)
-        free = ~tracer.occluded(start, ray, t_far, threads=1)
-        vis[rows].reshape(-1)[flat[free]] = 1
+        t_far = np.full(len(p_idx), 1 - 1e-4, np.float32)
+        blocked = tracer.occluded(start, ray, t_far, threads=1)
+        facing[p_idx[blocked], g_idx[blocked]] = False  # most rays are free: clear the rest
+        vis[rows] = facing
 
     step = max(1, -(-len(x) // (4 * tracer.threads)))
     with ThreadPoolExecutor(tracer.threads) as pool:
@@ -205,13 +205,12 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
     part's Haar coefficients truncated by pipeline.math.haar.truncate (largest first;
     ``residual`` is relative to the far part). Row blocks run on all cores (NumPy's
     loops, partitions and sorts release the GIL)."""
-    threads = min(os.cpu_count() or 1, max(len(rows) // COMPRESS_BLOCK, 1))
-    if threads == 1:
+    blocks = [rows[s:s + COMPRESS_BLOCK] for s in range(0, len(rows), COMPRESS_BLOCK)]
+    if len(blocks) <= 1:
         return _compress_block(rows, area, keep_tolerance, max_coefficients)
-    with ThreadPoolExecutor(threads) as pool:
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
         parts = list(pool.map(lambda block: _compress_block(block, area, keep_tolerance,
-                                                            max_coefficients),
-                              np.array_split(rows, threads)))
+                                                            max_coefficients), blocks))
     return {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
 
 
