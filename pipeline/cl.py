@@ -65,10 +65,11 @@ def _one_blas_thread() -> None:
     """Limit NumPy's BLAS (OpenBLAS) to one thread, for the rest of the process.
 
     OpenBLAS's worker threads spin for a while after each threaded call; on a CPU OpenCL
-    device they then take the cores from the device's own worker threads. Measured on the
-    400² d2i light-edit frame: the product kernels ran at one core's speed, 51 ms against
-    31 ms, the frame 130 ms against 90 ms. The pipeline spreads its own work over the
-    cores (thread pools, PoCL, Embree), so BLAS gains nothing from threads here."""
+    device they then take the cores from the device's own worker threads, and kernels run
+    at one core's speed. Measured on the 400² d2i light-edit frame (medians of 25 frames,
+    three runs each): 156–189 ms with BLAS threads, 110–115 ms without. The pipeline
+    spreads its own work over the cores (thread pools, PoCL, Embree), so BLAS gains
+    nothing from threads here."""
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=1, user_api="blas")

@@ -71,7 +71,6 @@ class Rows:
         return cls(offsets, np.ascontiguousarray(index, index_dtype(size)),
                    np.ascontiguousarray(value, np.float32))
 
-
     @property
     def count(self) -> int:
         return len(self.offsets) - 1
