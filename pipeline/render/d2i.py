@@ -121,6 +121,9 @@ class D2iRenderer:
             self.glossy_first[pixels], self.glossy_rows[pixels] = first, rows
         self.rmax = int(max(self.glossy_rows.max(initial=0), 1))
         self.buffers: dict[str, dict[str, Any]] = {}
+        # the radiance vector of every product, rewritten before each (float4 per entry)
+        self.radiance_buffer = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.READ_ONLY,
+                                               16 * self.size)
         for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t)):
             self.upload(name, rows)
         self.irradiance = np.zeros((len(self.gather_material), 3))
@@ -130,9 +133,12 @@ class D2iRenderer:
     # ------------------------------------------------------------------------ device
 
     def upload(self, name: str, rows: Rows) -> None:
-        """Device copies of ``rows``, for ``_sparse(name, rows, ...)``."""
+        """Device copies of ``rows`` and a buffer for their products, for
+        ``_sparse(name, rows, ...)``."""
         self.buffers[name] = {k: cl.read_only_buffer(getattr(rows, k))
                               for k in ("offsets", "index", "value")}
+        self.buffers[name]["out"] = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY,
+                                                    16 * max(rows.count, 1))
 
     def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray) -> tuple[np.ndarray, float]:
         """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms."""
@@ -140,12 +146,13 @@ class D2iRenderer:
         if rows.count == 0:
             return out, 0.0
         buf = self.buffers[name]
-        out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
+        self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
+                              np.ascontiguousarray(radiance_w, np.float32))
         index_type = "ushort" if rows.index.dtype == np.uint16 else "int"
         event = cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type})(
             self.queue, (rows.count,), None, buf["offsets"], buf["index"], buf["value"],
-            cl.read_only_buffer(radiance_w), np.int32(rows.count), out_buf)
-        self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
+            self.radiance_buffer, np.int32(rows.count), buf["out"])
+        self.pcl.enqueue_copy(self.queue, out, buf["out"], wait_for=[event])
         return out, cl.event_ms(event)
 
     # ------------------------------------------------------------------------ stages
@@ -199,7 +206,7 @@ class D2iRenderer:
         (pipeline/stages/transfer.py)."""
         out = np.zeros((self.size, 4), np.float32)
         if len(radiance):
-            weighted = np.asarray(radiance, np.float64) * self.gather_area[:, None]
+            weighted = (radiance * self.gather_area[:, None]).astype(np.float32)
             out[:self.haar_length, :3] = haar.forward(weighted.T).T[:self.haar_length]
             out[self.haar_length:, :3] = weighted
         return out

@@ -63,16 +63,18 @@ class DirectShader:
                                                   self.object_id, self.material_id)]
         self.lights = np.zeros((0, 18), np.float32)
         self.visibility = np.zeros((len(self.position), 1), np.uint8)
+        # the pixels that see a surface, and their points: the shadow rays' origins
+        self.hit = np.flatnonzero(self.material_id >= 0)
+        self.hit_position, self.hit_normal = self.position[self.hit], self.normal[self.hit]
 
     def trace(self, packed_lights: np.ndarray) -> None:
         """Shadow rays from every pixel to every light sample."""
         self.lights = packed_lights
         n = len(self.position)
-        hit = np.flatnonzero(self.material_id >= 0)
         self.visibility = np.zeros((n, max(total_samples(packed_lights), 1)), np.uint8)
         if len(packed_lights):
-            self.visibility[hit, :total_samples(packed_lights)] = light_visibility(
-                self.tracer, self.position[hit], self.normal[hit], hit, packed_lights,
+            self.visibility[self.hit, :total_samples(packed_lights)] = light_visibility(
+                self.tracer, self.hit_position, self.hit_normal, self.hit, packed_lights,
                 self.diagonal)
 
     def shade(self, materials: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, float, int]:
