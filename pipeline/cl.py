@@ -62,7 +62,8 @@ def context() -> Any:
 
 
 def _one_blas_thread() -> None:
-    """Limit NumPy's BLAS (OpenBLAS) to one thread, for the rest of the process.
+    """Limit BLAS (OpenBLAS: NumPy's, and SciPy's own when it loads) to one thread, for
+    the rest of the process.
 
     OpenBLAS's worker threads spin for a while after each threaded call; on a CPU OpenCL
     device they then take the cores from the device's own worker threads, and kernels run
@@ -72,7 +73,8 @@ def _one_blas_thread() -> None:
     nothing from threads here."""
     from threadpoolctl import threadpool_limits
 
-    threadpool_limits(limits=1, user_api="blas")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # BLAS loaded later (SciPy ships its own)
+    threadpool_limits(limits=1, user_api="blas")  # BLAS already loaded (NumPy's)
 
 
 @cache

@@ -15,6 +15,8 @@ def test_a_cpu_context_leaves_blas_one_thread():
     if not cl.device().type & pcl.device_type.CPU:
         pytest.skip("a GPU context leaves BLAS alone")
     cl.context()
+    import scipy.linalg  # noqa: F401  (SciPy's own OpenBLAS, loaded after the context)
+
     blas = [pool for pool in threadpool_info() if pool["user_api"] == "blas"]
     assert blas, "NumPy's BLAS is not visible to threadpoolctl"
     assert all(pool["num_threads"] == 1 for pool in blas)
