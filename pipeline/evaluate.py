@@ -5,8 +5,9 @@ the method's default budget) it bakes what the method needs in the sweep's work
 directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), renders
 ``repeats`` frames after one warm-up and records:
 
-* ``frame_ms``, ``kernel_ms``, ``setup_ms``: medians over the frames (setup = everything
-  but the OpenCL kernels: loading artifacts, shadow rays, transfers);
+* ``frame_ms``, ``kernel_ms``, ``setup_ms``: medians over full frames of one renderer
+  (artifacts loaded once, before the warm-up frame; setup = everything but the OpenCL
+  kernels: shadow rays, host work, transfers);
 * ``storage_bytes``: bytes on disk of the artifacts a frame reads; ``bake_s``: the seconds
   recorded by the stages that made them (those of the whole chain);
 * ``rel_rmse`` (headline), ``psnr_db``, ``flip`` against the reference renderer's image
@@ -237,8 +238,9 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
                  for p in job.status(sc, wd) if wd.artifact(p.spec.name).exists()
                  and p.state == "fresh")
     storage = sum(_bytes_on_disk(wd.artifact(name)) for name in reads)
-    job.render_frame(sc, wd, method, options)  # warm-up: kernel build, file cache
-    frames = [job.render_frame(sc, wd, method, options) for _ in range(settings.repeats)]
+    render = job.frame_renderer(sc, wd, method, options)  # loads the artifacts once
+    render(sc)  # warm-up: kernel builds, first use of the device buffers
+    frames = [render(sc) for _ in range(settings.repeats)]
     frame = frames[-1]
 
     def median(key: str) -> float:

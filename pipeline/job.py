@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +25,10 @@ from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir
 
 # Rendering methods: name -> (module, function, the stage whose artifact it needs).
-METHODS = {"direct": ("pipeline.render.direct", "render_direct", "gbuffer"),
-           "d2i": ("pipeline.render.d2i", "render_d2i", "haar")}
+# method -> (module, its renderer factory (scene, workdir, **options) -> frame function,
+# the last stage it needs)
+METHODS = {"direct": ("pipeline.render.direct", "direct_renderer", "gbuffer"),
+           "d2i": ("pipeline.render.d2i", "d2i_renderer", "haar")}
 # What `prt run` renders after baking: one frame of this method, and these sequences.
 MAIN_METHOD = "d2i"
 MAIN_SEQUENCES = ("light:8", "gamma:8")
@@ -97,16 +100,22 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
     return RenderResult(out, png, frame, baked)
 
 
-def render_frame(scene: Scene, workdir: Workdir, method: str,
-                 options: dict[str, Any] | None = None) -> Frame:
-    """One frame of ``method`` from the (already baked) artifacts in ``workdir``;
-    ``options`` are the method's own keyword arguments (d2i: max_bounces,
-    bounce_tolerance)."""
+def frame_renderer(scene: Scene, workdir: Workdir, method: str,
+                   options: dict[str, Any] | None = None) -> Callable[[Scene], Frame]:
+    """A function rendering frames of ``method`` from the (already baked) artifacts in
+    ``workdir``, loaded once; ``options`` are the method's own keyword arguments (d2i:
+    max_bounces, bounce_tolerance)."""
     import importlib
 
-    module_name, function, _ = METHODS[method]
-    return getattr(importlib.import_module(module_name), function)(scene, workdir,
-                                                                   **(options or {}))
+    module_name, factory, _ = METHODS[method]
+    return getattr(importlib.import_module(module_name), factory)(scene, workdir,
+                                                                  **(options or {}))
+
+
+def render_frame(scene: Scene, workdir: Workdir, method: str,
+                 options: dict[str, Any] | None = None) -> Frame:
+    """One frame of ``method`` (see ``frame_renderer``)."""
+    return frame_renderer(scene, workdir, method, options)(scene)
 
 
 def _stored_key(meta: Path) -> str | None:

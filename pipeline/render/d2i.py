@@ -383,8 +383,9 @@ def _check_lights(packed: np.ndarray) -> None:
                        "intensity or radiance): cannot light the scene")
 
 
-def render_d2i(scene: Scene, workdir: Workdir, max_bounces: int = 32,
-               bounce_tolerance: float = 1e-3) -> Frame:
-    """One d2i frame of the scene's camera view with its current lights and materials."""
-    return D2iRenderer(scene, workdir, max_bounces, bounce_tolerance).render(scene)
+def d2i_renderer(scene: Scene, workdir: Workdir, max_bounces: int = 32,
+                 bounce_tolerance: float = 1e-3) -> Callable[[Scene], Frame]:
+    """Full d2i frames (any lights and materials, nothing cached between them) from
+    artifacts loaded once; their timings leave out the loading."""
+    return D2iRenderer(scene, workdir, max_bounces, bounce_tolerance).render
 

@@ -13,6 +13,7 @@ edit re-shades without tracing again (method d2i uses it for its direct term).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -95,17 +96,29 @@ class DirectShader:
         return out, cl.event_ms(event), moved
 
 
+def direct_renderer(scene: Scene, workdir: Workdir) -> Callable[[Scene], Frame]:
+    """Frames of direct lighting from artifacts loaded once (G-buffer, Embree scene):
+    each call traces the scene's lights and shades its camera view; its timings leave
+    out the loading."""
+    shader = DirectShader(workdir)
+
+    def frame(scene: Scene) -> Frame:
+        t0 = time.perf_counter()
+        packed, notes = packed_scene_lights(scene, shader.object_names)
+        materials = pack_materials(scene_brdfs(scene, shader.material_names))
+        t1 = time.perf_counter()
+        shader.trace(packed)
+        t2 = time.perf_counter()
+        rgb, kernel_ms, moved = shader.shade(materials, np.asarray(scene.camera.position))
+        t3 = time.perf_counter()
+        timings = {"setup_ms": (t1 - t0) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
+                   "kernel_ms": kernel_ms, "total_ms": (t3 - t0) * 1e3}
+        return Frame("direct", rgb.reshape(shader.height, shader.width, 3), timings, notes,
+                     moved)
+
+    return frame
+
+
 def render_direct(scene: Scene, workdir: Workdir) -> Frame:
     """Render the scene's camera view with direct lighting from its lights."""
-    t0 = time.perf_counter()
-    shader = DirectShader(workdir)
-    packed, notes = packed_scene_lights(scene, shader.object_names)
-    materials = pack_materials(scene_brdfs(scene, shader.material_names))
-    t1 = time.perf_counter()
-    shader.trace(packed)
-    t2 = time.perf_counter()
-    rgb, kernel_ms, moved = shader.shade(materials, np.asarray(scene.camera.position))
-    t3 = time.perf_counter()
-    timings = {"setup_ms": (t1 - t0) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
-               "kernel_ms": kernel_ms, "total_ms": (t3 - t0) * 1e3}
-    return Frame("direct", rgb.reshape(shader.height, shader.width, 3), timings, notes, moved)
+    return direct_renderer(scene, workdir)(scene)
