@@ -362,7 +362,8 @@ def write_charts(records: list[dict[str, Any]], out: Path) -> None:
 
 def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
            error_key: str | None) -> None:
-    """One log-log chart of error (``error_key``, or each method's headline) vs ``key``."""
+    """One chart of error (``error_key``, or each method's headline; log scale) vs ``key``
+    (log scale where it spans more than a decade)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -389,9 +390,12 @@ def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
                 if pts:
                     ax.plot(*zip(*sorted(pts), strict=True), "s--",
                             label=f"{tracer}, equal error")
-    ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.xaxis.set_minor_formatter(NullFormatter())  # labelled minor ticks overlap
+    low, high = ax.get_xlim()
+    if high > 10 * low:  # a log axis; its minor ticks unlabelled, the labels would overlap
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    # within a decade a log axis has no labelled tick at all: the axis stays linear
     ax.set_xlabel(label)
     ax.set_ylabel("relative RMSE vs reference"
                   + (" (indirect image)" if error_key == "rel_rmse_indirect" else ""))
