@@ -7,9 +7,10 @@
 
 /* out[r] = sum over row r of value * radiance[index]  (one work-item per row).
  * Four independent partial sums, four entries per step: one accumulator would chain
- * every add on the previous one (latency-bound, about half the speed on PoCL's CPU
- * device); so the loop keeps several loads in flight and runs at the rows' streaming
- * rate (benchmarks/bench_d2i.py). Written as mul + add: fma() is slower on PoCL. */
+ * every add on the previous one (latency-bound: 45 against 25 ms for the 400² bake's
+ * D rows on PoCL's CPU device), so the loop keeps several loads in flight; it then
+ * streams the rows at about three quarters of the copy probe's rate
+ * (benchmarks/bench_d2i.py). Written as mul + add: fma() was slower on PoCL. */
 __kernel void sparse_rows(__global const int* offsets, __global const INDEX_T* index,
                           __global const float* value, __global const float4* radiance,
                           const int rows, __global float4* out)

@@ -95,6 +95,7 @@ def _source_hash(folder: Path) -> str:
 
 @cache
 def _hash_sources(paths: tuple[Path, ...], signature: tuple) -> str:
+    """SHA-256 of the files' names and bytes; ``signature`` only keys the cache."""
     h = hashlib.sha256()
     for path in paths:
         h.update(path.name.encode())

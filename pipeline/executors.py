@@ -1,4 +1,5 @@
-"""Executors: run a list of independent chunk tasks, yielding results as they finish.
+"""Executors: run a list of independent chunk tasks, yielding results as they finish;
+and ``map_slices``, the thread pool that the stages and renderers split arrays over.
 
 Tasks are plain picklable values and the task function is a module-level function, so
 the same task list runs in-process, on a local process pool, or (later) on a
@@ -13,7 +14,7 @@ import os
 import signal
 import sys
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from typing import Any, Protocol
 
 
@@ -66,6 +67,20 @@ class LocalPoolExecutor:
             finally:
                 for future in pending:
                     future.cancel()
+
+
+def map_slices(fn: Callable[[slice], Any], n: int, size: int,
+               threads: int | None = None) -> list[Any]:
+    """``fn`` over consecutive slices of range(n), ``size`` long (the last shorter), on a
+    pool of ``threads`` threads (default: one per CPU) for work that releases the GIL
+    (NumPy's loops, Embree); results in slice order. One slice or one thread runs on the
+    calling thread."""
+    slices = [slice(s, min(s + size, n)) for s in range(0, n, size)]
+    threads = min(threads or os.cpu_count() or 1, len(slices))
+    if threads <= 1:
+        return [fn(s) for s in slices]
+    with ThreadPoolExecutor(threads) as pool:
+        return list(pool.map(fn, slices))
 
 
 def make_executor(jobs: int) -> Executor:

@@ -8,10 +8,11 @@ t_near): callers offset shadow-ray origins off the surface themselves.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+
+from pipeline.executors import map_slices
 
 BATCH = 32768
 
@@ -40,12 +41,7 @@ class RayTracer:
         self.threads = threads or os.cpu_count() or 1
 
     def _batched(self, fn, n: int, threads: int | None = None) -> list:
-        slices = [slice(s, min(s + BATCH, n)) for s in range(0, n, BATCH)]
-        threads = threads or self.threads
-        if threads == 1 or len(slices) == 1:
-            return [fn(s) for s in slices]
-        with ThreadPoolExecutor(threads) as pool:
-            return list(pool.map(fn, slices))
+        return map_slices(fn, n, BATCH, threads or self.threads)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
         """Closest hits of rays (N, 3) float32."""

@@ -20,8 +20,8 @@ def test_round_trip_is_exact_without_truncation(n):
 
 @pytest.mark.parametrize("n", [1, 3, 16, 17, 100, 4096, 5000])
 def test_blocked_forward_equals_the_level_by_level_transform(n):
-    """forward runs four levels per matrix product; the plain butterfly is the
-    definition (1e-12: float64 rounding of up to 13 levels, summed differently)."""
+    """forward runs BLOCK_LEVELS (five) levels per matrix product; the plain butterfly
+    is the definition (1e-12: float64 rounding of up to 13 levels, summed differently)."""
     rows = np.random.default_rng(n).normal(size=(2, n))
     padded = np.zeros((2, haar.padded_length(n)))
     padded[:, :n] = rows

@@ -15,6 +15,8 @@ coefficients is the L2-optimal truncation for every row.
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 _SQRT_HALF = np.sqrt(0.5)
@@ -45,7 +47,7 @@ def forward(rows: np.ndarray) -> np.ndarray:
         scaling = np.zeros((len(flat), size), dtype)
         scaling[:, :n] = flat
     block = 1 << BLOCK_LEVELS
-    matrix = _forward_levels(np.eye(block, dtype=dtype))  # rows: transforms of e_i
+    matrix = _block_matrix(np.dtype(dtype))
     length = size
     while length >= block:
         count = length // block
@@ -58,6 +60,14 @@ def forward(rows: np.ndarray) -> np.ndarray:
         length = count
     out[:, :length] = _forward_levels(scaling[:, :length])
     return out.reshape(*rows.shape[:-1], size)
+
+
+@cache
+def _block_matrix(dtype: np.dtype) -> np.ndarray:
+    """The 2^BLOCK_LEVELS-point transform as a matrix: row i transforms e_i."""
+    matrix = _forward_levels(np.eye(1 << BLOCK_LEVELS, dtype=dtype))
+    matrix.flags.writeable = False
+    return matrix
 
 
 def _forward_levels(rows: np.ndarray) -> np.ndarray:

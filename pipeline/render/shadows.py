@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
+from pipeline.executors import map_slices
 from pipeline.math.lights import TYPE_CODES, light_sample_points, total_samples
 from pipeline.raytrace import RayTracer
 
@@ -29,9 +27,7 @@ def light_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray
         vis[rows] = _batch_visibility(tracer, position[rows], normal[rows], pixel[rows],
                                       packed, eps, 4.0 * scene_diagonal)
 
-    slices = [slice(s, s + POINT_BATCH) for s in range(0, len(position), POINT_BATCH)]
-    with ThreadPoolExecutor(min(len(slices), os.cpu_count() or 1) or 1) as pool:
-        list(pool.map(batch, slices))
+    map_slices(batch, len(position), POINT_BATCH)
     return vis
 
 

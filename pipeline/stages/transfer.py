@@ -29,14 +29,13 @@ stage.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from pipeline import cl
+from pipeline.executors import map_slices
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials
 from pipeline.math.brdf_pca import read_basis
@@ -124,9 +123,7 @@ def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
         facing[p_idx[blocked], g_idx[blocked]] = False  # most rays are free: clear the rest
         vis[rows] = facing
 
-    step = max(1, -(-len(x) // (4 * tracer.threads)))
-    with ThreadPoolExecutor(tracer.threads) as pool:
-        list(pool.map(group, [slice(s, s + step) for s in range(0, len(x), step)]))
+    map_slices(group, len(x), max(1, -(-len(x) // (4 * tracer.threads))), tracer.threads)
     return vis
 
 
@@ -205,12 +202,11 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
     part's Haar coefficients truncated by pipeline.math.haar.truncate (largest first;
     ``residual`` is relative to the far part). Row blocks run on all cores (NumPy's
     loops, partitions and sorts release the GIL)."""
-    blocks = [rows[s:s + COMPRESS_BLOCK] for s in range(0, len(rows), COMPRESS_BLOCK)]
-    if len(blocks) <= 1:
+    if len(rows) <= COMPRESS_BLOCK:
         return _compress_block(rows, area, keep_tolerance, max_coefficients)
-    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
-        parts = list(pool.map(lambda block: _compress_block(block, area, keep_tolerance,
-                                                            max_coefficients), blocks))
+    parts = map_slices(lambda block: _compress_block(rows[block], area, keep_tolerance,
+                                                     max_coefficients),
+                       len(rows), COMPRESS_BLOCK)
     return {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
 
 
