@@ -1,8 +1,9 @@
 """OpenCL: the one place that owns devices, contexts, queues and program builds.
 
-Kernels live in ``kernels/`` and are loaded by file name, built with ``-I kernels/`` and
-sorted ``-D`` defines, and cached per (source hash of the folder's .cl/.h files, options,
-device). The device is PoCL's CPU device by default; ``PRT_CL_DEVICE`` selects another:
+Kernels live in ``kernels/`` (and in folders that plug-ins add, pipeline/searchpath.py)
+and are loaded by file name, built with ``-I`` for every kernel folder and sorted ``-D``
+defines, and cached per (source hash of the folders' .cl/.h files, options, device).
+The device is PoCL's CPU device by default; ``PRT_CL_DEVICE`` selects another:
 ``cpu``, ``gpu``, or ``PLATFORM_SUBSTRING[:DEVICE_INDEX]`` (e.g. ``NVIDIA:0``).
 """
 
@@ -15,16 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import PrtError
+from pipeline.searchpath import find_kernel, kernel_dirs
 
 
 def kernel_dir() -> Path:
-    """The kernels folder, from a checkout or an installed wheel."""
-    checkout = Path(__file__).resolve().parent.parent / "kernels"
-    if checkout.is_dir():
-        return checkout
-    from importlib.resources import files
-
-    return Path(str(files("pipeline.kernels")))
+    """The project's kernels folder, from a checkout or an installed wheel."""
+    return kernel_dirs()[0]
 
 
 @cache
@@ -85,10 +82,10 @@ def queue() -> Any:
     return cl.CommandQueue(context(), properties=cl.command_queue_properties.PROFILING_ENABLE)
 
 
-def _source_hash(folder: Path) -> str:
-    """Hash of the folder's kernel sources and headers; re-read only when a file's name,
+def _source_hash(folders: list[Path]) -> str:
+    """Hash of the folders' kernel sources and headers; re-read only when a file's name,
     size or modification time changes (a frame builds many kernels: stat, not read)."""
-    paths = sorted(folder.glob("*.[ch]*"))
+    paths = sorted(p for folder in folders for p in folder.glob("*.[ch]*"))
     signature = tuple((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in paths)
     return _hash_sources(tuple(paths), signature)
 
@@ -107,16 +104,18 @@ _PROGRAMS: dict[tuple[str, str, tuple[str, ...], str], Any] = {}
 
 
 def program(name: str, defines: dict[str, Any] | None = None) -> Any:
-    """The built program of ``kernels/<name>`` with ``-D`` defines, cached."""
+    """The built program of kernel file ``name`` (found in the kernel folders,
+    pipeline/searchpath.py) with ``-D`` defines, cached."""
     import pyopencl as cl
 
-    folder = kernel_dir()
-    path = folder / name
-    if not path.is_file():
-        raise PrtError(path, "kernel source not found")
-    options = ("-I", str(folder), *(f"-D{k}={v}" for k, v in sorted((defines or {}).items())))
+    folders = kernel_dirs()
+    path = find_kernel(name)
+    if path is None:
+        raise PrtError(folders[0] / name, "kernel source not found")
+    includes = [arg for folder in folders for arg in ("-I", str(folder))]
+    options = (*includes, *(f"-D{k}={v}" for k, v in sorted((defines or {}).items())))
     dev = device()
-    key = (name, _source_hash(folder), options,
+    key = (name, _source_hash(folders), options,
            f"{dev.platform.name}|{dev.name}|{dev.driver_version}")
     if key not in _PROGRAMS:
         os.environ.setdefault("PYOPENCL_COMPILER_OUTPUT", "0")

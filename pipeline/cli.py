@@ -131,22 +131,53 @@ def inspect_cmd(path, as_json) -> None:
                    f"(x{a['compression_ratio']}){stats} NaN {a['nan_count']}")
 
 
+def parse_options(items: tuple[str, ...]) -> dict[str, str]:
+    """``("NAME=VALUE", ...)`` -> {NAME: VALUE} (the method parses the values)."""
+    out = {}
+    for item in items:
+        name, eq, value = item.partition("=")
+        if not eq or not name:
+            raise PrtError("--option", f"{item!r}: expected NAME=VALUE")
+        out[name] = value
+    return out
+
+
+@cli.command("methods")
+@click.option("--json", "as_json", is_flag=True, help="Print the methods as JSON.")
+def methods_cmd(as_json) -> None:
+    """List the rendering methods: what each renders and reads, its options."""
+    from pipeline.method import registry
+
+    methods = registry()
+    if as_json:
+        click.echo(json.dumps({name: {
+            "description": m.description, "reads": list(m.reads), "reference": m.reference,
+            "options": {o.name: {"type": o.type.__name__, "default": o.default,
+                                 "help": o.help} for o in m.options},
+            "main_sequences": list(m.main_sequences)} for name, m in methods.items()}))
+        return
+    for name, m in methods.items():
+        click.echo(f"{name}: {m.description}")
+        click.echo(f"  reads: {', '.join(m.reads)}; reference transport: {m.reference}")
+        for o in m.options:
+            click.echo(f"  --option {o.name}={o.default!r} ({o.type.__name__}): {o.help}")
+        if m.main_sequences:
+            click.echo(f"  sequences (--frames), e.g. {', '.join(m.main_sequences)}")
+
+
 @cli.command("render")
 @SCENE
-@click.option("--method", type=click.Choice(["direct", "d2i"]), default="direct",
-              show_default=True, help="Rendering method: direct light only, or paper 000's "
-              "direct-to-indirect transfer with BRDF editing.")
+@click.option("--method", default=None, metavar="NAME",
+              help="Rendering method (`prt methods` lists them) [default: the scene's "
+                   "first method].")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Output EXR (linear); an sRGB PNG preview is written beside it.")
-@click.option("--frames", "sequence", metavar="light:N|gamma[:MATERIAL]:N", default=None,
-              help="d2i only: also render a sequence beside OUT (OUT_light_0000.exr, ...): "
-                   "the first light moved around a circle (light-edit mode), or a "
-                   "material's gamma swept over its baked range (BRDF-edit mode).")
-@click.option("--bounces", type=click.IntRange(min=0), default=32, show_default=True,
-              help="d2i: at most this many diffuse bounces between gather samples.")
-@click.option("--bounce-tolerance", type=click.FloatRange(min=0), default=1e-3,
-              show_default=True,
-              help="d2i: stop bouncing when a bounce adds less than this fraction (L2).")
+@click.option("--frames", "sequence", metavar="SPEC", default=None,
+              help="Also render a sequence of edits beside OUT (OUT_<kind>_0000.exr, ...), "
+                   "as the method reads SPEC (d2i: light:N or gamma[:MATERIAL]:N).")
+@click.option("--option", "options", metavar="NAME=VALUE", multiple=True,
+              help="A run-time option of the method (repeatable; `prt methods` lists "
+                   "them, e.g. d2i's max_bounces=4).")
 @click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
 @click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
               help="Run-time material edit (repeatable): NAME a material or object, KEY "
@@ -157,46 +188,46 @@ def inspect_cmd(path, as_json) -> None:
 @WORKDIR
 @JOBS
 @QUIET
-def render_cmd(scene, method, out, sequence, bounces, bounce_tolerance, size, edits, as_json,
-               workdir, jobs, quiet) -> None:
+def render_cmd(scene, method, out, sequence, options, size, edits, as_json, workdir, jobs,
+               quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
-    sequence of edits (d2i)."""
+    sequence of edits."""
     from pipeline import job
+    from pipeline.method import get_method, scene_methods
     from pipeline.scene import with_material_edits
 
-    if sequence and method != "d2i":
-        raise click.UsageError("--frames needs --method d2i")
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
+    m = get_method(method) if method else scene_methods(sc)[0]
+    values = m.option_values(parse_options(options))
+    if sequence and m.sequences is None:
+        raise PrtError("--frames", f"method {m.name} has no edit sequences")
     wd = job.workdir_for(sc, workdir)
-    options = {"max_bounces": bounces, "bounce_tolerance": bounce_tolerance} \
-        if method == "d2i" else {}
-    result = job.render(sc, wd, method, out, jobs=jobs, quiet=quiet, options=options)
+    result = job.render(sc, wd, m.name, out, jobs=jobs, quiet=quiet, options=values)
     frame = result.frame
     if sequence:
-        seq = job.render_sequence(sc, wd, sequence, out, bounces, bounce_tolerance)
+        seq = job.render_sequence(sc, wd, m.name, sequence, out, values)
         ms = sorted(t["total_ms"] for t in seq.timings)
         click.echo(f"Wrote {len(seq.exr)} {seq.kind} frames {seq.exr[0]} .. {seq.exr[-1]} "
                    f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)
     if as_json:
-        click.echo(json.dumps({"method": method, "width": frame.width, "height": frame.height,
+        click.echo(json.dumps({"method": m.name, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
                                "exr": str(result.exr), "png": str(result.png)}))
         return
     for note in frame.notes:
         click.echo(f"note: {note}", err=True)
     t = frame.timings
-    click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}; setup "
-               f"{t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
+    click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}, "
+               f"{m.name}; setup {t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
 
 
 @cli.command("reference")
 @SCENE
-@click.option("--transport", type=click.Choice(["direct", "env-direct", "d2i", "d2i-indirect",
-                                                  "full"]),
-              default="full", show_default=True,
+@click.option("--transport", default="full", show_default=True,
               help="Light transport: direct (all lights, one reflection), env-direct "
-                   "(environment only), d2i (full BRDF first, Lambertian after), "
-                   "d2i-indirect (d2i less its direct part), full.")
+                   "(environment only), first-glossy (full BRDF at the first surface, "
+                   "Lambertian after: what d2i models), first-glossy-indirect (that less "
+                   "its direct part), full.")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Output EXR (linear); a PNG preview and a JSON record go beside it.")
 @click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
@@ -245,18 +276,20 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
 
 @cli.command("evaluate")
 @SCENE
-@click.option("--method", type=click.Choice(["direct", "d2i"]), default="direct",
-              show_default=True, help="Method to evaluate.")
+@click.option("--method", default=None, metavar="NAME",
+              help="Method to evaluate [default: the scene's first method].")
 @click.option("--sweep", "sweeps", metavar="NAME=V1,V2,...", multiple=True,
               help="Budget values to sweep (repeatable; several make a grid): size (image "
-                   "width, or WxH), a stage parameter such as gather.count, haar.tolerance "
-                   "or brdf_basis.max_k, or render.max_bounces (d2i).")
+                   "width, or WxH), a stage parameter such as gather.count, "
+                   "truncate.tolerance or brdf_basis.max_k, or render.OPTION (a run-time "
+                   "option of the method). [default: the method's own small sweep]")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Folder for results.json, probe.json, the charts and frames.")
 @click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True,
               help="Timed frames per budget (medians are reported).")
-@click.option("--reference-max-spp", type=click.IntRange(min=1), default=4096,
-              show_default=True, help="Sample cap of the reference images.")
+@click.option("--reference-max-spp", type=click.IntRange(min=1), default=None,
+              help="Sample cap of the reference images [default: the method's, or 4096 "
+                   "with --sweep].")
 @click.option("--size", metavar="WxH", help="Image size of every budget that does not sweep "
                                             "size [default: the scene camera's].")
 @WORKDIR
@@ -265,11 +298,14 @@ def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, w
                  quiet) -> None:
     """Chart a method's error against frame time, storage and bake time over budgets."""
     from pipeline import evaluate, job
+    from pipeline.method import get_method, scene_methods
 
     sc = job.open_scene(scene, parse_size(size))
-    settings = evaluate.EvaluateSettings(repeats, reference_max_spp)
-    records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), method,
-                                evaluate.parse_sweep(list(sweeps)), out, settings, quiet)
+    m = get_method(method) if method else scene_methods(sc)[0]
+    sweep, cap = evaluate.default_plan(m, evaluate.parse_sweep(list(sweeps)), reference_max_spp)
+    settings = evaluate.EvaluateSettings(repeats, cap)
+    records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), m.name, sweep, out,
+                                settings, quiet)
     click.echo(f"Wrote {out / 'results.json'} ({len(records)} budgets) and charts "
                f"{', '.join(name for _, _, name in evaluate.CHARTS)}")
 

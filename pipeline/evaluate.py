@@ -16,21 +16,26 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
   256, 1024, ... paths per pixel (up to the cap) until that error is at most a third of
   the method's, so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
-* d2i also: ``rel_rmse_indirect``, its indirect image (frame less the direct method's
-  frame) against the reference's ``d2i-indirect`` transport on those pixels, tightened
-  the same way, and ``indirect_mean_ratio`` (mean radiance over the reference's);
-* ``kernel_gbs`` = ``kernel_bytes`` / kernel time, and ``bandwidth_fraction`` of the
-  memory-bandwidth probe run at the start (pipeline/bandwidth.py);
+* per component the method declares (d2i: ``indirect``): ``rel_rmse_<name>``, that
+  image (the frame less the frame of the method the component subtracts) against the
+  component's reference transport on those pixels, tightened the same way, and
+  ``<name>_mean_ratio`` (mean radiance over the reference's);
+* ``kernel_gbs`` = ``kernel_bytes`` / the time of the kernels that moved them
+  (``counted_kernel_ms``), and ``bandwidth_fraction`` of the memory-bandwidth probe run
+  at the start (pipeline/bandwidth.py);
 * what a user would do instead: ``pathtrace_ms_equal_error``, the wall time the reference
   renderer (a different seed, progressive) needs until its estimated error falls to the
-  method's headline error (:data:`HEADLINE_ERROR`: d2i's on the surfaces;
+  method's headline error (``Method.headline``, e.g. d2i's on the surfaces;
   ``pathtrace_rel_rmse``: its error then, measured against the reference), and
   ``mitsuba_ms_equal_error`` where every material is Lambertian and Mitsuba 3 is installed
   (spp doubled until its error is at most the method's).
 
 Budget names: ``size`` (image width; the height follows the camera's aspect ratio, or
-``WxH``) or any stage parameter of stages.yaml (``brdf_basis.max_k``, ...), applied as a
-scene setting. Writes ``results.json`` (a list of records), ``probe.json`` (the
+``WxH``), any stage parameter of stages.yaml (``brdf_basis.max_k``, ...), applied as a
+scene setting, or ``render.OPTION``, a run-time option of the method. Without a sweep,
+the method's own small sweep (``Method.evaluate_sweep``) runs with its reference cap
+(``Method.evaluate_reference_spp``): a few minutes on two cores. Each step is printed
+with an estimate of the time left. Writes ``results.json`` (a list of records), ``probe.json`` (the
 bandwidth probe and settings), charts ``error_vs_frame_time.png``,
 ``error_vs_storage.png``, ``error_vs_bake_time.png`` and, per budget, the frame and an
 error heat map (per-pixel relative error, metrics.error_map, colour scale 0 to
@@ -42,6 +47,8 @@ from __future__ import annotations
 import itertools
 import json
 import statistics
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,17 +57,13 @@ import numpy as np
 
 from pipeline import job, metrics
 from pipeline.errors import PrtError
+from pipeline.graph import with_upstream
 from pipeline.images import write_exr, write_heatmap, write_png
+from pipeline.method import Method, get_method, scene_methods
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene
 from pipeline.store import Workdir, read_record
 
-# The reference transport that matches what each method models.
-METHOD_TRANSPORT = {"direct": "direct", "d2i": "d2i"}
-# The error each method's charts lead with, and the path tracer is timed to reach: the
-# whole frame (direct), the pixels not seeing an emitter (d2i: the Cornell luminaire
-# would otherwise be all of ‖R‖). d2i also charts its indirect image's error.
-HEADLINE_ERROR = {"direct": "rel_rmse", "d2i": "rel_rmse_surfaces"}
 # Budgets named render.X are the method's run-time options X (d2i: render.max_bounces).
 RENDER_PREFIX = "render."
 HEATMAP_MAX = 0.2  # heat maps span relative errors 0 to 20 %
@@ -76,6 +79,15 @@ class EvaluateSettings:
     repeats: int = 5
     reference_max_spp: int = 4096
     pathtrace_max_spp: int = 4096
+
+
+def default_plan(method: Method, sweep: dict[str, list[Any]], reference_max_spp: int | None
+                 ) -> tuple[dict[str, list[Any]], int]:
+    """The sweep and reference cap to run: the given ones, or the method's own bounded
+    defaults when no sweep is given."""
+    if sweep:
+        return sweep, reference_max_spp or 4096
+    return dict(method.evaluate_sweep), reference_max_spp or method.evaluate_reference_spp
 
 
 def parse_sweep(items: list[str]) -> dict[str, list[Any]]:
@@ -98,13 +110,12 @@ def _number(text: str) -> Any:
     return text
 
 
-def default_budget(scene: Scene, names: list[str]) -> dict[str, Any]:
+def default_budget(scene: Scene, method: Method, names: list[str]) -> dict[str, Any]:
     """The scene's own value of each budget name."""
     from pipeline.runner import stage_params
-    from pipeline.stagefile import load_stagefile
 
-    params = stage_params(load_stagefile(None), scene)
-    render_defaults = {"render.max_bounces": 32, "render.bounce_tolerance": 1e-3}
+    params = stage_params(job.stages(), scene)
+    render_defaults = {f"{RENDER_PREFIX}{o.name}": o.default for o in method.options}
     unknown = [n for n in names if n != "size" and n not in params and n not in render_defaults]
     if unknown:
         raise PrtError("--sweep", f"unknown budget {unknown[0]!r} (budgets: size, "
@@ -185,36 +196,43 @@ def _mitsuba_equal_error(scene: Scene, geometry: dict, transport: str, target: f
                             "the pixel-centre reference"}
 
 
-def evaluate(scene: Scene, workdir: Workdir, method: str, sweep: dict[str, list[Any]],
+def _step(text: str) -> None:
+    """One line of progress on stderr (printed also under --quiet: a sweep runs long)."""
+    print(text, file=sys.stderr, flush=True)
+
+
+def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str, list[Any]],
              out: Path, settings: EvaluateSettings = EvaluateSettings(),
              quiet: bool = False) -> list[dict[str, Any]]:
     """Run the sweep; write results.json, probe.json, charts and frames into ``out``."""
     from pipeline.bandwidth import probe
 
-    if method not in job.METHODS:
-        raise PrtError(None, f"unknown method {method!r} (methods: {', '.join(job.METHODS)})")
+    m = get_method(method) if method else scene_methods(scene)[0]
     names = sorted(sweep)
-    default = default_budget(scene, names)
+    default = default_budget(scene, m, names)
     budgets = [dict(zip(names, values, strict=True))
                for values in itertools.product(*(sweep[n] for n in names))]
     if default not in budgets:
         budgets.append(default)
     out.mkdir(parents=True, exist_ok=True)
     bandwidth = probe()
-    transport = METHOD_TRANSPORT[method]
     records = []
-    for budget in budgets:
-        records.append(_evaluate_budget(scene, workdir, method, transport, budget,
-                                        budget == default, out, settings, bandwidth, quiet))
-        if not quiet:
-            r = records[-1]
-            print(f"  {_slug(budget):<24} rel. RMSE {r['rel_rmse']:.4f}  frame "
-                  f"{r['frame_ms']:.1f} ms  path tracer at equal error "
-                  f"{_ms(r['pathtrace_ms_equal_error'])}")
+    start = time.perf_counter()
+    for i, budget in enumerate(budgets):
+        elapsed = time.perf_counter() - start
+        left = f", about {elapsed / i * (len(budgets) - i) / 60:.1f} min left" if i else ""
+        _step(f"[{i + 1}/{len(budgets)}] {m.name} {_slug(budget)}: bake, frames, "
+              f"references{left}")
+        records.append(_evaluate_budget(scene, workdir, m, budget, budget == default, out,
+                                        settings, bandwidth, quiet))
+        r = records[-1]
+        _step(f"  {_slug(budget):<24} rel. RMSE {r['rel_rmse']:.4f}  frame "
+              f"{r['frame_ms']:.1f} ms  path tracer at equal error "
+              f"{_ms(r['pathtrace_ms_equal_error'])}")
     (out / "results.json").write_text(json.dumps(records, indent=1))
     (out / "probe.json").write_text(json.dumps(
-        {"bandwidth_probe": bandwidth, "settings": vars(settings), "method": method,
-         "scene": str(scene.path), "transport": transport}, indent=1))
+        {"bandwidth_probe": bandwidth, "settings": vars(settings), "method": m.name,
+         "scene": str(scene.path), "transport": m.reference}, indent=1))
     write_charts(records, out)
     return records
 
@@ -223,22 +241,21 @@ def _ms(value: float | None) -> str:
     return "not reached" if value is None else f"{value:.0f} ms"
 
 
-def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
-                     settings, bandwidth, quiet) -> dict[str, Any]:
+def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dict[str, Any],
+                     is_default: bool, out: Path, settings: EvaluateSettings,
+                     bandwidth: dict[str, Any], quiet: bool) -> dict[str, Any]:
     sc = apply_budget(scene, budget)
-    options = {k[len(RENDER_PREFIX):]: v for k, v in budget.items()
-               if k.startswith(RENDER_PREFIX)}
+    options = method.option_values({}) | {k[len(RENDER_PREFIX):]: v for k, v in budget.items()
+                                          if k.startswith(RENDER_PREFIX)}
     # one work directory for all budgets: a budget re-bakes only the stages whose keys
-    # it changes (a haar.tolerance sweep re-runs haar, not transfer)
-    wd = Workdir(workdir.root / "sweep" / method)
-    job.bake(sc, wd, until=job.METHODS[method][2], quiet=quiet)
-    reads = job.METHOD_READS[method]
+    # it changes (a truncate.tolerance sweep re-runs truncate, not transfer)
+    wd = Workdir(workdir.root / "sweep" / method.name)
+    job.bake(sc, wd, quiet=quiet, methods=[method])
     # bake time: every stage the method's artifacts depend on
-    bake_s = sum(read_record(wd.artifact(p.spec.name))["seconds"]
-                 for p in job.status(sc, wd) if wd.artifact(p.spec.name).exists()
-                 and p.state == "fresh")
-    storage = sum(_bytes_on_disk(wd.artifact(name)) for name in reads)
-    render = job.frame_renderer(sc, wd, method, options)  # loads the artifacts once
+    chain = with_upstream(job.stages(), list(method.reads))
+    bake_s = sum((read_record(wd.artifact(name)) or {}).get("seconds", 0.0) for name in chain)
+    storage = sum(_bytes_on_disk(wd.artifact(name)) for name in method.reads)
+    render = job.frame_renderer(sc, wd, method.name, options)  # loads the artifacts once
     render(sc)  # warm-up: kernel builds, first use of the device buffers
     frames = [render(sc) for _ in range(settings.repeats)]
     frame = frames[-1]
@@ -247,14 +264,21 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
         return statistics.median(f.timings[key] for f in frames)
 
     kernel_ms = median("kernel_ms")
+    counted_ms = median("counted_kernel_ms") if "counted_kernel_ms" in frame.timings \
+        else kernel_ms
     surfaces = ~emitter_pixels(sc, wd)
+    transport = method.reference
+    _step(f"  reference {transport} ({sc.camera.width}x{sc.camera.height})")
     ref = _converged_reference(sc, workdir, transport, frame.rgb, [None, surfaces], settings,
                                quiet)
     errors = metrics.image_metrics(frame.rgb, ref.mean)
     surface_error = metrics.relative_rmse(frame.rgb, ref.mean, surfaces)
-    indirect = _indirect_record(sc, wd, workdir, frame.rgb, surfaces, settings, quiet) \
-        if method == "d2i" else {}
-    headline_mask = surfaces if HEADLINE_ERROR[method] == "rel_rmse_surfaces" else None
+    components: dict[str, Any] = {}
+    for name, component in method.components.items():
+        _step(f"  component {name}: reference {component.transport}")
+        components.update(_component_record(sc, wd, workdir, name, component, frame.rgb,
+                                            surfaces, settings, quiet))
+    headline_mask = surfaces if method.headline == "rel_rmse_surfaces" else None
     headline = errors["rel_rmse"] if headline_mask is None else surface_error
     slug = _slug(budget)
     write_exr(out / "frames" / f"{slug}.exr", frame.rgb)
@@ -263,9 +287,11 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
     write_heatmap(out / "frames" / f"{slug}_error.png",
                   metrics.error_map(frame.rgb, ref.mean), HEATMAP_MAX)
     geometry, _ = job.load_geometry(sc, wd)
-    kernel_gbs = frame.kernel_bytes / (kernel_ms * 1e-3) / 1e9 if kernel_ms > 0 else None
+    kernel_gbs = frame.kernel_bytes / (counted_ms * 1e-3) / 1e9 if counted_ms > 0 else None
+    _step("  path tracer to equal error")
     return {
-        "method": method, "budget": budget, "default": is_default,
+        "method": method.name, "headline": method.headline, "budget": budget,
+        "default": is_default,
         "width": sc.camera.width, "height": sc.camera.height,
         "frame_ms": median("total_ms"), "kernel_ms": kernel_ms,
         "setup_ms": median("total_ms") - kernel_ms, "repeats": settings.repeats,
@@ -274,8 +300,9 @@ def _evaluate_budget(scene, workdir, method, transport, budget, is_default, out,
         "rel_rmse_surfaces": surface_error,
         "reference_rel_rmse": ref.estimate,
         "reference_rel_rmse_surfaces": _noise(ref, surfaces), "reference_spp": ref.spp,
-        **indirect,
-        "kernel_bytes": frame.kernel_bytes, "kernel_gbs": kernel_gbs,
+        **components,
+        "kernel_bytes": frame.kernel_bytes, "counted_kernel_ms": counted_ms,
+        "kernel_gbs": kernel_gbs,
         "bandwidth_fraction": None if kernel_gbs is None
         else kernel_gbs / bandwidth["opencl_copy_gbs"],
         **_pathtrace_equal_error(sc, geometry, transport, headline, ref, headline_mask,
@@ -306,20 +333,23 @@ def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: 
         spp = min(4 * spp, settings.reference_max_spp)
 
 
-def _indirect_record(scene: Scene, wd: Workdir, workdir: Workdir, frame: np.ndarray,
-                     surfaces: np.ndarray, settings: EvaluateSettings, quiet: bool
-                     ) -> dict[str, Any]:
-    """d2i's indirect image (its frame less the direct method's frame, which shares its
-    direct shader) against the reference's ``d2i-indirect`` transport, on ``surfaces``:
-    ``rel_rmse_indirect``, that reference's noise, and the ratio of mean radiances."""
-    indirect = frame - job.render_frame(scene, wd, "direct").rgb
-    ref = _converged_reference(scene, workdir, "d2i-indirect", indirect, [surfaces],
+def _component_record(scene: Scene, wd: Workdir, workdir: Workdir, name: str,
+                      component: Any, frame: np.ndarray, surfaces: np.ndarray,
+                      settings: EvaluateSettings, quiet: bool) -> dict[str, Any]:
+    """A component of the frame (the frame less the frame of the method it subtracts,
+    which shares its shader for the rest; d2i: its indirect image) against the
+    component's reference transport, on ``surfaces``: ``rel_rmse_<name>``, that
+    reference's noise, and the ratio of mean radiances ``<name>_mean_ratio``."""
+    other = get_method(component.subtract)
+    job.bake(scene, wd, quiet=quiet, methods=[other])
+    image = frame - job.render_frame(scene, wd, other.name).rgb
+    ref = _converged_reference(scene, workdir, component.transport, image, [surfaces],
                                settings, quiet)
-    return {"rel_rmse_indirect": metrics.relative_rmse(indirect, ref.mean, surfaces),
-            "reference_rel_rmse_indirect": _noise(ref, surfaces),
-            "reference_spp_indirect": ref.spp,
-            "indirect_mean_ratio": float(indirect[surfaces].mean()
-                                         / max(ref.mean[surfaces].mean(), 1e-30))}
+    return {f"rel_rmse_{name}": metrics.relative_rmse(image, ref.mean, surfaces),
+            f"reference_rel_rmse_{name}": _noise(ref, surfaces),
+            f"reference_spp_{name}": ref.spp,
+            f"{name}_mean_ratio": float(image[surfaces].mean()
+                                        / max(ref.mean[surfaces].mean(), 1e-30))}
 
 
 def _noise(ref: Any, mask: np.ndarray) -> float:
@@ -344,6 +374,11 @@ def emitter_pixels(scene: Scene, workdir: Workdir) -> np.ndarray:
     return np.isin(gbuffer.read("object_id"), emitters)
 
 
+def rows_headline(records: list[dict[str, Any]], method: str) -> str:
+    """The headline error of ``method``'s records (as recorded with them)."""
+    return next(r.get("headline", "rel_rmse") for r in records if r["method"] == method)
+
+
 CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
           ("storage_bytes", "artifact bytes a frame reads", "error_vs_storage.png"),
           ("bake_s", "bake time (s)", "error_vs_bake_time.png"))
@@ -352,12 +387,16 @@ CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
 def write_charts(records: list[dict[str, Any]], out: Path) -> None:
     """Each method's headline error against frame time, storage and bake time (log-log
     PNGs; the frame time chart also shows the path tracers' time to equal error), and,
-    where records have it, the indirect image's error (``indirect_error_vs_*.png``)."""
+    per component the records have (d2i: indirect), its error
+    (``<component>_error_vs_*.png``)."""
+    components = sorted({k[len("rel_rmse_"):] for r in records for k in r
+                         if k.startswith("rel_rmse_") and k != "rel_rmse_surfaces"})
     for key, label, name in CHARTS:
         _chart(records, key, label, out / name, None)
-        if any("rel_rmse_indirect" in r for r in records):
-            _chart([r for r in records if "rel_rmse_indirect" in r], key, label,
-                   out / f"indirect_{name}", "rel_rmse_indirect")
+        for component in components:
+            error = f"rel_rmse_{component}"
+            _chart([r for r in records if error in r], key, label,
+                   out / f"{component}_{name}", error)
 
 
 def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
@@ -372,7 +411,7 @@ def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
 
     fig, ax = plt.subplots(figsize=(5.5, 4.0), dpi=120)
     for method in sorted({r["method"] for r in records}):
-        error = error_key or HEADLINE_ERROR[method]
+        error = error_key or rows_headline(records, method)
         rows = sorted((r for r in records if r["method"] == method), key=lambda r: r[key])
         ax.plot([r[key] for r in rows], [r[error] for r in rows], "o-",
                 label=f"{method} ({error})")
@@ -397,8 +436,9 @@ def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
         ax.xaxis.set_minor_formatter(NullFormatter())
     # within a decade a log axis has no labelled tick at all: the axis stays linear
     ax.set_xlabel(label)
+    component = error_key[len("rel_rmse_"):] if error_key else None
     ax.set_ylabel("relative RMSE vs reference"
-                  + (" (indirect image)" if error_key == "rel_rmse_indirect" else ""))
+                  + (f" ({component} image)" if component else ""))
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -1,7 +1,8 @@
 """What the CLI commands do: bake, report status, render frames, inspect and clean.
 
 Each function here is one floor-4 entry that a CLI command calls; it wires scenes,
-the runner and the renderers together and returns plain results for the CLI to print.
+the runner, the method registry (pipeline/method.py) and the renderers together and
+returns plain results for the CLI to print. No method is named here.
 """
 
 from __future__ import annotations
@@ -15,26 +16,16 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.codeversion import code_version
 from pipeline.errors import PrtError
 from pipeline.executors import make_executor
-from pipeline.keys import digest, module_source_hash
+from pipeline.keys import digest
+from pipeline.method import Method, get_method, resolve, scene_methods, stagefile_fragments
 from pipeline.render import Frame
 from pipeline.runner import StagePlan, StageRun, plan, run
 from pipeline.scene import Scene, default_scene_path, load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.store import Workdir
-
-# Rendering methods: name -> (module, function, the stage whose artifact it needs).
-# method -> (module, its renderer factory (scene, workdir, **options) -> frame function,
-# the last stage it needs)
-METHODS = {"direct": ("pipeline.render.direct", "direct_renderer", "gbuffer"),
-           "d2i": ("pipeline.render.d2i", "d2i_renderer", "haar")}
-# What `prt run` renders after baking: one frame of this method, and these sequences.
-MAIN_METHOD = "d2i"
-MAIN_SEQUENCES = ("light:8", "gamma:8")
-# The artifacts each method's frame reads (its run-time storage).
-METHOD_READS = {"direct": ("geometry", "gbuffer"),
-                "d2i": ("geometry", "gbuffer", "gather", "brdf_basis", "haar")}
+from pipeline.stagefile import StageFile, load_stagefile
+from pipeline.store import Artifact, Workdir, open_artifact, read_record
 
 
 def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> Scene:
@@ -48,18 +39,60 @@ def workdir_for(scene: Scene, workdir: str | Path | None) -> Workdir:
     return Workdir(workdir or Path(".prt") / scene.name)
 
 
+def stages(stagefile: str | Path | None = None) -> StageFile:
+    """The stage graph: ``stagefile`` alone (a custom graph), or the project's
+    stages.yaml merged with the plug-ins' own stage files."""
+    if stagefile is not None:
+        return load_stagefile(stagefile)
+    return load_stagefile(None, stagefile_fragments())
+
+
+def baked_stages(scene: Scene, methods: list[Method] | None = None) -> set[str]:
+    """The stages whose artifacts the frames of ``methods`` (default: the scene's) read."""
+    methods = scene_methods(scene) if methods is None else methods
+    return {name for m in methods for name in m.reads}
+
+
 def bake(scene: Scene, workdir: Workdir, until: str | None = None,
          force: tuple[str, ...] = (), jobs: int = 1, quiet: bool = False,
-         stagefile: str | Path | None = None) -> list[StageRun]:
-    """Run every stale stage (or those ``until`` needs)."""
-    return run(scene, load_stagefile(stagefile), workdir, until=until, force=force,
-               executor=make_executor(jobs), progress=not quiet)
+         stagefile: str | Path | None = None,
+         methods: list[Method] | None = None) -> list[StageRun]:
+    """Run every stale stage that the scene's methods (or ``methods``) need, or those
+    ``until`` needs; a custom ``stagefile`` runs all of its stages."""
+    graph = stages(stagefile)
+    targets = None if until or stagefile else baked_stages(scene, methods)
+    return run(scene, graph, workdir, until=until, force=force, executor=make_executor(jobs),
+               progress=not quiet, targets=targets)
 
 
 def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
            ) -> list[StagePlan]:
-    """Every stage's state (fresh, stale or missing) and why, without running anything."""
-    return plan(scene, load_stagefile(stagefile), workdir)
+    """The state (fresh, stale or missing) of every stage the scene's methods need (a
+    custom ``stagefile``: all of its stages) and why, without running anything."""
+    from pipeline.graph import with_upstream
+
+    graph = stages(stagefile)
+    targets = None if stagefile else with_upstream(graph, sorted(baked_stages(scene)))
+    return plan(scene, graph, workdir, targets)
+
+
+def method_artifacts(method: Method, workdir: Workdir) -> dict[str, Artifact]:
+    """The opened artifacts a method's frames read, by stage name."""
+    graph = stages()
+    return {name: open_artifact(workdir.artifact(name), graph.stages[name].output)
+            for name in method.reads}
+
+
+def frame_key(scene: Scene, workdir: Workdir, method: Method,
+              options: dict[str, Any]) -> str:
+    """What a frame depends on: the method, its renderer's code (import closure and
+    kernels), the output digests of exactly the artifacts it reads, the camera, lights
+    and materials, and the run-time options."""
+    digests = {name: (read_record(workdir.artifact(name)) or {}).get("digest")
+               for name in method.reads}
+    return digest({"method": method.name, "code": code_version([method.renderer_module()]),
+                   "artifacts": digests, "options": options,
+                   "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}})
 
 
 @dataclass
@@ -77,23 +110,24 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
            options: dict[str, Any] | None = None) -> RenderResult:
     """Bake what ``method`` needs, render one frame, write ``out`` (EXR) and a PNG beside.
 
-    With ``reuse``, a frame whose inputs (artifact keys, lights, materials, camera, code)
-    are unchanged since it was written is not rendered again."""
-    if method not in METHODS:
-        raise PrtError(None, f"unknown method {method!r} (methods: {', '.join(METHODS)})")
-    module_name, _, needs = METHODS[method]
+    With ``reuse``, a frame whose inputs (see :func:`frame_key`) are unchanged since it
+    was written is not rendered again."""
+    m = get_method(method)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
-    baked = bake(scene, workdir, until=needs, jobs=jobs, quiet=quiet)
+    from pipeline.method import check_method_scene
+
+    check_method_scene(m, scene)
+    options = m.option_values({}) | (options or {})
+    baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m])
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
-    key = digest({"method": method, "code": module_source_hash(module_name),
-                  "artifacts": [p.key for p in status(scene, workdir)],
-                  "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}})
+    key = frame_key(scene, workdir, m, options)
     if reuse and out.is_file() and png.is_file() and _stored_key(meta) == key:
         return RenderResult(out, png, None, baked)
     from pipeline.images import write_exr, write_png
 
-    frame = render_frame(scene, workdir, method, options)
+    frame = frame_renderer(scene, workdir, method, options)(scene)
+    out.parent.mkdir(parents=True, exist_ok=True)
     write_exr(out, frame.rgb)
     write_png(png, frame.rgb)
     meta.write_text(json.dumps({"key": key, "method": method, **frame.timings}, indent=1))
@@ -102,14 +136,10 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
 
 def frame_renderer(scene: Scene, workdir: Workdir, method: str,
                    options: dict[str, Any] | None = None) -> Callable[[Scene], Frame]:
-    """A function rendering frames of ``method`` from the (already baked) artifacts in
-    ``workdir``, loaded once; ``options`` are the method's own keyword arguments (d2i:
-    max_bounces, bounce_tolerance)."""
-    import importlib
-
-    module_name, factory, _ = METHODS[method]
-    return getattr(importlib.import_module(module_name), factory)(scene, workdir,
-                                                                  **(options or {}))
+    """A renderer of ``method``'s frames from the (already baked) artifacts in
+    ``workdir``, loaded once; ``options`` are the method's run-time options."""
+    m = get_method(method)
+    return resolve(m.renderer)(scene, method_artifacts(m, workdir), **(options or {}))
 
 
 def render_frame(scene: Scene, workdir: Workdir, method: str,
@@ -125,9 +155,6 @@ def _stored_key(meta: Path) -> str | None:
         return None
 
 
-SEQUENCE_KINDS = ("light", "gamma")
-
-
 @dataclass
 class SequenceResult:
     """A written frame sequence: its EXR files (PNG previews beside them), per-frame
@@ -139,60 +166,21 @@ class SequenceResult:
     edits: list[str]
 
 
-def parse_sequence(text: str) -> tuple[str, str | None, int]:
-    """``light:N`` or ``gamma[:MATERIAL]:N`` -> (kind, material or None, N)."""
-    parts = text.split(":")
-    if parts[0] not in SEQUENCE_KINDS or len(parts) not in (2, 3) or \
-            (parts[0] == "light" and len(parts) != 2) or not parts[-1].isdigit() \
-            or int(parts[-1]) < 1:
-        raise PrtError(None, f"--frames {text}: expected light:N or gamma[:MATERIAL]:N "
-                       "(N ≥ 1 frames)")
-    return parts[0], parts[1] if len(parts) == 3 else None, int(parts[-1])
-
-
-def sequence_scenes(scene: Scene, workdir: Workdir, kind: str, material: str | None,
-                    count: int) -> tuple[list[Scene], list[str]]:
-    """The edited scenes of a sequence and a label for each. ``light``: the first light
-    moved around a horizontal circle of radius 0.1 × the scene's diagonal about where it
-    is (an emitter mesh tied to a quad light stays where it is). ``gamma``: the
-    material's (default: the first glossy one) γ swept geometrically across its
-    gamma_range."""
-    from pipeline.scene import with_light_offset, with_material_edits
-    from pipeline.store import open_artifact
-
-    if kind == "light":
-        if not scene.lights:
-            raise PrtError(scene.path, "a light sequence needs a light to move")
-        geo = open_artifact(workdir.artifact("geometry"), "geometry").attrs
-        radius = 0.1 * float(np.linalg.norm(np.subtract(geo["bbox_max"], geo["bbox_min"])))
-        angles = 2 * np.pi * np.arange(count) / count
-        offsets = [(radius * np.cos(a), 0.0, radius * np.sin(a)) for a in angles]
-        return ([with_light_offset(scene, 0, o) for o in offsets],
-                [f"light 0 moved by ({o[0]:.3g}, {o[1]:.3g}, {o[2]:.3g})" for o in offsets])
-    glossy = [n for n, m in scene.materials.items() if m.model != "lambert"]
-    name = material or (glossy[0] if glossy else None)
-    if name not in glossy:
-        raise PrtError(scene.path, f"a gamma sequence needs a glossy material (found "
-                       f"{name!r}; glossy: {', '.join(glossy) or 'none'})")
-    lo, hi = scene.materials[name].params["gamma_range"]
-    gammas = np.geomspace(lo, hi, count) if count > 1 else \
-        [scene.materials[name].params["gamma"]]
-    edits = [f"{name}.gamma={g:.6g}" for g in gammas]
-    return [with_material_edits(scene, [e]) for e in edits], edits
-
-
-def render_sequence(scene: Scene, workdir: Workdir, spec: str, out: Path,
-                    max_bounces: int = 32, bounce_tolerance: float = 1e-3) -> SequenceResult:
-    """Render a d2i sequence (``light:N`` in light-edit mode, ``gamma[:M]:N`` in
-    BRDF-edit mode) from the baked artifacts; frames go to ``out`` with the suffix
-    ``_<kind>_<i>`` (EXR + PNG)."""
+def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
+                    options: dict[str, Any] | None = None) -> SequenceResult:
+    """Render a sequence of edits (``spec`` as the method's sequences read it) from the
+    baked artifacts; frames go to ``out`` with the suffix ``_<kind>_<i>`` (EXR + PNG).
+    A renderer with an ``edit_mode`` renders the sequence in that faster mode."""
     from pipeline.images import write_exr, write_png
-    from pipeline.render.d2i import D2iRenderer
 
-    kind, material, count = parse_sequence(spec)
-    scenes, edits = sequence_scenes(scene, workdir, kind, material, count)
-    renderer = D2iRenderer(scene, workdir, max_bounces, bounce_tolerance)
-    frame_of = renderer.light_edits(scene) if kind == "light" else renderer.brdf_edits(scene)
+    m = get_method(method)
+    if m.sequences is None:
+        raise PrtError(None, f"--frames: method {method} has no edit sequences")
+    artifacts = method_artifacts(m, workdir)
+    kind, scenes, edits = resolve(m.sequences)(scene, artifacts, spec)
+    renderer = resolve(m.renderer)(scene, artifacts, **(options or {}))
+    frame_of = renderer.edit_mode(kind, scene) if hasattr(renderer, "edit_mode") \
+        else renderer
     paths, timings = [], []
     for i, edited in enumerate(scenes):
         frame = frame_of(edited)
@@ -208,29 +196,26 @@ def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
              force: tuple[str, ...], jobs: int, quiet: bool,
              stagefile: str | Path | None = None
              ) -> tuple[list[StageRun], RenderResult | None, list[SequenceResult]]:
-    """``prt run``: bake every stale stage, then (unless ``until``, or with a custom
-    stage file) bring the scene's frame and its edit sequences in ``frames`` up to date
-    (the sequences are rendered again whenever the frame is)."""
+    """``prt run``: bake every stale stage of the scene's methods, then (unless
+    ``until``, or with a custom stage file) bring the frame of the scene's first method
+    and its edit sequences in ``frames`` up to date (the sequences are rendered again
+    whenever the frame is)."""
     report = bake(scene, workdir, until=until, force=force, jobs=jobs, quiet=quiet,
                   stagefile=stagefile)
     if until or stagefile:
         return report, None, []
-    result = render(scene, workdir, MAIN_METHOD, frames / f"{scene.name}_{MAIN_METHOD}.exr",
-                    jobs=jobs, quiet=quiet, reuse=True)
+    method = scene_methods(scene)[0]
+    result = render(scene, workdir, method.name,
+                    frames / f"{scene.name}_{method.name}.exr", jobs=jobs, quiet=quiet,
+                    reuse=True)
     sequences = [] if result.frame is None else \
-        [render_sequence(scene, workdir, spec, result.exr) for spec in MAIN_SEQUENCES]
+        [render_sequence(scene, workdir, method.name, spec, result.exr)
+         for spec in method.main_sequences]
     return report, result, sequences
-
-
-REFERENCE_CODE = ("pipeline.reference", "pipeline.math.brdf", "pipeline.math.brdf_sampling",
-                  "pipeline.math.envmap", "pipeline.math.lights", "pipeline.math.camera",
-                  "pipeline.math.frames", "pipeline.raytrace")
 
 
 def load_geometry(scene: Scene, workdir: Workdir, quiet: bool = True) -> tuple[dict, str]:
     """Bake the geometry stage if stale; its arrays and names as a dict, and its key."""
-    from pipeline.store import open_artifact
-
     bake(scene, workdir, until="geometry", quiet=quiet)
     artifact = open_artifact(workdir.artifact("geometry"), "geometry")
     arrays: dict[str, Any] = {n: artifact.read(n) for n in artifact.names}
@@ -257,10 +242,10 @@ def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
 
     from pipeline import reference as ref
     from pipeline.schema import load_schema
-    from pipeline.store import open_artifact, read_record, software_versions, write_artifact
+    from pipeline.store import software_versions, write_artifact
 
     geometry, geometry_key = load_geometry(scene, workdir, quiet)
-    parts = {"code": [module_source_hash(m) for m in REFERENCE_CODE],
+    parts = {"code": code_version(["pipeline.reference"]),
              "geometry": geometry_key, "settings": dataclasses.asdict(settings),
              "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}}
     key = digest(parts)
@@ -308,7 +293,7 @@ def inspect_artifact(path: Path) -> dict[str, Any]:
     """Schema kind and version, and per array its shape, dtype, chunks, stored bytes and
     statistics (min, max, mean over finite values; NaN count)."""
 
-    from pipeline.store import open_artifact, open_group
+    from pipeline.store import open_group
 
     path = Path(path)
     artifact = open_group(path)

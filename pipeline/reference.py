@@ -11,12 +11,14 @@ Transports (what a path may carry):
                 once by the first surface (no bounces).
 ``env-direct``  the environment seen by the camera and environment light reflected once,
                 with visibility (other lights ignored).
-``d2i``         paper 000's transport: the first surface seen from the camera reflects
-                with its full BRDF; every later vertex is Lambertian with its diffuse
-                albedo kd (the glossy lobe dropped), any number of bounces.
-``d2i-indirect`` the same paths without their direct part (no emission or environment
-                seen from the camera or after one bounce, no light sampled at the first
-                vertex): d2i minus direct, with only the indirect light's noise.
+``first-glossy`` paper 000's transport (what method d2i models): the first surface seen
+                from the camera reflects with its full BRDF; every later vertex is
+                Lambertian with its diffuse albedo kd (the glossy lobe dropped), any
+                number of bounces.
+``first-glossy-indirect`` the same paths without their direct part (no emission or
+                environment seen from the camera or after one bounce, no light sampled
+                at the first vertex): first-glossy minus direct, with only the indirect
+                light's noise.
 ``full``        path tracing with the full BRDF at every vertex.
 
 Estimator. At every shading vertex, next-event estimation samples each light once
@@ -62,7 +64,7 @@ from pipeline.math.lights import TYPE_CODES, pack_lights, smoothstep
 from pipeline.raytrace import RayTracer
 from pipeline.scene import Scene
 
-TRANSPORTS = ("direct", "env-direct", "d2i", "d2i-indirect", "full")
+TRANSPORTS = ("direct", "env-direct", "first-glossy", "first-glossy-indirect", "full")
 PIXEL_FILTERS = ("center", "box")
 RAY_EPSILON = 1e-4  # origin offset, relative to the scene diagonal
 PATHS_PER_PASS = 1 << 17
@@ -217,9 +219,9 @@ class PathTracer:
         self.s = settings
         self.use_local = settings.transport != "env-direct"
         self.one_vertex = settings.transport in ("direct", "env-direct")
-        self.lambert_bounces = settings.transport in ("d2i", "d2i-indirect")
+        self.lambert_bounces = settings.transport in ("first-glossy", "first-glossy-indirect")
         # vertices (0: seen from the camera) whose light arrives without a bounce
-        self.skip_direct = settings.transport == "d2i-indirect"
+        self.skip_direct = settings.transport == "first-glossy-indirect"
         self.rays = 0
 
     # ------------------------------------------------------------------------ lights

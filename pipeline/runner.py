@@ -1,21 +1,33 @@
 """The runner: stages.yaml + scene -> keyed plan -> only the stale chunks run.
 
-Keys (all SHA-256 of canonical JSON):
+Keys (SHA-256 of canonical JSON):
 
-* chunk key = {stage, code, schema version, declared param values, declared scene
-  sections resolved for the chunk, input artifact keys, chunk id};
-* artifact key = {stage, chunk keys} (for an unchunked stage, its one chunk key);
-* code = hash of the stage module's source and of the kernels it declares.
+* a chunk's *data key* = {stage, declared param values, declared scene sections
+  resolved for the chunk, the digests of the inputs it reads, chunk id}; it seeds the
+  chunk's random numbers, so a refactor that leaves the numbers alone reproduces them;
+* a chunk's *key* = {data key, code version, schema version}: the code version is the
+  hash of the stage module's import closure and of the kernels it uses, includes
+  followed (pipeline/codeversion.py);
+* an input enters a chunk's key by its *output digest* (the hash of the bytes it
+  wrote), not its key: when a re-run stage writes what it wrote before, its dependents
+  stay fresh (early cut-off). An input listed in ``chunk_inputs`` enters only by the
+  digests of the chunks the chunk reads (those of its object or materials): editing one
+  material's ``gamma_range`` re-runs only the pixel tiles that see that material;
+* an artifact's key = {stage, chunk keys}.
 
-An artifact is fresh when its stored key equals the planned key. Otherwise its chunks
-whose cached results carry the planned chunk key are reused and the rest run; then the
-stage's ``assemble`` writes the artifact atomically. Planning reads only ``zarr.json``
-files, never arrays.
+A stage is planned once its inputs are fresh (its chunks may depend on their
+attributes, pipeline/chunking.py); before that ``prt status`` reports it as waiting for
+them. An artifact is fresh when its stored key equals the planned key. Otherwise its
+chunks whose cached results carry the planned chunk key are reused and the rest run;
+then the stage's ``assemble`` writes the artifact atomically. Planning reads only
+``zarr.json`` files (and, for ``materials_from``, one small label image), never the
+large arrays.
 """
 
 from __future__ import annotations
 
 import datetime
+import hashlib
 import importlib
 import sys
 import time
@@ -23,16 +35,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.cl import kernel_dir
+import numpy as np
+
+from pipeline.chunking import Chunk, plan_chunks
+from pipeline.codeversion import code_version
 from pipeline.errors import PrtError
 from pipeline.executors import Executor, InProcessExecutor
 from pipeline.graph import topological_order, with_upstream
-from pipeline.keys import digest, file_hash, module_source_hash, seed_from_key
+from pipeline.keys import digest, seed_from_key
 from pipeline.scene import Scene
 from pipeline.schema import load_schema
 from pipeline.stagefile import StageFile, StageSpec
-from pipeline.stages import REGISTRY, AssembleContext, Chunk, ChunkContext
+from pipeline.stages import AssembleContext, ChunkContext
 from pipeline.store import (
+    Artifact,
     Workdir,
     open_artifact,
     open_group,
@@ -42,19 +58,23 @@ from pipeline.store import (
     write_group,
 )
 
+STAGE_PACKAGE = "pipeline.stages"
+
 
 @dataclass
 class StagePlan:
     """A stage's planned keys and state. ``state`` is fresh, stale or missing; ``reason``
-    says why it is not fresh; ``sections`` maps chunk id -> resolved scene sections."""
+    says why it is not fresh. ``chunks`` is None (and ``key`` empty) while an input is
+    not fresh: such a stage is planned when it is its turn to run."""
 
     spec: StageSpec
-    key: str
-    chunks: list[Chunk]
-    chunk_keys: dict[str, str]
-    key_parts: dict[str, Any]
     params: dict[str, Any]
-    sections: dict[str, dict[str, Any]]
+    key: str = ""
+    chunks: list[Chunk] | None = None
+    chunk_keys: dict[str, str] = field(default_factory=dict)
+    seeds: dict[str, int] = field(default_factory=dict)
+    key_parts: dict[str, Any] = field(default_factory=dict)
+    sections: dict[str, dict[str, Any]] = field(default_factory=dict)
     state: str = "missing"
     reason: str = ""
 
@@ -79,6 +99,7 @@ class ChunkTask:
     impl: str
     chunk: Chunk
     key: str
+    seed: int
     params: dict[str, Any]
     scene: dict[str, Any]
     inputs: dict[str, tuple[str, str]]  # input name -> (artifact path, schema kind)
@@ -99,12 +120,12 @@ def stage_params(stagefile: StageFile, scene: Scene) -> dict[str, Any]:
 
 
 def resolve_sections(spec: StageSpec, scene: Scene, chunk: Chunk | None) -> dict[str, Any]:
-    """Declared scene sections with ``*`` bound to the chunk's object or material (or,
-    without a chunk, to every name)."""
+    """Declared scene sections with ``*`` bound to the chunk's object and materials
+    (or, where the chunk has none, to every object or material)."""
     obj = chunk.object if chunk else None
-    material = chunk.material if chunk else None
-    if obj:
-        material = scene.objects[obj].material
+    materials = chunk.materials if chunk else None
+    if obj and materials is None:
+        materials = (scene.objects[obj].material,)
     out: dict[str, Any] = {}
     for pattern in spec.scene:
         if "*" not in pattern:
@@ -114,7 +135,7 @@ def resolve_sections(spec: StageSpec, scene: Scene, chunk: Chunk | None) -> dict
         if head == "objects":
             names = [obj] if obj else list(scene.objects)
         elif head == "materials":
-            names = [material] if material else list(scene.materials)
+            names = list(materials) if materials is not None else list(scene.materials)
         else:
             raise PrtError(None, f"stage {spec.name}: scene section {pattern!r}: '*' is only "
                            "allowed after objects or materials")
@@ -123,14 +144,14 @@ def resolve_sections(spec: StageSpec, scene: Scene, chunk: Chunk | None) -> dict
     return out
 
 
-def impl_module_name(impl: str) -> str:
-    return REGISTRY.get(impl, impl).partition(":")[0]
+def impl_target(impl: str) -> str:
+    """``transfer`` -> ``pipeline.stages.transfer``; dotted names stay as they are."""
+    return impl if "." in impl.partition(":")[0] else f"{STAGE_PACKAGE}.{impl}"
 
 
 def load_impl(impl: str) -> Any:
     """The module (or ``module:attribute`` object) implementing a stage."""
-    target = REGISTRY.get(impl, impl)
-    module_name, _, attr = target.partition(":")
+    module_name, _, attr = impl_target(impl).partition(":")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
@@ -139,71 +160,96 @@ def load_impl(impl: str) -> Any:
     return getattr(module, attr) if attr else module
 
 
-def code_version(spec: StageSpec) -> str:
-    kernels = kernel_dir()
-    parts = [module_source_hash(impl_module_name(spec.impl))]
-    for name in spec.kernels:
-        path = kernels / name
-        if not path.is_file():
-            raise PrtError(path, f"kernel file declared by stage {spec.name} not found")
-        parts.append(file_hash(path))
-    return digest(parts)
+def stage_code(spec: StageSpec) -> str:
+    """The stage's code version (pipeline/codeversion.py)."""
+    return code_version([impl_target(spec.impl).partition(":")[0]], spec.kernels)
 
 
-def stage_chunks(spec: StageSpec, scene: Scene, params: dict[str, Any]) -> list[Chunk]:
-    if spec.chunking == "object":
-        return [Chunk(name, object=name) for name in scene.objects]
-    if spec.chunking == "material":
-        return [Chunk(name, material=name) for name in scene.materials]
-    if spec.chunking == "tile":
-        tile = params[spec.tile_param]
-        if not isinstance(tile, int) or tile < 1:
-            raise PrtError(scene.path, f"{spec.tile_param}: expected a positive integer tile "
-                           f"size, found {tile!r}")
-        w, h = scene.camera.width, scene.camera.height
-        return [Chunk(f"y{y:05d}_x{x:05d}", region=(y, min(y + tile, h), x, min(x + tile, w)))
-                for y in range(0, h, tile) for x in range(0, w, tile)]
-    if spec.chunking == "block":
-        size, count = params[spec.tile_param], params[spec.count_param]
-        for name, value in ((spec.tile_param, size), (spec.count_param, count)):
-            if not isinstance(value, int) or value < 1:
-                raise PrtError(scene.path, f"{name}: expected a positive integer, found "
-                               f"{value!r}")
-        return [Chunk(f"b{s:08d}", span=(s, min(s + size, count)))
-                for s in range(0, count, size)]
-    return [Chunk("all")]
+def _input_digests(spec: StageSpec, chunk: Chunk, records: dict[str, dict[str, Any]],
+                   stagefile: StageFile) -> dict[str, Any]:
+    """What each input contributes to a chunk's key: its output digest, or for a
+    ``chunk_inputs`` input the digests of the chunks of the chunk's object/materials."""
+    out: dict[str, Any] = {}
+    for dep in spec.inputs:
+        record = records[dep]
+        if dep not in spec.chunk_inputs:
+            out[dep] = record["digest"]
+            continue
+        by = stagefile.stages[dep].chunks.by
+        wanted = (chunk.materials if by == "material" else
+                  (chunk.object,) if by == "object" and chunk.object else None)
+        if wanted is None:
+            raise PrtError(stagefile.path, f"stages.{spec.name}.chunk_inputs: chunk "
+                           f"{chunk.id} has no {by} to select the chunks of {dep} by")
+        chunk_digests = record.get("chunk_digests", {})
+        out[dep] = {w: chunk_digests.get(w) for w in sorted(wanted)}
+    return out
+
+
+def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Workdir,
+               params_all: dict[str, Any]) -> StagePlan:
+    """Chunks, keys and state of one stage whose inputs are all fresh."""
+    params = {k: params_all[k] for k in spec.params}
+    upstream = {dep: open_artifact(workdir.artifact(dep), stagefile.stages[dep].output)
+                for dep in spec.inputs}
+    records = {dep: a.record for dep, a in upstream.items()}
+    chunks = plan_chunks(spec, scene, params, upstream)
+    code = stage_code(spec)
+    schema_version = load_schema(spec.output).version
+    p = StagePlan(spec, params, chunks=chunks)
+    shared = resolve_sections(spec, scene, None) if spec.chunks.by in ("none", "block") \
+        else None
+    input_parts = {}
+    for c in chunks:
+        sections = shared if shared is not None else resolve_sections(spec, scene, c)
+        p.sections[c.id] = sections
+        inputs = _input_digests(spec, c, records, stagefile)
+        input_parts[c.id] = inputs
+        data = digest({"stage": spec.name, "params": params, "scene": sections,
+                       "inputs": inputs, "chunk": c.id})
+        p.seeds[c.id] = seed_from_key(data)
+        p.chunk_keys[c.id] = digest({"data": data, "code": code,
+                                     "schema_version": schema_version})
+    p.key = digest({"stage": spec.name, "chunks": p.chunk_keys})
+    scene_digests = {path: digest(value) for s in p.sections.values()
+                     for path, value in s.items()}
+    inputs_all = {dep: digest([input_parts[c.id][dep] for c in chunks]) for dep in spec.inputs}
+    p.key_parts = {"stage": spec.name, "code": code, "schema_version": schema_version,
+                   "params": params, "inputs": inputs_all,
+                   "scene": dict(sorted(scene_digests.items())),
+                   "chunks": sorted(p.chunk_keys)}
+    p.state, p.reason = _state(workdir.artifact(spec.name), p.key, p.key_parts)
+    return p
 
 
 def plan(scene: Scene, stagefile: StageFile, workdir: Workdir,
          targets: set[str] | None = None) -> list[StagePlan]:
-    """Keys and states of the stages (``targets`` and their upstream; default all)."""
+    """Keys and states of the stages (``targets`` and their upstream; default all),
+    without running anything. A stage whose inputs are not all fresh is stale, waiting
+    for them; its keys are known only once they have run."""
     params_all = stage_params(stagefile, scene)
-    order = [n for n in topological_order(stagefile) if targets is None or n in targets]
     plans: dict[str, StagePlan] = {}
-    for name in order:
+    for name in topological_order(stagefile):
+        if targets is not None and name not in targets:
+            continue
         spec = stagefile.stages[name]
-        params = {k: params_all[k] for k in spec.params}
-        inputs = {dep: plans[dep].key for dep in spec.inputs}
-        chunks = stage_chunks(spec, scene, params)
-        per_chunk = spec.chunking in ("object", "material")
-        shared = None if per_chunk else resolve_sections(spec, scene, None)
-        sections = {c.id: resolve_sections(spec, scene, c) if per_chunk else shared
-                    for c in chunks}
-        base = {"stage": name, "code": code_version(spec),
-                "schema_version": load_schema(spec.output).version,
-                "params": params, "inputs": inputs}
-        chunk_keys = {c.id: digest({**base, "scene": sections[c.id], "chunk": c.id})
-                      for c in chunks}
-        key = (chunk_keys["all"] if spec.chunking == "none"
-               else digest({"stage": name, "chunks": chunk_keys}))
-        scene_digests = {path: digest(value) for s in sections.values()
-                         for path, value in s.items()}
-        key_parts = {**base, "scene": dict(sorted(scene_digests.items())),
-                     "chunks": sorted(chunk_keys)}
-        p = StagePlan(spec, key, chunks, chunk_keys, key_parts, params, sections)
-        p.state, p.reason = _state(workdir.artifact(name), key, key_parts)
+        waiting = [dep for dep in spec.inputs if plans[dep].state != "fresh"]
+        if waiting:
+            p = StagePlan(spec, {k: params_all[k] for k in spec.params})
+            missing = read_record_or_none(workdir.artifact(name)) is None
+            p.state = "missing" if missing else "stale"
+            p.reason = f"waits for {', '.join(waiting)}"
+        else:
+            p = plan_stage(spec, scene, stagefile, workdir, params_all)
         plans[name] = p
     return list(plans.values())
+
+
+def read_record_or_none(path: Path) -> dict[str, Any] | None:
+    try:
+        return read_record(path)
+    except PrtError:
+        return None
 
 
 def _state(path: Path, key: str, parts: dict[str, Any]) -> tuple[str, str]:
@@ -248,8 +294,21 @@ def explain_change(old: dict[str, Any], new: dict[str, Any]) -> str:
 # ----------------------------------------------------------------------------- execution
 
 
+def arrays_digest(arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = None) -> str:
+    """SHA-256 of arrays (name, dtype, shape and bytes, in name order) and attrs: equal
+    output, equal digest, whatever code or machine produced it."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.data)
+    if attrs is not None:
+        h.update(digest(attrs).encode())
+    return h.hexdigest()
+
+
 def execute_chunk(task: ChunkTask) -> tuple[str, float]:
-    """Run one chunk and store its result under the work directory's chunk cache."""
+    """Run one chunk and store its result (and its digest) in the chunk cache."""
     from pipeline.meshio import primitive_mesh, read_mesh
 
     start = time.perf_counter()
@@ -258,15 +317,12 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
               for name, (kind, src) in task.meshes.items()}
     inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
               task.inputs.items()}
-    import numpy as np
-
     ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs, chunk=task.chunk,
-                       key=task.key, rng=np.random.default_rng(seed_from_key(task.key)),
-                       meshes=meshes)
+                       key=task.key, rng=np.random.default_rng(task.seed), meshes=meshes)
     arrays = load_impl(task.impl).run_chunk(ctx)
     seconds = time.perf_counter() - start
     record = {"format": 1, "kind": "chunk", "stage": task.stage, "chunk": task.chunk.id,
-              "key": task.key, "seconds": seconds}
+              "key": task.key, "digest": arrays_digest(arrays), "seconds": seconds}
     write_group(workdir, workdir.piece(task.stage, task.chunk.id), arrays, {"prt": record},
                 chunks={}, dims={})
     return task.chunk.id, seconds
@@ -281,34 +337,37 @@ def _mesh_sources(spec: StageSpec, scene: Scene, chunk: Chunk) -> dict[str, tupl
 
 
 def _piece_is_current(workdir: Workdir, stage: str, chunk: str, key: str) -> bool:
-    try:
-        record = read_record(workdir.piece(stage, chunk))
-    except PrtError:
-        return False
-    return record is not None and record.get("key") == key
+    record = read_record_or_none(workdir.piece(stage, chunk))
+    return record is not None and record.get("key") == key and "digest" in record
 
 
 def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None = None,
         force: tuple[str, ...] = (), executor: Executor | None = None,
-        progress: bool = True) -> list[StageRun]:
-    """Bring the artifacts of all stages (or of ``until`` and its upstream) up to date."""
+        progress: bool = True, targets: set[str] | None = None) -> list[StageRun]:
+    """Bring the artifacts of all stages (or of ``targets``, or ``until``, and their
+    upstream) up to date; each stage is planned when its inputs are fresh."""
     from tqdm import tqdm
 
     executor = executor or InProcessExecutor()
     for name in force:
         if name not in stagefile.stages:
             raise PrtError(stagefile.path, f"--force: unknown stage {name!r}")
-    targets = with_upstream(stagefile, [until]) if until else None
+    wanted = targets if targets is not None else ({until} if until else None)
+    selected = with_upstream(stagefile, sorted(wanted)) if wanted is not None else None
+    params_all = stage_params(stagefile, scene)
     report: list[StageRun] = []
     with workdir.lock():
-        for p in plan(scene, stagefile, workdir, targets):
-            name = p.spec.name
-            if p.state == "fresh" and name not in force:
+        for name in topological_order(stagefile):
+            if selected is not None and name not in selected:
+                continue
+            spec = stagefile.stages[name]
+            p = plan_stage(spec, scene, stagefile, workdir, params_all)
+            forced = name in force
+            if p.state == "fresh" and not forced:
                 report.append(StageRun(name, "skipped"))
                 continue
             start = time.perf_counter()
-            forced = name in force
-            todo = [c for c in p.chunks if forced or p.spec.chunking == "none"
+            todo = [c for c in p.chunks if forced or spec.chunks.by == "none"
                     or not _piece_is_current(workdir, name, c.id, p.chunk_keys[c.id])]
             tasks = [_task(p, scene, stagefile, workdir, c) for c in todo]
             bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
@@ -316,7 +375,7 @@ def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None 
             for _ in executor.map_unordered(execute_chunk, tasks):
                 bar.update()
             bar.close()
-            _assemble(p, scene, stagefile, workdir, start)
+            _assemble(p, stagefile, workdir, start)
             _drop_stale_pieces(workdir, name, {c.id for c in p.chunks})
             done = {c.id for c in todo}
             report.append(StageRun(name, "ran", [c.id for c in p.chunks if c.id in done],
@@ -330,23 +389,27 @@ def _task(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdir,
           chunk: Chunk) -> ChunkTask:
     inputs = {dep: (str(workdir.artifact(dep)), stagefile.stages[dep].output)
               for dep in p.spec.inputs}
-    return ChunkTask(p.spec.name, p.spec.impl, chunk, p.chunk_keys[chunk.id], p.params,
-                     p.sections[chunk.id], inputs, _mesh_sources(p.spec, scene, chunk),
-                     str(workdir.root))
+    return ChunkTask(p.spec.name, p.spec.impl, chunk, p.chunk_keys[chunk.id],
+                     p.seeds[chunk.id], p.params, p.sections[chunk.id], inputs,
+                     _mesh_sources(p.spec, scene, chunk), str(workdir.root))
 
 
-def _assemble(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdir,
-              start: float) -> None:
+def _assemble(p: StagePlan, stagefile: StageFile, workdir: Workdir, start: float) -> None:
     name = p.spec.name
-    inputs = {dep: open_artifact(workdir.artifact(dep), stagefile.stages[dep].output)
-              for dep in p.spec.inputs}
+    inputs: dict[str, Artifact] = {
+        dep: open_artifact(workdir.artifact(dep), stagefile.stages[dep].output)
+        for dep in p.spec.inputs}
     all_sections: dict[str, Any] = {}
     for s in p.sections.values():
         all_sections.update(s)
-    pieces = [(c, open_group(workdir.piece(name, c.id)).read_all()) for c in p.chunks]
+    groups = [(c, open_group(workdir.piece(name, c.id))) for c in p.chunks]
+    pieces = [(c, g.read_all()) for c, g in groups]
+    chunk_digests = {c.id: g.record["digest"] for c, g in groups}
     ctx = AssembleContext(params=p.params, scene=all_sections, inputs=inputs)
     output = load_impl(p.spec.impl).assemble(ctx, pieces)
     record = {"stage": name, "key": p.key, "chunk_keys": p.chunk_keys,
+              "chunk_digests": chunk_digests,
+              "digest": arrays_digest(output.arrays, output.attrs),
               "key_parts": p.key_parts, "seconds": time.perf_counter() - start,
               "software": software_versions(),
               "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}
@@ -358,7 +421,8 @@ def _drop_stale_pieces(workdir: Workdir, stage: str, keep: set[str]) -> None:
     import shutil
 
     folder = workdir.pieces(stage)
+    kept = {workdir.piece(stage, chunk).name for chunk in keep}
     if folder.is_dir():
         for child in folder.iterdir():
-            if child.name not in keep:
+            if child.name not in kept:
                 shutil.rmtree(child, ignore_errors=True)

@@ -136,6 +136,7 @@ class Scene:
     lights: tuple[Light, ...]
     settings: dict[str, Any]
     raw: dict[str, Any]
+    methods: tuple[str, ...] | None = None
 
     def with_image_size(self, width: int, height: int) -> Scene:
         """The same scene rendered at ``width`` × ``height`` pixels."""
@@ -440,7 +441,7 @@ def load_scene(path: str | Path) -> Scene:
     chk = _Checker(path)
     doc = chk.mapping(doc, "")
     chk.keys(doc, "", {"format", "name", "camera", "objects"},
-             {"materials", "lights", "settings"})
+             {"materials", "lights", "settings", "methods"})
     if doc["format"] != SCENE_FORMAT:
         raise chk.fail("format", f"expected {SCENE_FORMAT!r}, found {doc['format']!r}")
     name = doc["name"]
@@ -489,7 +490,12 @@ def load_scene(path: str | Path) -> Scene:
         "settings": dict(settings),
         "material_table": list(materials),
     }
-    return Scene(path, name, camera, materials, objects, tuple(lights), dict(settings), raw)
+    methods = doc.get("methods")
+    if methods is not None and (not isinstance(methods, list)
+                                or not all(isinstance(m, str) for m in methods)):
+        raise chk.fail("methods", "expected a list of method names")
+    return Scene(path, name, camera, materials, objects, tuple(lights), dict(settings), raw,
+                 None if methods is None else tuple(methods))
 
 
 EDITABLE_KEYS = ("gamma", "specular", "albedo")

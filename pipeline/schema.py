@@ -10,10 +10,8 @@ names one of the array's own dimensions means "that whole dimension"; any other 
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import cache
-from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +19,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import PrtError
+from pipeline.searchpath import schema_dirs
 
 _ATTR_TYPES = {"int": int, "float": (int, float), "str": str, "list": list, "dict": dict,
                "bool": bool}
@@ -102,19 +101,15 @@ class Schema:
                            "`prt run --force STAGE` or `prt clean`")
 
 
-def schema_dirs() -> list[Path]:
-    """The project's data_schema folder (checkout or installed wheel), then the folders
-    listed in ``PRT_SCHEMA_PATH`` (os.pathsep-separated) for plug-in stages."""
-    checkout = Path(__file__).resolve().parent.parent / "data_schema"
-    dirs = [checkout if checkout.is_dir() else Path(str(files("pipeline.data_schema")))]
-    extra = os.environ.get("PRT_SCHEMA_PATH", "")
-    return dirs + [Path(p) for p in extra.split(os.pathsep) if p]
+def load_schema(kind: str) -> Schema:
+    """Parse and check ``<schema dir>/<kind>.yaml`` (first folder that has it; see
+    pipeline/searchpath.py)."""
+    return _load_schema(kind, tuple(schema_dirs()))
 
 
 @cache
-def load_schema(kind: str) -> Schema:
-    """Parse and check ``<schema dir>/<kind>.yaml`` (first folder that has it)."""
-    candidates = [d / f"{kind}.yaml" for d in schema_dirs()]
+def _load_schema(kind: str, dirs: tuple[Path, ...]) -> Schema:
+    candidates = [d / f"{kind}.yaml" for d in dirs]
     path = next((c for c in candidates if c.is_file()), None)
     if path is None:
         raise PrtError(candidates[0], f"no schema for artifact kind {kind!r}")

@@ -1,41 +1,65 @@
 """stages.yaml: the human-written declaration of every stage, validated on load.
 
-Format ``prt-stages/1``::
+Format ``prt-stages/2``::
 
-    format: prt-stages/1
+    format: prt-stages/2
     params:                      # every parameter key with its default; a scene's
       gbuffer.tile: 64           # ``settings`` may override any of them
     stages:
-      NAME:
+      NAME:                      # shared stages have plain names; a method's stages are
+                                 # namespaced by it: ``d2i.transfer``
         impl: gbuffer            # registered stage name, or a module path ``pkg.mod[:attr]``
         description: ...
         inputs: [geometry]       # stages whose artifacts it reads
+        chunk_inputs: []         # inputs of which each chunk reads only the chunks of its
+                                 # own object or materials (keyed on just those)
         scene: [camera]          # scene sections it reads (dotted; ``*`` see below)
         params: [gbuffer.tile]   # parameter keys it reads
-        kernels: []              # kernels/ files whose source is part of its code version
+        kernels: []              # kernel files it builds beyond those its modules name
         output: gbuffer          # schema kind of the artifact it writes
-        chunks: none | object | material | {by: tile, size: PARAM}
-                | {by: block, size: PARAM, of: PARAM}
+        chunks: none | object | material
+              | {by: tile, size: PARAM[, materials_from: STAGE]}   # pixel tiles
+              | {by: block, size: PARAM, of: PARAM}                # [0, count) in blocks
+              | {by: texel_tile, size: PARAM, of: STAGE}           # tiles of UV atlases
+              | {by: vertex_batch, size: PARAM, of: STAGE}         # per-object vertex runs
 
-Scene sections may hold ``*``: in a stage chunked by object, ``objects.*.X`` is the chunk's
-own object and ``materials.*`` its material; in a stage chunked by material (one chunk per
-scene material, in the scene's order), ``materials.*`` is the chunk's material; otherwise
+Chunkings and what they read are in pipeline/chunking.py. Scene sections may hold
+``*``: ``objects.*.X`` binds to the chunk's object where it has one and ``materials.*``
+to the chunk's materials (its own material, its object's, or those it sees); otherwise
 ``*`` stands for every object or material.
+
+Method plug-ins may bring their own stage file in the same format
+(``Method.stagefile``); :func:`load_stagefile` merges it with the project's, and a
+parameter or stage declared twice is an error.
 """
 
 from __future__ import annotations
 
-import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from pipeline.errors import PrtError
 
-STAGEFILE_FORMAT = "prt-stages/1"
-CHUNKINGS = ("none", "object", "material", "tile", "block")
+STAGEFILE_FORMAT = "prt-stages/2"
+FIXED_CHUNKINGS = ("none", "object", "material")
+
+
+@dataclass(frozen=True)
+class ChunkSpec:
+    """How a stage is chunked: ``by`` (a chunking of pipeline/chunking.py), ``size`` and
+    ``count`` (parameter names), ``of`` (the upstream stage whose attributes lay the
+    chunks out) and ``materials_from`` (the stage whose ``material_id`` tells a pixel
+    tile which materials it sees)."""
+
+    by: str = "none"
+    size: str | None = None
+    count: str | None = None
+    of: str | None = None
+    materials_from: str | None = None
 
 
 @dataclass(frozen=True)
@@ -50,99 +74,177 @@ class StageSpec:
     params: tuple[str, ...]
     kernels: tuple[str, ...]
     output: str
-    chunking: str
-    tile_param: str | None
-    count_param: str | None = None
+    chunks: ChunkSpec = field(default_factory=ChunkSpec)
+    chunk_inputs: tuple[str, ...] = ()
+
+    @property
+    def chunking(self) -> str:
+        return self.chunks.by
 
 
 @dataclass(frozen=True)
 class StageFile:
-    """All stages (in file order) and parameter defaults."""
+    """All stages (in file order) and parameter defaults; ``path`` is the main file."""
 
     path: Path
     params: dict[str, Any]
     stages: dict[str, StageSpec]
 
 
-def default_stagefile_path() -> Path:
-    """stages.yaml from the checkout, else the copy installed under ``share/``."""
-    checkout = Path(__file__).resolve().parent.parent / "stages.yaml"
-    if checkout.is_file():
-        return checkout
-    return Path(sys.prefix) / "share" / "prt-pipeline" / "stages.yaml"
+# ------------------------------------------------------------------- the file's model
+
+_STRICT = ConfigDict(extra="forbid", strict=True)
 
 
-def load_stagefile(path: str | Path | None = None) -> StageFile:
-    """Parse and validate a stage file; raise PrtError naming the file and the key."""
-    path = Path(path) if path else default_stagefile_path()
+class _Tile(BaseModel):
+    model_config = _STRICT
+    by: Literal["tile"]
+    size: str
+    materials_from: str | None = None
+
+
+class _Block(BaseModel):
+    model_config = _STRICT
+    by: Literal["block"]
+    size: str
+    of: str
+
+
+class _FromUpstream(BaseModel):
+    model_config = _STRICT
+    by: Literal["texel_tile", "vertex_batch"]
+    size: str
+    of: str
+
+
+_Chunks = Literal["none", "object", "material"] | Annotated[
+    _Tile | _Block | _FromUpstream, Field(discriminator="by")]
+
+
+class _Stage(BaseModel):
+    model_config = _STRICT
+    impl: str
+    description: str = ""
+    inputs: list[str] = []
+    chunk_inputs: list[str] = []
+    scene: list[str] = []
+    params: list[str] = []
+    kernels: list[str] = []
+    output: str
+    chunks: _Chunks = "none"
+
+
+class _File(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    format: Literal["prt-stages/2"]
+    params: dict[str, Any] = {}
+    stages: dict[str, _Stage] = {}
+
+
+def _problem(exc: ValidationError) -> str:
+    """The first pydantic error as ``key.path: problem``."""
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"] if not str(p).startswith(("_", "function")))
+    kind = err["type"]
+    if kind == "extra_forbidden":
+        return f"{where}: unknown key"
+    if kind == "missing":
+        return f"{where}: required key missing"
+    if kind in ("literal_error", "union_tag_invalid"):
+        return f"{where}: {err['msg'].lower()}"
+    return f"{where}: {err['msg'].lower()}"
+
+
+def _read(path: Path) -> _File:
     if not path.is_file():
         raise PrtError(path, "stage file not found")
     try:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise PrtError(path, f"malformed YAML: {str(exc).splitlines()[0]}") from None
-
-    def fail(where: str, problem: str) -> PrtError:
-        return PrtError(path, f"{where}: {problem}")
-
     if not isinstance(doc, dict) or doc.get("format") != STAGEFILE_FORMAT:
-        raise fail("format", f"expected {STAGEFILE_FORMAT!r}")
-    unknown = sorted(set(doc) - {"format", "params", "stages"})
-    if unknown:
-        raise fail(unknown[0], "unknown top-level key")
-    params = doc.get("params") or {}
-    if not isinstance(params, dict):
-        raise fail("params", "expected a mapping of parameter defaults")
-    stages_doc = doc.get("stages")
-    if not isinstance(stages_doc, dict) or not stages_doc:
-        raise fail("stages", "expected a non-empty mapping of stages")
+        raise PrtError(path, f"format: expected {STAGEFILE_FORMAT!r}")
+    try:
+        return _File.model_validate(doc)
+    except ValidationError as exc:
+        raise PrtError(path, _problem(exc)) from None
 
-    allowed = {"impl", "description", "inputs", "scene", "params", "kernels", "output",
-               "chunks"}
+
+# ----------------------------------------------------------------------------- loading
+
+
+def default_stagefile_path() -> Path:
+    """stages.yaml from the checkout, else the copy installed with the package."""
+    checkout = Path(__file__).resolve().parent.parent / "stages.yaml"
+    if checkout.is_file():
+        return checkout
+    from importlib.resources import files
+
+    return Path(str(files("pipeline.project") / "stages.yaml"))
+
+
+def _chunk_spec(chunks: Any) -> ChunkSpec:
+    if isinstance(chunks, str):
+        return ChunkSpec(chunks)
+    if isinstance(chunks, _Block):
+        return ChunkSpec("block", size=chunks.size, count=chunks.of)
+    if isinstance(chunks, _Tile):
+        return ChunkSpec("tile", size=chunks.size, materials_from=chunks.materials_from)
+    return ChunkSpec(chunks.by, size=chunks.size, of=chunks.of)
+
+
+def load_stagefile(path: str | Path | None = None,
+                   fragments: tuple[Path, ...] = ()) -> StageFile:
+    """Parse and validate a stage file (default: the project's) merged with plug-ins'
+    ``fragments``; raise PrtError naming the file and the key."""
+    path = Path(path) if path else default_stagefile_path()
+    params: dict[str, Any] = {}
     stages: dict[str, StageSpec] = {}
-    for name, spec in stages_doc.items():
-        where = f"stages.{name}"
-        if not isinstance(spec, dict):
-            raise fail(where, "expected a mapping")
-        extra = sorted(set(spec) - allowed)
-        if extra:
-            raise fail(where, f"unknown key {extra[0]!r} (allowed: {', '.join(sorted(allowed))})")
-        for key in ("impl", "output"):
-            if not isinstance(spec.get(key), str):
-                raise fail(f"{where}.{key}", "expected a string")
-        lists = {}
-        for key in ("inputs", "scene", "params", "kernels"):
-            value = spec.get(key) or []
-            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-                raise fail(f"{where}.{key}", "expected a list of strings")
-            lists[key] = tuple(value)
-        for key in lists["params"]:
-            if key not in params:
-                raise fail(f"{where}.params", f"parameter {key!r} has no default in params")
-        chunks = spec.get("chunks", "none")
-        tile_param = count_param = None
-        if isinstance(chunks, dict):
-            by = chunks.get("by")
-            if not ((by == "tile" and set(chunks) == {"by", "size"})
-                    or (by == "block" and set(chunks) == {"by", "size", "of"})):
-                raise fail(f"{where}.chunks", "expected {by: tile, size: PARAM} or "
-                           "{by: block, size: PARAM, of: PARAM}")
-            tile_param, count_param = chunks["size"], chunks.get("of")
-            for key in ("size", "of"):
-                if key in chunks and chunks[key] not in lists["params"]:
-                    raise fail(f"{where}.chunks.{key}", f"{chunks[key]!r} is not among the "
-                               "stage's declared params")
-            if by == "tile" and "camera" not in lists["scene"]:
-                raise fail(f"{where}.chunks", "tile chunking needs the camera scene section")
-            chunks = by
-        if chunks not in CHUNKINGS:
-            raise fail(f"{where}.chunks", f"expected one of {', '.join(CHUNKINGS)}")
-        stages[name] = StageSpec(name, spec["impl"], str(spec.get("description", "")),
-                                 lists["inputs"], lists["scene"], lists["params"],
-                                 lists["kernels"], spec["output"], chunks, tile_param,
-                                 count_param)
+    owner: dict[str, Path] = {}
+    for file in (path, *fragments):
+        doc = _read(file)
+        for key, value in doc.params.items():
+            if key in params:
+                raise PrtError(file, f"params.{key}: already declared in {owner[key]}")
+            params[key], owner[key] = value, file
+        for name, s in doc.stages.items():
+            if name in stages:
+                raise PrtError(file, f"stages.{name}: already declared in {owner[name]}")
+            spec = StageSpec(name, s.impl, s.description, tuple(s.inputs), tuple(s.scene),
+                             tuple(s.params), tuple(s.kernels), s.output,
+                             _chunk_spec(s.chunks), tuple(s.chunk_inputs))
+            stages[name], owner[name] = spec, file
     for spec in stages.values():
-        for dep in spec.inputs:
-            if dep not in stages:
-                raise fail(f"stages.{spec.name}.inputs", f"unknown stage {dep!r}")
-    return StageFile(path, dict(params), stages)
+        _check(spec, params, stages, owner[spec.name])
+    return StageFile(path, params, stages)
+
+
+def _check(spec: StageSpec, params: dict[str, Any], stages: dict[str, StageSpec],
+           file: Path) -> None:
+    """Cross-references of one stage: its params have defaults, its inputs exist, its
+    chunking names declared params and read stages."""
+    where = f"stages.{spec.name}"
+    for key in spec.params:
+        if key not in params:
+            raise PrtError(file, f"{where}.params: parameter {key!r} has no default in params")
+    for dep in spec.inputs:
+        if dep not in stages:
+            raise PrtError(file, f"{where}.inputs: unknown stage {dep!r}")
+    for dep in spec.chunk_inputs:
+        if dep not in spec.inputs:
+            raise PrtError(file, f"{where}.chunk_inputs: {dep!r} is not among the stage's "
+                           "inputs")
+        if stages[dep].chunks.by not in ("object", "material"):
+            raise PrtError(file, f"{where}.chunk_inputs: {dep!r} is not chunked by object "
+                           "or material")
+    c = spec.chunks
+    for key, value in (("size", c.size), ("of", c.count)):
+        if value is not None and value not in spec.params:
+            raise PrtError(file, f"{where}.chunks.{key}: {value!r} is not among the stage's "
+                           "declared params")
+    for key, value in (("of", c.of), ("materials_from", c.materials_from)):
+        if value is not None and value not in spec.inputs:
+            raise PrtError(file, f"{where}.chunks.{key}: {value!r} is not among the stage's "
+                           "inputs")
+    if c.by == "tile" and "camera" not in spec.scene:
+        raise PrtError(file, f"{where}.chunks: tile chunking needs the camera scene section")

@@ -44,7 +44,8 @@ class Workdir:
         return self.root / f"{name}.zarr"
 
     def piece(self, stage: str, chunk: str) -> Path:
-        return self.root / ".chunks" / stage / chunk
+        """The cached result of one chunk (a ``/`` in a chunk id becomes ``~``)."""
+        return self.root / ".chunks" / stage / chunk.replace("/", "~")
 
     def pieces(self, stage: str) -> Path:
         return self.root / ".chunks" / stage

@@ -186,7 +186,7 @@ def test_evaluate_d2i_records_its_indirect_error(baked, tmp_path):
 def test_render_d2i_sequences(baked, tmp_path):
     """`prt render --method d2i --frames light:3` writes the frame and three light-edit
     frames that differ from each other; a gamma sweep on a scene's glossy material
-    writes its frames; --frames without d2i is a usage error."""
+    writes its frames; --frames with a method without sequences is an error."""
     scene, workdir, _, _ = baked
     out = tmp_path / "d2i.exr"
     result = prt("render", scene, "--method", "d2i", "--out", out, "--workdir", workdir,
@@ -202,8 +202,9 @@ def test_render_d2i_sequences(baked, tmp_path):
                  "--frames", "gamma:shiny:2", "-q")
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "d2i_gamma_0001.exr").is_file()
-    bad = prt("render", scene, "--out", out, "--workdir", workdir, "--frames", "light:2")
-    assert bad.returncode == 2 and "--frames needs --method d2i" in bad.stderr
+    bad = prt("render", scene, "--method", "direct", "--out", out, "--workdir", workdir,
+              "--frames", "light:2")
+    assert bad.returncode == 2 and "method direct has no edit sequences" in bad.stderr
     bad = prt("render", scene, "--method", "d2i", "--out", out, "--workdir", workdir,
               "--frames", "spin:2")
     assert bad.returncode == 2 and "expected light:N" in bad.stderr

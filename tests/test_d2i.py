@@ -9,12 +9,18 @@ import pytest
 
 from pipeline import job, metrics
 from pipeline.errors import PrtError
+from pipeline.method import get_method
 from pipeline.reference import ReferenceSettings
 from pipeline.render.d2i import D2iRenderer, Rows
 from pipeline.scene import default_scene_path, load_scene, with_light_offset, with_material_edits
 from pipeline.store import open_artifact
 
 SIZE, GATHERS = 24, 1024
+
+
+def d2i_artifacts(workdir):
+    """The artifacts method d2i's frames read, opened."""
+    return job.method_artifacts(get_method("d2i"), workdir)
 
 
 def _scene(size=SIZE):
@@ -26,8 +32,8 @@ def _scene(size=SIZE):
 def baked(tmp_path_factory):
     scene = _scene()
     workdir = job.workdir_for(scene, tmp_path_factory.mktemp("d2i"))
-    job.bake(scene, workdir, until="haar", quiet=True)
-    return scene, workdir, D2iRenderer(scene, workdir)
+    job.bake(scene, workdir, until="d2i.truncate", quiet=True)
+    return scene, workdir, D2iRenderer(scene, d2i_artifacts(workdir))
 
 
 def _close(a, b, rel=1e-5):
@@ -61,14 +67,14 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
     edited = with_light_offset(with_material_edits(scene, ["glossy_floor.gamma=150"]), 0,
                                (50.0, 0.0, -30.0))
     fresh_dir = job.workdir_for(edited, tmp_path / "fresh")
-    job.bake(edited, fresh_dir, until="haar", quiet=True)
-    for name in ("gather", "transfer", "bounce", "haar"):
+    job.bake(edited, fresh_dir, until="d2i.truncate", quiet=True)
+    for name in ("d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate"):
         a, b = (open_artifact(w.artifact(name)) for w in (workdir, fresh_dir))
         assert a.record["key"] == b.record["key"]
         for array in a.names:
             np.testing.assert_array_equal(a.read(array), b.read(array))
     np.testing.assert_array_equal(renderer.render(edited).rgb,
-                                  D2iRenderer(edited, fresh_dir).render(edited).rgb)
+                                  D2iRenderer(edited, d2i_artifacts(fresh_dir)).render(edited).rgb)
 
 
 def test_sparse_product_and_combination_kernels_match_numpy(baked):
@@ -136,15 +142,15 @@ def test_frame_matches_the_reference_d2i_transport(baked):
     1022..1026, each its own seed) from 0.4 % to 4.8 % below the reference's (mean
     1.8 %; this seed 4.7 %; the reference's noise in the mean is < 1 %), asserted within
     8 %; surface image 4.8 % relative RMSE, of which the reference's estimated noise is 2.6 %,
-    asserted under 8 %. With haar.tolerance 0.05 the surface error was 9.2 %: this test
+    asserted under 8 %. With truncate.tolerance 0.05 the surface error was 9.2 %: this test
     watches truncation too."""
     scene, workdir, renderer = baked
     frame = renderer.render(scene).rgb
     direct = job.render_frame(scene, workdir, "direct").rgb
     ref = job.reference(scene, workdir, ReferenceSettings(
-        "d2i", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image
+        "first-glossy", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image
     ref_indirect = job.reference(scene, workdir, ReferenceSettings(
-        "d2i-indirect", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image.mean
+        "first-glossy-indirect", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image.mean
     surfaces = renderer.direct.object_id.reshape(SIZE, SIZE) != \
         renderer.direct.object_names.index("luminaire")
     indirect = frame - direct
@@ -160,9 +166,9 @@ def test_bounce_tail_extrapolation_matches_iterating_to_convergence(baked, monke
 
     scene, workdir, _ = baked
     direct = job.render_frame(scene, workdir, "direct").rgb
-    fast = D2iRenderer(scene, workdir, bounce_tolerance=1e-6).render(scene)
+    fast = D2iRenderer(scene, d2i_artifacts(workdir), bounce_tolerance=1e-6).render(scene)
     monkeypatch.setattr(d2i, "RATIO_SETTLED", -1.0)  # never settles: iterate
-    slow = D2iRenderer(scene, workdir, bounce_tolerance=1e-6).render(scene)
+    slow = D2iRenderer(scene, d2i_artifacts(workdir), bounce_tolerance=1e-6).render(scene)
     assert fast.timings["bounces"] < slow.timings["bounces"]
     assert metrics.relative_rmse(fast.rgb - direct, slow.rgb - direct) < 2e-3
 

@@ -13,7 +13,7 @@ from pipeline.math.brdf import evaluate_world, scene_brdfs
 from pipeline.math.lights import pack_lights, quad_emission, shade_direct
 from pipeline.math.sampling import lowbias32, stratified_square
 from pipeline.raytrace import RayTracer
-from pipeline.render.direct import render_direct
+from pipeline.job import render_frame
 from pipeline.render.shadows import light_visibility
 from pipeline.runner import run
 from pipeline.scene import load_scene
@@ -24,7 +24,7 @@ from pipeline.store import Workdir, open_artifact
 def bake_and_render(scene_path, workdir):
     scene = load_scene(scene_path)
     run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
-    return scene, render_direct(scene, workdir)
+    return scene, render_frame(scene, workdir, "direct")
 
 
 def numpy_direct(scene, workdir):
@@ -139,7 +139,7 @@ def cornell(tmp_path_factory):
     scene = load_scene(PROJECT / "scenes" / "cornell_box.yaml").with_image_size(64, 64)
     workdir = Workdir(tmp / "w")
     run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
-    return scene, workdir, render_direct(scene, workdir)
+    return scene, workdir, render_frame(scene, workdir, "direct")
 
 
 def test_cornell_direct_has_no_colour_bleeding(cornell):
@@ -198,8 +198,8 @@ def test_cornell_floor_shows_its_glossy_highlight(cornell):
     floor_material = scene.materials["glossy_floor"]
     matte = dataclasses.replace(floor_material,
                                 params={**floor_material.params, "specular": [0, 0, 0]})
-    matte_frame = render_direct(dataclasses.replace(
-        scene, materials={**scene.materials, "glossy_floor": matte}), workdir)
+    matte_frame = render_frame(dataclasses.replace(
+        scene, materials={**scene.materials, "glossy_floor": matte}), workdir, "direct")
     names = open_artifact(workdir.artifact("geometry")).attrs["object_names"]
     floor = open_artifact(workdir.artifact("gbuffer")).read("object_id") == \
         names.index("floor")

@@ -19,9 +19,10 @@ def _bake(folder):
     scene = load_scene(default_scene_path()).with_image_size(48, 48).with_settings(
         {"gather.count": COUNT})
     workdir = job.workdir_for(scene, folder)
-    job.bake(scene, workdir, until="gather", quiet=True)
+    job.bake(scene, workdir, until="d2i.gather", quiet=True)
     read = lambda name: open_artifact(workdir.artifact(name), name)  # noqa: E731
-    return scene, read("gather"), read("geometry"), read("gbuffer")
+    gather = open_artifact(workdir.artifact("d2i.gather"), "gather")
+    return scene, gather, read("geometry"), read("gbuffer")
 
 
 @pytest.fixture(scope="module")

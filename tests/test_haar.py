@@ -95,11 +95,11 @@ def test_truncate_respects_the_cap():
     assert np.all(result["count"] == 100) and np.all(result["residual"] > 0.5)
 
 
-def test_haar_stage_cut_agrees_with_truncating_from_scratch():
-    """The haar stage cuts stored rows (kept near-losslessly, with their residual) to a
+def test_truncate_stage_cut_agrees_with_truncating_from_scratch():
+    """The d2i.truncate stage cuts stored rows (kept near-losslessly, with their residual) to a
     tolerance; that gives the same counts as truncating the full rows to that tolerance,
     and its CSR prefix cut keeps exactly those coefficients."""
-    from pipeline.stages.haar import cut_rows, kept_counts
+    from pipeline.stages.truncate import cut_rows, kept_counts
 
     rows = np.cumsum(np.random.default_rng(6).normal(size=(8, 512)), axis=1)
     w = haar.forward(rows)
@@ -117,7 +117,7 @@ def test_cut_keeps_near_entries_and_counts_them_for_no_energy():
     """Rows with leading near entries (gather-domain values, always kept): a row of near
     entries then a smooth tail keeps its near entries and the tail's own prefix; a row
     of near entries alone keeps them; an empty row keeps nothing."""
-    from pipeline.stages.haar import kept_counts
+    from pipeline.stages.truncate import kept_counts
 
     tail = np.array([8.0, 4.0, 2.0, 1.0, 0.5])  # energy 85.25
     value = np.r_[[1e3, 1e3], tail, [5.0, 5.0], tail]

@@ -123,8 +123,8 @@ def test_status_names_the_change(baked):
     states = {p.spec.name: (p.state, p.reason)
               for p in plan(scene, load_stagefile(STAGEFILE), workdir)}
     assert states["per_object"] == ("stale", "param toy.scale changed (2.0 -> 3.0)")
-    assert states["total"] == ("stale", "input per_object changed")
-    assert states["tiles"] == ("stale", "input total changed")
+    assert states["total"] == ("stale", "waits for per_object")
+    assert states["tiles"] == ("stale", "waits for total")
     assert states["geometry"] == ("fresh", "")
 
 

@@ -180,32 +180,33 @@ def test_a_seed_gives_the_same_image_bit_for_bit(small_cornell):
     assert not np.array_equal(first.mean, other.mean)
 
 
-def test_d2i_transport_lies_between_direct_and_full_light(small_cornell):
-    """d2i drops glossy reflection after the first vertex: on an all-Lambertian scene it
-    equals full transport; it always adds bounce light to direct."""
+def test_first_glossy_transport_lies_between_direct_and_full_light(small_cornell):
+    """first-glossy (d2i's transport) drops glossy reflection after the first vertex: on
+    an all-Lambertian scene it equals full transport; it always adds bounce light to
+    direct."""
     scene, geometry = small_cornell
     results = {t: render(scene, geometry, ReferenceSettings(t, tolerance=0, max_spp=64,
                                                             seed=3))
-               for t in ("direct", "d2i", "full")}
-    assert relative_rmse(results["d2i"].mean, results["full"].mean) < 3 * max(
-        results["d2i"].estimate, results["full"].estimate)
-    assert results["d2i"].mean.sum() > 1.1 * results["direct"].mean.sum()
+               for t in ("direct", "first-glossy", "full")}
+    assert relative_rmse(results["first-glossy"].mean, results["full"].mean) < 3 * max(
+        results["first-glossy"].estimate, results["full"].estimate)
+    assert results["first-glossy"].mean.sum() > 1.1 * results["direct"].mean.sum()
 
 
-def test_d2i_indirect_transport_is_d2i_less_direct(small_cornell):
-    """d2i-indirect drops exactly the direct part: direct + d2i-indirect agrees with d2i
-    within the three images' noise (z-scores over the surface pixels, band as in the
-    module docstring), and it carries no light where d2i equals direct (the luminaire
-    seen from the camera)."""
+def test_first_glossy_indirect_is_first_glossy_less_direct(small_cornell):
+    """first-glossy-indirect drops exactly the direct part: direct + it agrees with
+    first-glossy within the three images' noise (z-scores over the surface pixels, band
+    as in the module docstring), and it carries no light where first-glossy equals direct
+    (the luminaire seen from the camera)."""
     scene, geometry = small_cornell
     results = {t: render(scene, geometry, ReferenceSettings(t, tolerance=0, max_spp=64,
                                                             seed=s))
-               for s, t in enumerate(("direct", "d2i", "d2i-indirect"))}
-    total = results["direct"].mean + results["d2i-indirect"].mean
+               for s, t in enumerate(("direct", "first-glossy", "first-glossy-indirect"))}
+    total = results["direct"].mean + results["first-glossy-indirect"].mean
     variance = sum(r.variance for r in results.values())
     mask = (variance > 0) & np.isfinite(variance)
-    z_mean, z_sq = _z_scores(total, results["d2i"].mean, variance, mask)
+    z_mean, z_sq = _z_scores(total, results["first-glossy"].mean, variance, mask)
     assert abs(z_mean) < 0.15 and 0.7 < z_sq < 1.4
-    indirect = results["d2i-indirect"].mean
+    indirect = results["first-glossy-indirect"].mean
     assert indirect.max() < 0.2 * results["direct"].mean.max()
     assert indirect.sum() > 0.05 * results["direct"].mean.sum()

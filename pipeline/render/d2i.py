@@ -31,7 +31,7 @@ Edits reuse what did not change (paper §6.2, "freezing", done as caching):
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,7 +47,7 @@ from pipeline.render import Frame
 from pipeline.render.direct import DirectShader, packed_scene_lights
 from pipeline.render.shadows import light_visibility
 from pipeline.scene import Scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.store import Artifact
 
 GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
@@ -88,18 +88,17 @@ def index_dtype(size: int) -> type:
 class D2iRenderer:
     """The d2i frame of one baked scene; keeps device buffers and cached products."""
 
-    def __init__(self, scene: Scene, workdir: Workdir, max_bounces: int = 32,
+    def __init__(self, scene: Scene, artifacts: Mapping[str, Artifact], max_bounces: int = 32,
                  bounce_tolerance: float = 1e-3) -> None:
         import pyopencl as pcl
 
         self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
         self.scene = scene
         self.max_bounces, self.bounce_tolerance = max_bounces, bounce_tolerance
-        transport = open_artifact(workdir.artifact("haar"), "compressed_transport")
-        gather = open_artifact(workdir.artifact("gather"), "gather")
-        self.basis = open_artifact(workdir.artifact("brdf_basis"), "brdf_basis")
+        transport, gather = artifacts["d2i.truncate"], artifacts["d2i.gather"]
+        self.basis = artifacts["brdf_basis"]
         self.bases: dict[str, Any] = {}  # material -> BrdfBasis (None: Lambertian)
-        self.direct = DirectShader(workdir)
+        self.direct = DirectShader(artifacts)
         self.material_names = self.direct.material_names
         self.haar_length = int(transport.attrs["haar_length"])
         self.gather_position = gather.read("position").astype(np.float64)
@@ -280,6 +279,14 @@ class D2iRenderer:
 
     # ------------------------------------------------------------------------ frames
 
+    def __call__(self, scene: Scene) -> Frame:
+        return self.render(scene)
+
+    def edit_mode(self, kind: str, scene: Scene) -> Callable[[Scene], Frame]:
+        """Frames of a sequence of ``kind`` edits of ``scene``: ``light`` (light-edit
+        mode) or ``gamma`` (BRDF-edit mode)."""
+        return {"light": self.light_edits, "gamma": self.brdf_edits}[kind](scene)
+
     def render(self, scene: Scene) -> Frame:
         """A full frame for ``scene``'s lights and materials (nothing cached)."""
         t0 = time.perf_counter()
@@ -383,9 +390,10 @@ def _check_lights(packed: np.ndarray) -> None:
                        "intensity or radiance): cannot light the scene")
 
 
-def d2i_renderer(scene: Scene, workdir: Workdir, max_bounces: int = 32,
-                 bounce_tolerance: float = 1e-3) -> Callable[[Scene], Frame]:
+def d2i_renderer(scene: Scene, artifacts: Mapping[str, Artifact], max_bounces: int = 32,
+                 bounce_tolerance: float = 1e-3) -> D2iRenderer:
     """Full d2i frames (any lights and materials, nothing cached between them) from
-    artifacts loaded once; their timings leave out the loading."""
-    return D2iRenderer(scene, workdir, max_bounces, bounce_tolerance).render
+    artifacts loaded once (call it with a scene); their timings leave out the loading.
+    ``edit_mode(kind, scene)`` gives the faster frames of a light or γ sequence."""
+    return D2iRenderer(scene, artifacts, max_bounces, bounce_tolerance)
 

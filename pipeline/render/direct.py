@@ -13,7 +13,7 @@ edit re-shades without tracing again (method d2i uses it for its direct term).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from pipeline.raytrace import RayTracer
 from pipeline.render import Frame
 from pipeline.render.shadows import light_visibility
 from pipeline.scene import Scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.store import Artifact
 
 
 def packed_scene_lights(scene: Scene, object_names: list[str]) -> tuple[np.ndarray, list[str]]:
@@ -42,12 +42,12 @@ class DirectShader:
     ``trace(packed_lights)`` casts the shadow rays (setup of a light edit);
     ``shade(materials)`` runs the kernel with packed material rows (a BRDF edit)."""
 
-    def __init__(self, workdir: Workdir, tracer: RayTracer | None = None) -> None:
+    def __init__(self, artifacts: Mapping[str, Artifact],
+                 tracer: RayTracer | None = None) -> None:
         import pyopencl as pcl
 
         self.pcl = pcl
-        gbuf = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
-        geo = open_artifact(workdir.artifact("geometry"), "geometry")
+        gbuf, geo = artifacts["gbuffer"], artifacts["geometry"]
         self.height, self.width = gbuf.attrs["height"], gbuf.attrs["width"]
         self.object_names = geo.attrs["object_names"]
         self.material_names = geo.attrs["material_names"]
@@ -96,11 +96,12 @@ class DirectShader:
         return out, cl.event_ms(event), moved
 
 
-def direct_renderer(scene: Scene, workdir: Workdir) -> Callable[[Scene], Frame]:
-    """Frames of direct lighting from artifacts loaded once (G-buffer, Embree scene):
-    each call traces the scene's lights and shades its camera view; its timings leave
-    out the loading."""
-    shader = DirectShader(workdir)
+def direct_renderer(scene: Scene, artifacts: Mapping[str, Artifact]
+                    ) -> Callable[[Scene], Frame]:
+    """Frames of direct lighting from artifacts loaded once (``gbuffer``, ``geometry``;
+    the Embree scene): each call traces the scene's lights and shades its camera view;
+    its timings leave out the loading."""
+    shader = DirectShader(artifacts)
 
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
@@ -118,7 +119,3 @@ def direct_renderer(scene: Scene, workdir: Workdir) -> Callable[[Scene], Frame]:
 
     return frame
 
-
-def render_direct(scene: Scene, workdir: Workdir) -> Frame:
-    """Render the scene's camera view with direct lighting from its lights."""
-    return direct_renderer(scene, workdir)(scene)

@@ -9,6 +9,10 @@ A stage module provides two plain functions:
     combines the chunks' results (in chunk order) into the artifact's arrays and attrs.
 
 The runner owns everything else: keys, I/O, seeding, progress and executors.
+
+stages.yaml names a stage's implementation by module: ``impl: transfer`` is the module
+``pipeline.stages.transfer``; a dotted name (``toy.per_object``, ``pkg.mod:attr``) is
+imported as it is (a plug-in's own stages).
 """
 
 from __future__ import annotations
@@ -18,33 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.chunking import ALL, Chunk
 from pipeline.meshio import RawMesh
 from pipeline.store import Artifact
 
-# Registered stage names -> implementation modules. stages.yaml may also name any
-# importable module path directly (``package.module`` or ``package.module:attribute``).
-REGISTRY = {
-    "geometry": "pipeline.stages.geometry",
-    "gbuffer": "pipeline.stages.gbuffer",
-    "brdf_basis": "pipeline.stages.brdf_basis",
-    "gather": "pipeline.stages.gather",
-    "transfer": "pipeline.stages.transfer",
-    "bounce": "pipeline.stages.bounce",
-    "haar": "pipeline.stages.haar",
-}
-
-
-@dataclass(frozen=True)
-class Chunk:
-    """One unit of work: ``id`` is stable across runs; ``object`` is set for object
-    chunks, ``material`` for material chunks, ``region`` = (y0, y1, x0, x1) in pixels for
-    tile chunks, ``span`` = [start, end) for block chunks (of a count the stage names)."""
-
-    id: str
-    object: str | None = None
-    material: str | None = None
-    region: tuple[int, int, int, int] | None = None
-    span: tuple[int, int] | None = None
+__all__ = ["AssembleContext", "Chunk", "ChunkContext", "Output", "stitch_tiles"]
 
 
 @dataclass
@@ -58,10 +40,11 @@ class AssembleContext:
 
 @dataclass
 class ChunkContext(AssembleContext):
-    """What a stage sees for one chunk; ``rng`` is seeded from the chunk key and
+    """What a stage sees for one chunk; ``rng`` is seeded from the data part of the
+    chunk's key (params, scene sections, input digests, chunk id; not the code), and
     ``meshes`` holds raw meshes of the objects whose ``mesh`` section it declares."""
 
-    chunk: Chunk = field(default_factory=lambda: Chunk("all"))
+    chunk: Chunk = ALL
     key: str = ""
     rng: np.random.Generator = field(default_factory=np.random.default_rng)
     meshes: dict[str, RawMesh] = field(default_factory=dict)

@@ -47,7 +47,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
 def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
     arrays = {f"ms_{k}": join_arrays([a[k] for _, a in pieces], dt)
               for k, dt in ROW_FIELDS.items()}
-    count = int(ctx.inputs["gather"].attrs["count"])
+    count = int(ctx.inputs["d2i.gather"].attrs["count"])
     return Output(arrays, attrs={
         "gather_count": count,
         "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),

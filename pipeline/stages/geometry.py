@@ -118,6 +118,8 @@ def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
             "bbox_min": vertices.min(axis=0).astype(float).tolist(),
             "bbox_max": vertices.max(axis=0).astype(float).tolist(),
             "repairs": repairs,
+            "vertex_counts": {name: int(offsets_v[i + 1] - offsets_v[i])
+                              for i, name in enumerate(object_names)},
         },
         sizes={"vertex_chunk": int(ctx.params["geometry.vertex_chunk"]),
                "face_chunk": int(ctx.params["geometry.vertex_chunk"])},

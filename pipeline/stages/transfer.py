@@ -250,13 +250,14 @@ def _cached(kind: str, key: str, build) -> Any:
 
 
 def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
-    """Material index (geometry order) -> its table, for the glossy materials."""
+    """Material index (geometry order) -> its table, for the glossy materials among
+    those whose sections the chunk sees (a tile: the materials of its pixels)."""
     basis_artifact = ctx.inputs["brdf_basis"]
     names = ctx.inputs["geometry"].attrs["material_names"]
     tables = {}
     for i, name in enumerate(names):
-        model = ctx.scene[f"materials.{name}.model"]
-        if model == "lambert":
+        model = ctx.scene.get(f"materials.{name}.model")
+        if model in (None, "lambert"):
             continue
         get = lambda key, default, n=name: (  # noqa: E731
             default if ctx.scene.get(f"materials.{n}.{key}") is None
@@ -273,7 +274,7 @@ def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
 def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, GatherDisks, TransferKernel, float]:
     """The Embree scene, the gather disks, the transfer kernel over them (each built once
     per process and input key) and the ray offset (scene units)."""
-    geometry, gather = ctx.inputs["geometry"], ctx.inputs["gather"]
+    geometry, gather = ctx.inputs["geometry"], ctx.inputs["d2i.gather"]
     tracer = _cached("tracer", geometry.record["key"], lambda: RayTracer(
         geometry.read("vertices"), geometry.read("faces")))
     disks = _cached("disks", gather.record["key"], lambda: GatherDisks.from_artifact(gather))
@@ -377,7 +378,7 @@ def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
         arrays.update({f"{m}_{k}": v for k, v in sort_rows(key, rows).items()})
         if m == "t":
             arrays["t_pixel"] = np.sort(key, kind="stable")
-    gather_count = int(ctx.inputs["gather"].attrs["count"])
+    gather_count = int(ctx.inputs["d2i.gather"].attrs["count"])
     return Output(arrays, attrs={
         "width": cam["width"], "height": cam["height"], "gather_count": gather_count,
         "haar_length": haar.padded_length(gather_count),

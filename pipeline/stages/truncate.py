@@ -1,4 +1,4 @@
-"""Stage ``haar``: cut the stored Haar rows of T, D and Ms down to the renderer's budgets
+"""Stage ``d2i.truncate``: cut the stored Haar rows of T, D and Ms down to the renderer's budgets
 (paper 000 §3.4, §7.2). One chunk. Schema ``compressed_transport``.
 
 The ``transfer`` and ``bounce`` stages keep each row near-losslessly (its near entries
@@ -9,12 +9,13 @@ E_kept of its full energy E errs in any product t·l by at most √(E − E_kept
 (pipeline/math/haar.py). Budgets:
 
 ``tolerance`` (default): each row keeps the fewest coefficients whose dropped energy,
-    including what the transfer stage already dropped, is at most ``haar.tolerance``² of
-    the row's full energy: no row keeps more than its own accuracy needs (a dark or
-    smooth row keeps few), and a pixel on a diffuse material has no T rows at all.
+    including what the transfer stage already dropped, is at most
+    ``truncate.tolerance``² of the row's full energy: no row keeps more than its own
+    accuracy needs (a dark or smooth row keeps few), and a pixel on a diffuse material
+    has no T rows at all.
 ``proportional`` (the paper): row 0 (b0) of T, every D row and every Ms row keep
-    ``haar.coefficients``; T row j ≥ 1 keeps ``haar.coefficients`` × σ_j/σ_1 (the PCA
-    singular values of the pixel's material), at least a quarter of it. Paper 000 used
+    ``truncate.coefficients``; T row j ≥ 1 keeps ``truncate.coefficients`` × σ_j/σ_1
+    (the PCA singular values of the pixel's material), at least a quarter of it. Paper 000 used
     (250, 150, 150, 100, 100, 100, 100) for its Cornell floor.
 """
 
@@ -74,24 +75,24 @@ def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.n
 def _budget(ctx: AssembleContext, prefix: str, arrays: dict[str, np.ndarray],
             proportional: np.ndarray | None) -> dict[str, np.ndarray]:
     count, value = arrays[f"{prefix}_count"], arrays[f"{prefix}_value"]
-    near = arrays[f"{prefix}_index"] >= int(ctx.inputs["transfer"].attrs["haar_length"])
-    if ctx.params["haar.budget"] == "tolerance":
+    near = arrays[f"{prefix}_index"] >= int(ctx.inputs["d2i.transfer"].attrs["haar_length"])
+    if ctx.params["truncate.budget"] == "tolerance":
         keep = kept_counts(count, arrays[f"{prefix}_residual"], value,
-                           float(ctx.params["haar.tolerance"]), near)
+                           float(ctx.params["truncate.tolerance"]), near)
     else:
         near_count = np.bincount(np.repeat(np.arange(len(count)), count), weights=near,
                                  minlength=len(count)).astype(np.int64)
         keep = near_count + (proportional if proportional is not None else
-                             np.full(len(count), int(ctx.params["haar.coefficients"])))
+                             np.full(len(count), int(ctx.params["truncate.coefficients"])))
     out = cut_rows(count, arrays[f"{prefix}_index"], value, keep)
     return {f"{prefix}_{k}": v for k, v in out.items()}
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    if ctx.params["haar.budget"] not in BUDGETS:
-        raise PrtError(None, f"haar.budget = {ctx.params['haar.budget']!r}: expected one of "
-                       f"{', '.join(BUDGETS)}")
-    transfer, bounce = ctx.inputs["transfer"], ctx.inputs["bounce"]
+    if ctx.params["truncate.budget"] not in BUDGETS:
+        raise PrtError(None, f"truncate.budget = {ctx.params['truncate.budget']!r}: "
+                       f"expected one of {', '.join(BUDGETS)}")
+    transfer, bounce = ctx.inputs["d2i.transfer"], ctx.inputs["d2i.bounce"]
     arrays: dict[str, Any] = {n: transfer.read(n) for n in transfer.names}
     arrays.update({n: bounce.read(n) for n in bounce.names})
     out = _budget(ctx, "d", arrays, None)
@@ -102,8 +103,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
 
 
 def _proportional_t(ctx: AssembleContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
-    """Per T row: haar.coefficients × σ_j/σ_1 of the pixel's material (row 0: all)."""
-    coefficients = int(ctx.params["haar.coefficients"])
+    """Per T row: truncate.coefficients × σ_j/σ_1 of the pixel's material (row 0: all)."""
+    coefficients = int(ctx.params["truncate.coefficients"])
     pixel = arrays["t_pixel"]
     if len(pixel) == 0:
         return np.zeros(0, np.int64)
@@ -121,10 +122,11 @@ def _proportional_t(ctx: AssembleContext, arrays: dict[str, np.ndarray]) -> np.n
 
 def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
     arrays = pieces[0][1]
-    transfer = ctx.inputs["transfer"].attrs
+    transfer = ctx.inputs["d2i.transfer"].attrs
     return Output(arrays, attrs={
         "width": transfer["width"], "height": transfer["height"],
         "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
-        "budget": ctx.params["haar.budget"], "tolerance": float(ctx.params["haar.tolerance"]),
-        "coefficients": int(ctx.params["haar.coefficients"])},
+        "budget": ctx.params["truncate.budget"],
+        "tolerance": float(ctx.params["truncate.tolerance"]),
+        "coefficients": int(ctx.params["truncate.coefficients"])},
         sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})

@@ -1,0 +1,174 @@
+"""Chunks and chunkers: how a stage's work is cut into independent units.
+
+A :class:`Chunk` is (id, kind, coordinates). A chunker is a function of (stage spec,
+scene, params, upstream artifacts) returning the stage's chunks in a stable order; it may
+read the upstream artifacts' attributes (and, for ``materials_from``, one small array),
+so chunkings that exist only after an upstream stage ran (texel tiles of a UV atlas,
+vertex batches of a mesh) are planned from data. The runner plans a stage's chunks when
+its inputs are fresh, just before it runs.
+
+Chunkings (``chunks:`` in stages.yaml):
+
+=============== ====================================== ==================================
+by              chunks                                 coordinates
+=============== ====================================== ==================================
+none            one, id ``all``                        –
+object          one per scene object                   ``object``
+material        one per scene material                 ``material``
+tile            pixel tiles of ``size`` (a param)      ``region`` (y0, y1, x0, x1) px;
+                                                       ``materials`` seen in it if
+                                                       ``materials_from`` names a stage
+                                                       with a ``material_id`` image
+block           [0, ``of``) in blocks of ``size``      ``span`` (start, end)
+texel_tile      per object, tiles of its texture      ``object``, ``region`` in texels
+                (``of``'s attr ``texture_sizes``:
+                {object: [height, width]})
+vertex_batch    per object, runs of ``size`` vertices  ``object``, ``span`` (start, end)
+                (``of``'s attr ``vertex_counts``:     in the object's own vertices
+                {object: count})
+=============== ====================================== ==================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import PrtError
+from pipeline.scene import Scene
+from pipeline.stagefile import StageSpec
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """One unit of a stage's work. ``id`` is stable across runs and names the chunk in
+    records; ``kind`` is the stage's chunking; ``coords`` holds its coordinates as
+    sorted (name, value) pairs (values are str, int or tuples of them)."""
+
+    id: str
+    kind: str = "none"
+    coords: tuple[tuple[str, Any], ...] = ()
+
+    def get(self, name: str) -> Any:
+        """A coordinate, or None if the chunk has none of that name."""
+        return dict(self.coords).get(name)
+
+    @property
+    def object(self) -> str | None:
+        return self.get("object")
+
+    @property
+    def material(self) -> str | None:
+        return self.get("material")
+
+    @property
+    def materials(self) -> tuple[str, ...] | None:
+        """The scene materials this chunk reads (its own, or those its pixels see)."""
+        own = self.get("material")
+        return (own,) if own is not None else self.get("materials")
+
+    @property
+    def region(self) -> tuple[int, int, int, int] | None:
+        return self.get("region")
+
+    @property
+    def span(self) -> tuple[int, int] | None:
+        return self.get("span")
+
+
+def make_chunk(chunk_id: str, kind: str, **coords: Any) -> Chunk:
+    return Chunk(chunk_id, kind, tuple(sorted(coords.items())))
+
+
+ALL = Chunk("all")
+
+
+def _positive(scene: Scene, name: str, value: Any) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise PrtError(scene.path, f"{name}: expected a positive integer, found {value!r}")
+    return value
+
+
+def _tiles(height: int, width: int, tile: int) -> list[tuple[int, int, int, int]]:
+    return [(y, min(y + tile, height), x, min(x + tile, width))
+            for y in range(0, height, tile) for x in range(0, width, tile)]
+
+
+def _pixel_tiles(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                 upstream: Mapping[str, Any]) -> list[Chunk]:
+    tile = _positive(scene, spec.chunks.size, params[spec.chunks.size])
+    regions = _tiles(scene.camera.height, scene.camera.width, tile)
+    ids = [f"y{y0:05d}_x{x0:05d}" for y0, _, x0, _ in regions]
+    if spec.chunks.materials_from is None:
+        return [make_chunk(i, "tile", region=r) for i, r in zip(ids, regions, strict=True)]
+    source = upstream[spec.chunks.materials_from]
+    material_id = source.read("material_id")
+    names = list(scene.materials)
+    chunks = []
+    for chunk_id, (y0, y1, x0, x1) in zip(ids, regions, strict=True):
+        seen = np.unique(material_id[y0:y1, x0:x1])
+        chunks.append(make_chunk(chunk_id, "tile", region=(y0, y1, x0, x1),
+                                 materials=tuple(names[m] for m in seen if m >= 0)))
+    return chunks
+
+
+def _blocks(spec: StageSpec, scene: Scene, params: dict[str, Any],
+            upstream: Mapping[str, Any]) -> list[Chunk]:
+    size = _positive(scene, spec.chunks.size, params[spec.chunks.size])
+    count = _positive(scene, spec.chunks.count, params[spec.chunks.count])
+    return [make_chunk(f"b{s:08d}", "block", span=(s, min(s + size, count)))
+            for s in range(0, count, size)]
+
+
+def _upstream_attr(spec: StageSpec, upstream: Mapping[str, Any], attr: str) -> dict:
+    value = upstream[spec.chunks.of].attrs.get(attr)
+    if not isinstance(value, dict):
+        raise PrtError(upstream[spec.chunks.of].path, f"attribute {attr!r} (a mapping from "
+                       f"object to size) missing; stage {spec.name} is chunked by it")
+    return value
+
+
+def _texel_tiles(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                 upstream: Mapping[str, Any]) -> list[Chunk]:
+    tile = _positive(scene, spec.chunks.size, params[spec.chunks.size])
+    chunks = []
+    for obj, (height, width) in _upstream_attr(spec, upstream, "texture_sizes").items():
+        chunks.extend(make_chunk(f"{obj}/y{y0:05d}_x{x0:05d}", "texel_tile", object=obj,
+                                 region=(y0, y1, x0, x1))
+                      for y0, y1, x0, x1 in _tiles(int(height), int(width), tile))
+    return chunks
+
+
+def _vertex_batches(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                    upstream: Mapping[str, Any]) -> list[Chunk]:
+    size = _positive(scene, spec.chunks.size, params[spec.chunks.size])
+    chunks = []
+    for obj, count in _upstream_attr(spec, upstream, "vertex_counts").items():
+        chunks.extend(make_chunk(f"{obj}/v{s:08d}", "vertex_batch", object=obj,
+                                 span=(s, min(s + size, int(count))))
+                      for s in range(0, int(count), size))
+    return chunks
+
+
+Chunker = Callable[[StageSpec, Scene, dict[str, Any], Mapping[str, Any]], list[Chunk]]
+
+CHUNKERS: dict[str, Chunker] = {
+    "none": lambda spec, scene, params, upstream: [ALL],
+    "object": lambda spec, scene, params, upstream: [
+        make_chunk(name, "object", object=name) for name in scene.objects],
+    "material": lambda spec, scene, params, upstream: [
+        make_chunk(name, "material", material=name) for name in scene.materials],
+    "tile": _pixel_tiles,
+    "block": _blocks,
+    "texel_tile": _texel_tiles,
+    "vertex_batch": _vertex_batches,
+}
+
+
+def plan_chunks(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                upstream: Mapping[str, Any]) -> list[Chunk]:
+    """The chunks of ``spec`` (``upstream``: its input artifacts, opened, by stage)."""
+    return CHUNKERS[spec.chunks.by](spec, scene, params, upstream)

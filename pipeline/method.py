@@ -1,0 +1,192 @@
+"""Rendering methods as plug-ins: the descriptor and the registry.
+
+A method (paper 000's ``d2i``, the ``direct`` baseline, and whatever comes next) is a
+module that defines ``METHOD = Method(...)``. The core (cli, job, evaluate) reads the
+registry and never names a method. Plug-ins are found
+
+* in the package ``pipeline.methods`` (every module there is a plug-in), and
+* in the modules named by the environment variable ``PRT_PLUGINS`` (comma-separated
+  importable module names: a method kept outside the project, e.g. under ``tests/``).
+
+A plug-in's own stages (a stage file in stages.yaml's format), schemas and kernels are
+found through its descriptor; the project's stages.yaml declares the built-in methods'
+stages, namespaced ``<method>.<stage>``. A scene lists the methods it is baked for under
+``methods:`` (default: :data:`DEFAULT_METHODS`); ``prt run`` bakes only what those read.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import PrtError
+from pipeline.scene import Scene
+from pipeline.searchpath import add_kernel_dir, add_schema_dir
+
+# Methods of a scene that names none (``methods:`` absent).
+DEFAULT_METHODS = ("direct",)
+
+
+@dataclass(frozen=True)
+class Option:
+    """A run-time option of a method's renderer (``prt render --option NAME=VALUE``):
+    its name, type (int, float, str), default and one-line help."""
+
+    name: str
+    type: type
+    default: Any
+    help: str
+
+    def parse(self, text: str) -> Any:
+        try:
+            return self.type(text)
+        except ValueError:
+            raise PrtError("--option", f"{self.name}={text!r}: expected a value of type "
+                           f"{self.type.__name__}") from None
+
+
+@dataclass(frozen=True)
+class Component:
+    """A part of a method's image that evaluate measures on its own: the method's frame
+    less the frame of ``subtract`` (a method sharing its shader for the rest), against
+    the reference transport ``transport`` (d2i: its indirect light)."""
+
+    subtract: str
+    transport: str
+
+
+@dataclass(frozen=True)
+class Method:
+    """What a method plug-in declares.
+
+    ``renderer``: ``"module:factory"``; ``factory(scene, artifacts, **options)`` returns
+    a renderer: a callable ``(scene) -> Frame``, loaded once from ``artifacts`` (the
+    opened artifacts of ``reads``, by stage name) that renders edited scenes. It may
+    also have ``edit_mode(kind) -> callable(scene) -> Frame``, a faster path for a
+    sequence of one kind of edit.
+    ``reads``: the stages whose artifacts a frame reads (what ``prt run`` bakes, with
+    their upstream; the frame's storage; its cache key).
+    ``reference``: the reference transport its frames are measured against;
+    ``headline``: the error its charts lead with (``rel_rmse``, or
+    ``rel_rmse_surfaces`` over the pixels not seeing an emitter).
+    ``components``: images measured separately (name -> Component).
+    ``options``: the renderer's run-time options.
+    ``sequences``: ``"module:function"``; ``function(scene, artifacts, spec)`` returns
+    (kind, edited scenes, labels) for a ``--frames`` spec, or raises PrtError.
+    ``main_sequences``: the sequences ``prt run`` renders beside the frame.
+    ``evaluate_sweep``, ``evaluate_reference_spp``: what ``prt evaluate`` runs without
+    options (bounded: a few minutes on two cores).
+    ``check_scene``: ``"module:function"`` raising PrtError if the method cannot render
+    the scene (e.g. a material lacks a setting it needs).
+    ``stagefile``, ``schema_dir``, ``kernel_dir``: a plug-in's own stages, schemas and
+    kernels (the built-in methods' live in the project's files).
+    """
+
+    name: str
+    description: str
+    renderer: str
+    reads: tuple[str, ...]
+    reference: str
+    headline: str = "rel_rmse"
+    components: dict[str, Component] = field(default_factory=dict)
+    options: tuple[Option, ...] = ()
+    sequences: str | None = None
+    main_sequences: tuple[str, ...] = ()
+    evaluate_sweep: dict[str, list[Any]] = field(default_factory=dict)
+    evaluate_reference_spp: int = 1024
+    check_scene: str | None = None
+    stagefile: Path | None = None
+    schema_dir: Path | None = None
+    kernel_dir: Path | None = None
+
+    def option_values(self, given: dict[str, str]) -> dict[str, Any]:
+        """Defaults overridden by ``given`` (NAME -> text), parsed; unknown names fail."""
+        known = {o.name: o for o in self.options}
+        unknown = sorted(set(given) - set(known))
+        if unknown:
+            raise PrtError("--option", f"method {self.name} has no option {unknown[0]!r} "
+                           f"(options: {', '.join(known) or 'none'})")
+        return {name: o.parse(given[name]) if name in given else o.default
+                for name, o in known.items()}
+
+    def renderer_module(self) -> str:
+        return self.renderer.partition(":")[0]
+
+
+def resolve(target: str) -> Callable[..., Any]:
+    """The object named ``"module:attribute"``."""
+    module, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def _plugin_modules() -> list[str]:
+    import pipeline.methods as package
+
+    builtin = [f"{package.__name__}.{m.name}" for m in pkgutil.iter_modules(package.__path__)]
+    extra = [m.strip() for m in os.environ.get("PRT_PLUGINS", "").split(",") if m.strip()]
+    return builtin + extra
+
+
+@cache
+def _registry(modules: tuple[str, ...]) -> dict[str, Method]:
+    methods: dict[str, Method] = {}
+    for module_name in modules:
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            raise PrtError("PRT_PLUGINS", f"method plug-in {module_name!r} cannot be "
+                           f"imported ({exc})") from None
+        method = getattr(module, "METHOD", None)
+        if not isinstance(method, Method):
+            raise PrtError(module.__file__, "a method plug-in must define METHOD = Method(...)")
+        if method.name in methods:
+            raise PrtError(module.__file__, f"method {method.name!r} is defined twice")
+        for folder, add in ((method.schema_dir, add_schema_dir),
+                            (method.kernel_dir, add_kernel_dir)):
+            if folder is not None:
+                add(folder)
+        methods[method.name] = method
+    return methods
+
+
+def registry() -> dict[str, Method]:
+    """Every registered method by name (plug-ins imported once per process)."""
+    return _registry(tuple(_plugin_modules()))
+
+
+def get_method(name: str) -> Method:
+    methods = registry()
+    if name not in methods:
+        raise PrtError(None, f"unknown method {name!r} (methods: {', '.join(methods)})")
+    return methods[name]
+
+
+def scene_methods(scene: Scene) -> list[Method]:
+    """The methods ``scene`` is baked for (its ``methods:``, else the default), each
+    checked against the scene."""
+    names = scene.methods if scene.methods is not None else DEFAULT_METHODS
+    methods = registry()
+    unknown = [n for n in names if n not in methods]
+    if unknown:
+        raise PrtError(scene.path, f"methods: unknown method {unknown[0]!r} (methods: "
+                       f"{', '.join(methods)})")
+    for name in names:
+        check_method_scene(methods[name], scene)
+    return [methods[n] for n in names]
+
+
+def check_method_scene(method: Method, scene: Scene) -> None:
+    """Raise PrtError if ``method`` cannot render ``scene``."""
+    if method.check_scene:
+        resolve(method.check_scene)(scene)
+
+
+def stagefile_fragments() -> tuple[Path, ...]:
+    """The stage files of plug-ins that bring their own."""
+    return tuple(m.stagefile for m in registry().values() if m.stagefile is not None)
