@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import PrtError
+from pipeline.executors import one_blas_thread
 from pipeline.searchpath import find_kernel, kernel_dirs
 
 
@@ -50,28 +51,13 @@ def device() -> Any:
 @cache
 def context() -> Any:
     """The OpenCL context of ``device()``. On a CPU device, this process's BLAS is limited
-    to one thread first (see ``_one_blas_thread``)."""
+    to one thread first (pipeline/executors.py ``one_blas_thread``: its spinning threads
+    would take the cores from the device's)."""
     import pyopencl as cl
 
     if device().type & cl.device_type.CPU:
-        _one_blas_thread()
+        one_blas_thread()
     return cl.Context([device()])
-
-
-def _one_blas_thread() -> None:
-    """Limit BLAS (OpenBLAS: NumPy's, and SciPy's own when it loads) to one thread, for
-    the rest of the process.
-
-    OpenBLAS's worker threads spin for a while after each threaded call; on a CPU OpenCL
-    device they then take the cores from the device's own worker threads, and kernels run
-    at one core's speed. Measured on the 400² d2i light-edit frame (medians of 25 frames,
-    three runs each): 156–189 ms with BLAS threads, 110–115 ms without. The pipeline
-    spreads its own work over the cores (thread pools, PoCL, Embree), so BLAS gains
-    nothing from threads here."""
-    from threadpoolctl import threadpool_limits
-
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # BLAS loaded later (SciPy ships its own)
-    threadpool_limits(limits=1, user_api="blas")  # BLAS already loaded (NumPy's)
 
 
 @cache

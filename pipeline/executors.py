@@ -69,6 +69,23 @@ class LocalPoolExecutor:
                     future.cancel()
 
 
+def one_blas_thread() -> None:
+    """Limit BLAS (OpenBLAS: NumPy's, and SciPy's own when it loads) to one thread, for
+    the rest of the process. Every bake and every CPU OpenCL context does this.
+
+    Two reasons. Speed: OpenBLAS's worker threads spin for a while after each threaded
+    call and take the cores from the pipeline's own workers (thread pools, PoCL, Embree);
+    measured on the 400² d2i light-edit frame (medians of 25 frames, three runs each):
+    156–189 ms with BLAS threads, 110–115 ms without. Determinism: a threaded BLAS
+    reduces in another order, so an SVD (the brdf_basis stage) gave other bits depending
+    on whether a CPU OpenCL context had been created earlier in the process; artifacts
+    must be bit-identical however they are scheduled."""
+    from threadpoolctl import threadpool_limits
+
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # BLAS loaded later (SciPy ships its own)
+    threadpool_limits(limits=1, user_api="blas")  # BLAS already loaded (NumPy's)
+
+
 def map_slices(fn: Callable[[slice], Any], n: int, size: int,
                threads: int | None = None) -> list[Any]:
     """``fn`` over consecutive slices of range(n), ``size`` long (the last shorter), on a

@@ -40,7 +40,7 @@ import numpy as np
 from pipeline.chunking import Chunk, plan_chunks
 from pipeline.codeversion import code_version
 from pipeline.errors import PrtError
-from pipeline.executors import Executor, InProcessExecutor
+from pipeline.executors import Executor, InProcessExecutor, one_blas_thread
 from pipeline.graph import topological_order, with_upstream
 from pipeline.keys import digest, seed_from_key
 from pipeline.scene import Scene
@@ -311,6 +311,7 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     """Run one chunk and store its result (and its digest) in the chunk cache."""
     from pipeline.meshio import primitive_mesh, read_mesh
 
+    one_blas_thread()
     start = time.perf_counter()
     workdir = Workdir(task.workdir)
     meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)

@@ -23,11 +23,11 @@ def test_a_cpu_context_leaves_blas_one_thread():
 
 
 def test_kernel_source_hash_follows_file_changes(tmp_path):
-    """Kernels are cached by a hash of the folder's sources, re-read only when a file's
+    """Kernels are cached by a hash of the folders' sources, re-read only when a file's
     size or modification time changes; an edit changes the hash."""
     source = tmp_path / "k.cl"
     source.write_text("__kernel void k() {}\n")
-    first = cl._source_hash(tmp_path)
-    assert cl._source_hash(tmp_path) == first
+    first = cl._source_hash([tmp_path])
+    assert cl._source_hash([tmp_path]) == first
     source.write_text("__kernel void k() { int unused = 1; }\n")
-    assert cl._source_hash(tmp_path) != first
+    assert cl._source_hash([tmp_path]) != first

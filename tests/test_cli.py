@@ -25,6 +25,7 @@ def baked(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cli")
     doc = small_scene_dict(size=16)
     doc["settings"] = {"gather.count": 512}  # a small d2i bake
+    doc["methods"] = ["d2i"]
     scene = write_scene(tmp, doc)
     first = prt("run", scene, "--workdir", tmp / "w", "--frames", tmp / "f", "-q", cwd=tmp)
     assert first.returncode == 0, first.stderr
@@ -74,8 +75,8 @@ def test_render_json_and_size(baked, tmp_path):
     """`prt render --json` prints one JSON line with timings and the requested size."""
     scene, workdir, _, _ = baked
     out = tmp_path / "frame.exr"
-    result = prt("render", scene, "--workdir", tmp_path / "w2", "--out", out, "--size", "20x12",
-                 "--json", "-q")
+    result = prt("render", scene, "--method", "direct", "--workdir", tmp_path / "w2", "--out",
+                 out, "--size", "20x12", "--json", "-q")
     assert result.returncode == 0, result.stderr
     line = json.loads(result.stdout)
     assert (line["width"], line["height"], line["method"]) == (20, 12, "direct")
@@ -84,7 +85,7 @@ def test_render_json_and_size(baked, tmp_path):
 
 
 @pytest.mark.parametrize("command", ["", "run", "status", "inspect", "render", "reference",
-                                     "evaluate", "clean"])
+                                     "evaluate", "clean", "methods"])
 def test_help_everywhere(command):
     """Every command has help text."""
     result = prt(*([command] if command else []), "--help")
