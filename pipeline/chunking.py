@@ -32,58 +32,14 @@ vertex_batch    per object, runs of ``size`` vertices  ``object``, ``span`` (sta
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from pipeline.chunk import ALL, Chunk, make_chunk
 from pipeline.errors import PrtError
 from pipeline.scene import Scene
 from pipeline.stagefile import StageSpec
-
-
-@dataclass(frozen=True)
-class Chunk:
-    """One unit of a stage's work. ``id`` is stable across runs and names the chunk in
-    records; ``kind`` is the stage's chunking; ``coords`` holds its coordinates as
-    sorted (name, value) pairs (values are str, int or tuples of them)."""
-
-    id: str
-    kind: str = "none"
-    coords: tuple[tuple[str, Any], ...] = ()
-
-    def get(self, name: str) -> Any:
-        """A coordinate, or None if the chunk has none of that name."""
-        return dict(self.coords).get(name)
-
-    @property
-    def object(self) -> str | None:
-        return self.get("object")
-
-    @property
-    def material(self) -> str | None:
-        return self.get("material")
-
-    @property
-    def materials(self) -> tuple[str, ...] | None:
-        """The scene materials this chunk reads (its own, or those its pixels see)."""
-        own = self.get("material")
-        return (own,) if own is not None else self.get("materials")
-
-    @property
-    def region(self) -> tuple[int, int, int, int] | None:
-        return self.get("region")
-
-    @property
-    def span(self) -> tuple[int, int] | None:
-        return self.get("span")
-
-
-def make_chunk(chunk_id: str, kind: str, **coords: Any) -> Chunk:
-    return Chunk(chunk_id, kind, tuple(sorted(coords.items())))
-
-
-ALL = Chunk("all")
 
 
 def _positive(scene: Scene, name: str, value: Any) -> int:

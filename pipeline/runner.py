@@ -37,7 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.chunking import Chunk, plan_chunks
+from pipeline.chunk import Chunk
+from pipeline.chunking import plan_chunks
 from pipeline.codeversion import code_version
 from pipeline.errors import PrtError
 from pipeline.executors import Executor, InProcessExecutor, one_blas_thread

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.chunking import ALL, Chunk
+from pipeline.chunk import ALL, Chunk
 from pipeline.meshio import RawMesh
 from pipeline.store import Artifact
 

@@ -1,0 +1,15 @@
+"""Stage toy.level: the mean of toy.shade."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.stages import Output
+
+
+def run_chunk(ctx):
+    return {"level": np.array([ctx.inputs["toy.shade"].read("shade").mean()], np.float32)}
+
+
+def assemble(ctx, pieces):
+    return Output(dict(pieces[0][1]), {})
