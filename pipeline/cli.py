@@ -162,7 +162,7 @@ def render_cmd(scene, method, out, sequence, bounces, bounce_tolerance, size, ed
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits (d2i)."""
     from pipeline import job
-    from pipeline.scene import with_material_edits
+    from pipeline.scene_edits import with_material_edits
 
     if sequence and method != "d2i":
         raise click.UsageError("--frames needs --method d2i")
@@ -220,7 +220,7 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
     from pipeline import job
     from pipeline.images import write_exr, write_png
     from pipeline.reference import ReferenceSettings
-    from pipeline.scene import with_material_edits
+    from pipeline.scene_edits import with_material_edits
 
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")

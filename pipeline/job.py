@@ -157,7 +157,7 @@ def sequence_scenes(scene: Scene, workdir: Workdir, kind: str, material: str | N
     is (an emitter mesh tied to a quad light stays where it is). ``gamma``: the
     material's (default: the first glossy one) γ swept geometrically across its
     gamma_range."""
-    from pipeline.scene import with_light_offset, with_material_edits
+    from pipeline.scene_edits import with_light_offset, with_material_edits
     from pipeline.store import open_artifact
 
     if kind == "light":
