@@ -38,13 +38,8 @@ from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
 from pipeline.render.d2i import D2iRenderer, Rows
 from pipeline.runner import stage_chunks, stage_params
-from pipeline.scene import (
-    Light,
-    default_scene_path,
-    load_scene,
-    with_light_offset,
-    with_material_edits,
-)
+from pipeline.scene import Light, default_scene_path, load_scene
+from pipeline.scene_edits import with_light_offset, with_material_edits
 from pipeline.stagefile import load_stagefile
 
 ROOT = Path(__file__).resolve().parent.parent

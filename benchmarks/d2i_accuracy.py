@@ -32,7 +32,8 @@ from pipeline import job, metrics
 from pipeline.evaluate import emitter_pixels
 from pipeline.images import write_heatmap, write_png
 from pipeline.reference import ReferenceSettings
-from pipeline.scene import default_scene_path, load_scene, with_material_edits
+from pipeline.scene import default_scene_path, load_scene
+from pipeline.scene_edits import with_material_edits
 
 
 def _noise(variance: np.ndarray, mean: np.ndarray, mask: np.ndarray) -> float:

@@ -35,7 +35,8 @@ from pipeline.images import write_png
 from pipeline.math.brdf import scene_brdfs
 from pipeline.math.brdf_pca import read_basis
 from pipeline.reference import ReferenceSettings
-from pipeline.scene import Scene, default_scene_path, load_scene, with_material_edits
+from pipeline.scene import Scene, default_scene_path, load_scene
+from pipeline.scene_edits import with_material_edits
 from pipeline.store import open_artifact
 
 

@@ -194,7 +194,7 @@ def render_cmd(scene, method, out, sequence, options, size, edits, as_json, work
     sequence of edits."""
     from pipeline import job
     from pipeline.method import get_method, scene_methods
-    from pipeline.scene import with_material_edits
+    from pipeline.scene_edits import with_material_edits
 
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
     m = get_method(method) if method else scene_methods(sc)[0]
@@ -251,7 +251,7 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
     from pipeline import job
     from pipeline.images import write_exr, write_png
     from pipeline.reference import ReferenceSettings
-    from pipeline.scene import with_material_edits
+    from pipeline.scene_edits import with_material_edits
 
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 
+from pipeline.job import render_frame
 from pipeline.math.brdf import evaluate_world, scene_brdfs
 from pipeline.math.lights import pack_lights, quad_emission, shade_direct
 from pipeline.math.sampling import lowbias32, stratified_square
 from pipeline.raytrace import RayTracer
-from pipeline.job import render_frame
 from pipeline.render.shadows import light_visibility
 from pipeline.runner import run
 from pipeline.scene import load_scene

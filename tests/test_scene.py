@@ -9,8 +9,12 @@ import numpy as np
 import pytest
 from helpers import PROJECT, SHARED_DATA, small_scene_dict, write_scene
 
+from pipeline.errors import PrtError
+from pipeline.keys import digest
+from pipeline.math.brdf import MATERIAL_PARAMETERS
 from pipeline.runner import plan, run
 from pipeline.scene import load_scene
+from pipeline.scene_edits import with_material_edits
 from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
 
@@ -34,7 +38,7 @@ def test_bunny_grace_scene_sees_bunny_on_ground(tmp_path, monkeypatch):
     camera sees the bunny standing on the ground plane."""
     monkeypatch.setenv("PRT_DATA", str(SHARED_DATA))
     scene = load_scene(PROJECT / "scenes" / "bunny_grace.yaml").with_image_size(32, 32)
-    assert scene.objects["bunny"].mesh == SHARED_DATA / "meshes" / "bunny_60kf.obj"
+    assert scene.objects["bunny"].mesh == (SHARED_DATA / "meshes" / "bunny_60kf.obj").resolve()
     assert scene.lights[0].type == "environment"
     workdir = Workdir(tmp_path / "w")
     run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
@@ -85,9 +89,151 @@ def test_mesh_section_key_follows_content_not_location(tmp_path):
 @pytest.mark.parametrize("samples", [3, 0])
 def test_quad_samples_must_be_square(tmp_path, samples):
     """Stratified quad sampling needs m² samples; anything else is a clear error."""
-    from pipeline.errors import PrtError
-
     doc = small_scene_dict()
     doc["lights"][1]["samples"] = samples
     with pytest.raises(PrtError, match=r"lights\[1\]\.samples"):
         load_scene(write_scene(tmp_path, doc))
+
+
+def test_methods_are_optional_and_kept(tmp_path):
+    """``methods`` lists the rendering methods a scene is baked for (names not checked
+    here); absent, it is None and every other section is as without it."""
+    doc = small_scene_dict()
+    plain = load_scene(write_scene(tmp_path, doc, "plain.yaml"))
+    assert plain.methods is None and plain.section("methods") is None
+    doc["methods"] = ["d2i", "direct"]
+    scene = load_scene(write_scene(tmp_path, doc, "methods.yaml"))
+    assert scene.methods == ("d2i", "direct")
+    assert scene.section("methods") == ["d2i", "direct"]
+    for section in ("camera", "materials", "objects", "lights", "settings"):
+        assert digest(scene.section(section)) == digest(plain.section(section))
+    for bad in ("d2i", [], ["d2i", 3]):
+        doc["methods"] = bad
+        with pytest.raises(PrtError, match=r"methods(\[1\])?: expected a (list of )?method"):
+            load_scene(write_scene(tmp_path, doc, "bad.yaml"))
+
+
+def test_glossy_material_without_gamma_range(tmp_path):
+    """gamma_range and pca_tolerance are method d2i's settings and optional: without a
+    range, γ need only be positive, in the file and in run-time edits."""
+    doc = small_scene_dict()
+    del doc["materials"]["shiny"]["gamma_range"]
+    scene = load_scene(write_scene(tmp_path, doc))
+    shiny = scene.materials["shiny"]
+    assert "gamma_range" not in shiny.params and "pca_tolerance" not in shiny.params
+    assert shiny.params["gamma"] == 20.0 and shiny.params["specular"] == [0.3, 0.3, 0.3]
+    assert scene.section("materials.shiny.gamma_range") is None
+    edited = with_material_edits(scene, ["shiny.gamma=1000"])
+    assert edited.materials["shiny"].params["gamma"] == 1000.0
+    with pytest.raises(PrtError, match=r"materials\.shiny\.gamma: expected a number > 0, "
+                       r"found -1\.0"):
+        with_material_edits(scene, ["shiny.gamma=-1"])
+    doc["materials"]["shiny"]["gamma"] = 0
+    with pytest.raises(PrtError, match=r"materials\.shiny\.gamma: expected a number > 0"):
+        load_scene(write_scene(tmp_path, doc))
+
+
+@pytest.mark.parametrize("model", list(MATERIAL_PARAMETERS))
+def test_material_keys_are_the_models_declared_parameters(tmp_path, model):
+    """A material accepts exactly the parameters its BRDF model declares; the filled
+    defaults are in the loaded material, the others only when given."""
+    declared = MATERIAL_PARAMETERS[model]
+    doc = small_scene_dict()
+    spec = {"model": model}
+    for p in declared.params:
+        if p.required or p.name == "gamma_range":
+            spec[p.name] = [1.0, 2.0] if p.kind == "range" else 1.5
+    doc["materials"]["grey"] = spec
+    material = load_scene(write_scene(tmp_path, doc)).materials["grey"]
+    filled = {p.name for p in declared.params if p.filled} - {"albedo"}
+    assert set(material.params) == set(spec) - {"model"} | filled
+    doc["materials"]["grey"]["nonsense"] = 1
+    allowed = ", ".join(sorted({"model", *declared.names}))
+    with pytest.raises(PrtError, match=rf"materials\.grey: unknown key 'nonsense' "
+                       rf"\(allowed: {allowed}\)"):
+        load_scene(write_scene(tmp_path, doc))
+
+
+def _set(path: str, value):
+    """A change to a scene dictionary: the value at a dotted path (list items by index)."""
+    def change(doc):
+        *parents, last = [int(k) if k.isdigit() else k for k in path.split(".")]
+        node = doc
+        for key in parents:
+            node = node[key]
+        node[last] = value
+    return change
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (_set("zoom", 1), "unknown key 'zoom' (allowed: camera, format, lights, materials, "
+     "methods, name, objects, settings)"),
+    (_set("format", "prt-scene/2"), "format: expected 'prt-scene/1', found 'prt-scene/2'"),
+    (_set("name", "a b"), "name: expected a name of letters, digits, '_' or '-', found 'a b'"),
+    (_set("camera", [1]), "camera: expected a mapping, found list"),
+    (_set("camera.fov", 0), "camera.fov: expected a number > 0, found 0"),
+    (_set("camera.fov", "x"), "camera.fov: expected a number, found 'x'"),
+    (_set("camera.fov", float("nan")), "camera.fov: expected a finite number, found nan"),
+    (_set("camera.width", 2.5), "camera.width: expected an integer, found 2.5"),
+    (_set("camera.up", [0, 0, 0]), "camera.up: expected a non-zero direction"),
+    (_set("camera.position", [1, "a", 3]), "camera.position[1]: expected a number, found 'a'"),
+    (_set("camera.position", [1, 2]), "camera.position: expected a list of 3 numbers, found "
+     "[1, 2]"),
+    (_set("camera.look_at", [0.0, 1.5, 4.0]), "camera.look_at: must differ from "
+     "camera.position"),
+    (_set("materials.grey.model", "disney"), "materials.grey.model: unknown value 'disney' "
+     "(expected one of: lambert, blinn_phong, ward, ward_duer, ward_anisotropic, lafortune, "
+     "cook_torrance, ashikhmin_shirley)"),
+    (_set("materials.grey.albedo", [1, 2, 3]), "materials.grey.albedo[1]: expected a number "
+     "in [0, 1], found 2"),
+    (_set("materials.shiny.gamma", 400), "materials.shiny.gamma: expected a number in "
+     "[3, 300], found 400"),
+    (_set("materials.shiny.gamma_range", [5, 3]), "materials.shiny.gamma_range: expected "
+     "0 < min < max, found [5.0, 3.0]"),
+    (_set("materials.shiny.pca_tolerance", 0.6), "materials.shiny.pca_tolerance: expected a "
+     "number in [1e-09, 0.5], found 0.6"),
+    (_set("materials.red", {"model": "cook_torrance", "gamma": 0.3, "f0": 0.5, "ior": 1.5}),
+     "materials.red: give either f0 or ior (F0 = ((ior-1)/(ior+1))^2), not both"),
+    (_set("materials.red", {"model": "lafortune", "gamma": 3, "cxy": 0, "cz": 0}),
+     "materials.red: cxy and cz cannot both be zero"),
+    (_set("materials.red", {"model": "ward"}), "materials.red: missing required key 'gamma' "
+     "for model ward"),
+    (_set("objects", {}), "objects: the scene has no objects"),
+    (_set("objects.floor.material", "nope"), "objects.floor.material: unknown material 'nope' "
+     "(defined: grey, red, shiny)"),
+    (_set("objects.floor.mesh", "m.obj"), "objects.floor: expected exactly one of 'mesh' or "
+     "'primitive'"),
+    (_set("objects.floor.primitive", {"type": "cone"}), "objects.floor.primitive.type: "
+     "unknown value 'cone' (expected one of: plane, sphere, box)"),
+    (_set("objects.ball.primitive.radius", 0), "objects.ball.primitive.radius: expected a "
+     "number > 0, found 0"),
+    (_set("objects.box.transform.scale", [1, 0, 1]), "objects.box.transform.scale: scale must "
+     "be non-zero"),
+    (_set("objects.box.transform.matrix", [[1, 0, 0, 0]]), "objects.box.transform: 'matrix' "
+     "cannot be combined with translate/rotate/scale"),
+    (_set("objects.floor.transform", {"matrix": [[1, 0, 0, 0], [0, 1, "a", 0], [0, 0, 1, 0],
+                                                 [0, 0, 0, 1]]}),
+     "objects.floor.transform.matrix[1][2]: expected a number, found 'a'"),
+    (_set("objects.floor.transform", {"matrix": [[0] * 4] * 4}), "objects.floor.transform: "
+     "transform is singular"),
+    (_set("lights", "x"), "lights: expected a list of lights"),
+    (_set("lights.0.type", "area"), "lights[0].type: unknown value 'area' (expected one of: "
+     "point, spot, directional, quad, environment)"),
+    (_set("lights.0.radiance", 1), "lights[0]: unknown key 'radiance' (allowed: intensity, "
+     "position, type)"),
+    (_set("lights.1.radiance", [1, -1, 1]), "lights[1].radiance[1]: expected a number in "
+     "[0, inf], found -1"),
+    (_set("lights.1.object", "nope"), "lights[1].object: unknown object 'nope'"),
+    (_set("lights.1.edge_v", [2.0, 0, 0]), "lights[1]: edge_u and edge_v are parallel or "
+     "zero (the quad has no area)"),
+    (_set("settings", "x"), "settings: expected a mapping, found str"),
+])
+def test_problems_read_key_path_and_expectation(tmp_path, change, message):
+    """Each problem is one line: the scene file, the dotted key path (list items as
+    ``[i]``), what was expected and what was found."""
+    doc = small_scene_dict()
+    change(doc)
+    path = write_scene(tmp_path, doc)
+    with pytest.raises(PrtError) as error:
+        load_scene(path)
+    assert error.value.one_line() == f"{path.resolve()}: {message}"

@@ -26,8 +26,10 @@ The OpenCL twin of this module is ``kernels/brdf.h``; tests hold the two togethe
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -220,6 +222,113 @@ MODELS = {
     "lafortune": Lafortune,
     "cook_torrance": CookTorrance,
     "ashikhmin_shirley": AshikhminShirley,
+}
+
+
+# --------------------------------------------------------------------- scene parameters
+
+
+@dataclass(frozen=True)
+class SceneParam:
+    """One key that a material of a model takes in a scene file (besides ``model``).
+
+    ``kind`` is ``number`` (a finite number), ``rgb`` (a number or a list of three, each
+    in the allowed range; a number means grey) or ``range`` (``[min, max]``, each in the
+    allowed range, with ``lo < min < max``). The allowed range is ``[lo, hi]``, or
+    ``(lo, hi]`` when ``lo_open``; ``within`` names a ``range`` parameter of the same
+    material that, when given, is the allowed range instead. ``default`` is the value the
+    model uses when the key is absent (None: there is none); with ``filled`` the loaded
+    material holds it, without the key stays absent from the material. ``required`` keys
+    must be given."""
+
+    name: str
+    kind: Literal["number", "rgb", "range"]
+    doc: str
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    default: float | None = None
+    filled: bool = False
+    required: bool = False
+    within: str | None = None
+
+
+@dataclass(frozen=True)
+class ModelParams:
+    """The scene parameters of one material model, in validation order, and the ``rule``
+    that ties them, if any: given the material's keys and values, the problem with their
+    combination or None."""
+
+    params: tuple[SceneParam, ...]
+    rule: Callable[[dict[str, Any]], str | None] | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The keys, in validation order."""
+        return tuple(p.name for p in self.params)
+
+
+def _one_fresnel(given: dict[str, Any]) -> str | None:
+    """Fresnel models take F0 directly or from the IOR, not both."""
+    if "f0" in given and "ior" in given:
+        return "give either f0 or ior (F0 = ((ior-1)/(ior+1))^2), not both"
+    return None
+
+
+def _lafortune_lobe(given: dict[str, Any]) -> str | None:
+    """Lafortune's coordinate divides by max(|Cxy|, |Cz|)."""
+    if max(abs(given.get("cxy", -1.0)), abs(given.get("cz", 1.0))) == 0.0:
+        return "cxy and cz cannot both be zero"
+    return None
+
+
+ALBEDO = SceneParam("albedo", "rgb", "diffuse albedo kd (linear RGB)", lo=0.0, hi=1.0,
+                    default=0.8, filled=True)
+# The glossy models' common keys. gamma_range and pca_tolerance are method d2i's settings
+# (the range its PCA basis covers, its own truncation tolerance); d2i checks their presence.
+_SPECULAR = SceneParam("specular", "rgb", "specular colour ρs (linear RGB)", lo=0.0, hi=1.0,
+                       default=0.5, filled=True)
+_GAMMA_RANGE = SceneParam("gamma_range", "range", "[γmin, γmax] the PCA basis covers "
+                          "(method d2i); γ must lie in it", lo=0.0)
+_PCA_TOLERANCE = SceneParam("pca_tolerance", "number", "worst relative RMS of the PCA basis "
+                            "(method d2i; default: param brdf_basis.tolerance)",
+                            lo=1e-9, hi=0.5)
+_FRESNEL = (
+    SceneParam("f0", "number", "Schlick's Fresnel reflectance at normal incidence",
+               lo=0.0, hi=1.0, default=DEFAULT_F0),
+    SceneParam("ior", "number", "index of refraction, F0 = ((ior − 1)/(ior + 1))² "
+               "(instead of f0)", lo=1.0, hi=10.0),
+)
+
+
+def _glossy(gamma_doc: str, *own: SceneParam) -> tuple[SceneParam, ...]:
+    """Albedo, γ (described by ``gamma_doc``) with its range, ρs, the model's ``own`` keys
+    and pca_tolerance."""
+    gamma = SceneParam("gamma", "number", gamma_doc, lo=0.0, lo_open=True, required=True,
+                       within="gamma_range")
+    return (ALBEDO, _GAMMA_RANGE, gamma, _SPECULAR, *own, _PCA_TOLERANCE)
+
+
+# Each material model's scene parameters; the order of the models is the order in which
+# messages list them.
+MATERIAL_PARAMETERS: dict[str, ModelParams] = {
+    "lambert": ModelParams((ALBEDO,)),
+    "blinn_phong": ModelParams(_glossy("Phong exponent γ (editable)")),
+    "ward": ModelParams(_glossy("roughness α = γ (editable)")),
+    "ward_duer": ModelParams(_glossy("roughness α = γ (editable)")),
+    "ward_anisotropic": ModelParams(_glossy(
+        "roughness αx = γ (editable)",
+        SceneParam("alpha_ratio", "number", "anisotropy αy/αx", lo=1e-3, hi=1e3,
+                   default=1.0))),
+    "lafortune": ModelParams(_glossy(
+        "lobe exponent γ (editable)",
+        SceneParam("cxy", "number", "lobe coefficient Cxy", lo=-1e3, hi=1e3, default=-1.0),
+        SceneParam("cz", "number", "lobe coefficient Cz", lo=-1e3, hi=1e3, default=1.0)),
+        rule=_lafortune_lobe),
+    "cook_torrance": ModelParams(_glossy("Beckmann rms slope m = γ (editable)", *_FRESNEL),
+                                 rule=_one_fresnel),
+    "ashikhmin_shirley": ModelParams(_glossy("lobe exponent γ (editable)", *_FRESNEL),
+                                     rule=_one_fresnel),
 }
 
 

@@ -30,7 +30,8 @@ import numpy as np
 
 from pipeline.errors import PrtError
 from pipeline.method import Component, Method, Option
-from pipeline.scene import Scene, with_light_offset, with_material_edits
+from pipeline.scene import Scene
+from pipeline.scene_edits import with_light_offset, with_material_edits
 from pipeline.store import Artifact
 
 METHOD = Method(
