@@ -58,7 +58,7 @@ from pipeline.math.brdf import BrdfParams, evaluate, scene_brdfs
 from pipeline.math.camera import pixel_directions
 from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.frames import face_tangents, orthonormalize
-from pipeline.math.lights import TYPE_CODES, pack_lights, smoothstep
+from pipeline.math.lights import TYPE_CODES, LightRow, pack_lights, quad_normal, smoothstep
 from pipeline.raytrace import RayTracer
 from pipeline.scene import Scene
 
@@ -156,8 +156,8 @@ class TransportScene:
         self.emission = np.zeros((len(object_names), 3))
         self.emitter_light = np.full(len(object_names), -1)
         for i, row in enumerate(self.lights):
-            if int(row[0]) == TYPE_CODES["quad"] and row[16] >= 0:
-                self.emitter_light[int(row[16])] = i
+            if int(row[LightRow.TYPE]) == TYPE_CODES["quad"] and row[LightRow.OBJECT] >= 0:
+                self.emitter_light[int(row[LightRow.OBJECT])] = i
         for name, radiance in (emission or {}).items():
             self.emission[object_names.index(name)] = radiance
 
@@ -249,39 +249,41 @@ class PathTracer:
 
     def next_event(self, vtx: _Vertex, table, rng: np.random.Generator) -> np.ndarray:
         """Light reaching each vertex from every light, reflected towards ``wo`` (N, 3)."""
+        f = LightRow
         n = len(vtx.x)
         out = np.zeros((n, 3))
         for row in self.ts.lights if self.use_local else ():
-            kind = int(row[0])
+            kind = int(row[f.TYPE])
             if kind == TYPE_CODES["directional"]:
-                wi = np.broadcast_to(-row[4:7], (n, 3))
+                wi = np.broadcast_to(-row[f.DIRECTION], (n, 3))
                 dist, scale = np.full(n, 1e30), np.ones(n)
             else:
-                q = row[1:4]
+                q = row[f.POSITION]
                 if kind == TYPE_CODES["quad"]:
                     u = rng.random((n, 2))
-                    q = row[1:4] + u[:, :1] * row[4:7] + u[:, 1:] * row[7:10]
+                    q = row[f.CORNER] + u[:, :1] * row[f.EDGE_U] + u[:, 1:] * row[f.EDGE_V]
                 d = q - vtx.x
                 dist = np.linalg.norm(d, axis=-1)
                 wi = d / np.maximum(dist, 1e-300)[:, None]
                 scale = 1.0 / np.maximum(dist * dist, 1e-300)
                 if kind == TYPE_CODES["spot"]:
-                    scale = scale * smoothstep(row[13], row[14], -(wi @ row[4:7]))
+                    scale = scale * smoothstep(row[f.COS_OUTER], row[f.COS_INNER],
+                                               -(wi @ row[f.DIRECTION]))
             fcos, ok = self._connect(vtx, wi, table)
             if kind == TYPE_CODES["quad"]:
-                nq = np.cross(row[4:7], row[7:10])
+                nq = quad_normal(row)
                 area = np.linalg.norm(nq)
                 cos_l = -(wi @ (nq / area))
                 ok &= cos_l > 0
                 light_pdf = np.divide(dist * dist, cos_l * area, out=np.zeros(n), where=ok)
                 weight = np.ones(n)
-                if row[16] >= 0:  # reachable by BRDF sampling too
+                if row[f.OBJECT] >= 0:  # reachable by BRDF sampling too
                     weight = _power(light_pdf, _brdf_pdf(vtx, vtx.local(wi), table))
                 scale = weight / np.maximum(light_pdf, 1e-300)
             vis = np.zeros(n)
             if ok.any():
                 vis[ok] = self._shadow(_subset(vtx, ok), wi[ok], dist[ok])
-            out += fcos * (row[10:13] * (scale * vis)[:, None])
+            out += fcos * (row[f.RGB] * (scale * vis)[:, None])
         for env in self.ts.environments:
             wi, env_pdf = env.sample(rng.random((n, 3)))
             fcos, ok = self._connect(vtx, wi, table)
@@ -378,7 +380,7 @@ class PathTracer:
             light = ts.emitter_light[obj]
             for li in np.unique(light[light >= 0]):
                 row = ts.lights[li]
-                nq = np.cross(row[4:7], row[7:10])
+                nq = quad_normal(row)
                 area = np.linalg.norm(nq)
                 cos_l = vtx.wo @ (nq / area)
                 sel = (light == li) & (cos_l > 0)
@@ -388,7 +390,7 @@ class PathTracer:
                     d = dist[sel].astype(np.float64)
                     light_pdf = d * d / (cos_l[sel] * area)
                     weight = _power(brdf_pdf[sel], light_pdf)
-                radiance[index[sel]] += throughput[sel] * row[10:13] * weight[:, None]
+                radiance[index[sel]] += throughput[sel] * row[LightRow.RGB] * weight[:, None]
         radiance[index] += throughput * test_emission
 
     def _sample_brdf(self, vtx: _Vertex, table, rng):

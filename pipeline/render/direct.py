@@ -19,7 +19,7 @@ import numpy as np
 
 from pipeline import cl
 from pipeline.math.brdf import pack_materials, scene_brdfs
-from pipeline.math.lights import pack_lights, total_samples
+from pipeline.math.lights import LIGHT_FLOATS, light_defines, pack_lights, total_samples
 from pipeline.raytrace import RayTracer
 from pipeline.render import Frame
 from pipeline.render.shadows import light_visibility
@@ -62,7 +62,7 @@ class DirectShader:
         self.ctx, self.queue = cl.context(), cl.queue()
         self.gbuffer = [cl.read_only_buffer(a) for a in (self.position, self.normal, self.tangent,
                                                   self.object_id, self.material_id)]
-        self.lights = np.zeros((0, 18), np.float32)
+        self.lights = np.zeros((0, LIGHT_FLOATS), np.float32)
         self.visibility = np.zeros((len(self.position), 1), np.uint8)
         # the pixels that see a surface, and their points: the shadow rays' origins
         self.hit = np.flatnonzero(self.material_id >= 0)
@@ -83,8 +83,8 @@ class DirectShader:
         pcl, n = self.pcl, len(self.position)
         out = np.empty((n, 3), np.float32)
         out_buf = pcl.Buffer(self.ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
-        rows = self.lights if len(self.lights) else np.zeros((1, 18), np.float32)
-        kernel = cl.kernel("direct.cl", "direct_lighting")
+        rows = self.lights if len(self.lights) else np.zeros((1, LIGHT_FLOATS), np.float32)
+        kernel = cl.kernel("direct.cl", "direct_lighting", light_defines())
         event = kernel(self.queue, (n,), None, *self.gbuffer, cl.read_only_buffer(materials),
                        cl.read_only_buffer(rows), np.int32(len(self.lights)),
                        cl.read_only_buffer(self.visibility), np.int32(self.visibility.shape[1]),
