@@ -28,8 +28,9 @@ lights by light sampling only. Russian roulette (survival probability
 min(max throughput, 0.95)) starts after ``rr_depth`` vertices. ``emission`` adds
 test-only emitting objects reached by BRDF sampling alone (weight 1).
 
-Shading frame: the normal is the barycentric blend of vertex normals turned to face the
-incoming ray (as in the G-buffer), the tangent follows +u of the mesh's uv. A direction
+Shading frame (``pipeline.raytrace.surface_at``, as in the G-buffer, here in float64): the
+normal is the barycentric blend of vertex normals turned to face the incoming ray, the
+tangent follows +u of the mesh's uv. A direction
 on the shading side of the normal but behind the triangle's plane carries nothing. Ray
 origins are offset by ``1e-4`` × the scene diagonal along the triangle's normal.
 
@@ -57,9 +58,8 @@ from pipeline.math import brdf_sampling
 from pipeline.math.brdf import BrdfParams, evaluate, scene_brdfs
 from pipeline.math.camera import pixel_directions
 from pipeline.math.envmap import EnvironmentMap
-from pipeline.math.frames import face_tangents, orthonormalize
 from pipeline.math.lights import TYPE_CODES, LightRow, pack_lights, quad_normal, smoothstep
-from pipeline.raytrace import RayTracer
+from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.scene import Scene
 
 TRANSPORTS = ("direct", "env-direct", "d2i", "d2i-indirect", "full")
@@ -125,22 +125,17 @@ class TransportScene:
 
     def __init__(self, scene: Scene, geometry: dict, emission: dict | None = None) -> None:
         v = np.asarray(geometry["vertices"], np.float64)
-        self.faces = np.asarray(geometry["faces"], np.int64)
-        self.vertex_normals = np.asarray(geometry["normals"], np.float64)
-        self.face_object = np.asarray(geometry["face_object"], np.int64)
-        self.object_material = np.asarray(geometry["object_material"], np.int64)
+        faces = np.asarray(geometry["faces"], np.int64)
+        # shading attributes at hits, the normal blended in float64
+        self.mesh = Mesh(v, np.asarray(geometry["normals"], np.float64),
+                         np.asarray(geometry["uv"], np.float64), faces,
+                         np.asarray(geometry["face_object"], np.int64),
+                         np.asarray(geometry["object_material"], np.int64))
+        self.face_object = self.mesh.face_object
         object_names = list(geometry["object_names"])
         self.materials = scene_brdfs(scene, list(geometry["material_names"]))
         self.lambert = [BrdfParams("lambert", p.albedo) for p in self.materials]
-        self.vertices = v
-        e1 = v[self.faces[:, 1]] - v[self.faces[:, 0]]
-        e2 = v[self.faces[:, 2]] - v[self.faces[:, 0]]
-        cross = np.cross(e1, e2)
-        self.face_normal = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True),
-                                              1e-300)
-        self.face_tangent = face_tangents(v, np.asarray(geometry["uv"], np.float64),
-                                          self.faces)
-        self.tracer = RayTracer(v, self.faces)
+        self.tracer = RayTracer(v, faces)
         self.epsilon = RAY_EPSILON * float(np.linalg.norm(v.max(0) - v.min(0)))
         self.camera = scene.camera
         lights = [(light.type, light.params) for light in scene.lights
@@ -347,20 +342,9 @@ class PathTracer:
         return radiance
 
     def _vertex(self, o, d, hits, hit) -> _Vertex:
-        ts = self.ts
-        prim = hits.prim[hit].astype(np.int64)
-        u, v = hits.u[hit].astype(np.float64), hits.v[hit].astype(np.float64)
-        x = o + hits.t[hit].astype(np.float64)[:, None] * d
-        tri = ts.faces[prim]
-        w = np.stack([1.0 - u - v, u, v], axis=1)[:, :, None]
-        n = np.sum(w * ts.vertex_normals[tri], axis=1)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        n = np.where(np.sum(n * d, -1, keepdims=True) > 0, -n, n)
-        ng = ts.face_normal[prim]
-        ng = np.where(np.sum(ng * d, -1, keepdims=True) > 0, -ng, ng)
-        t = orthonormalize(ts.face_tangent[prim], n)
-        material = ts.object_material[ts.face_object[prim]]
-        return _Vertex(x, n, t, ng, -d, material, prim)
+        s = surface_at(self.ts.mesh, hits.select(hit), o, d)
+        return _Vertex(s.position, s.normal, s.tangent, s.geometric_normal, -d, s.material_id,
+                       s.face)
 
     def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> None:
         if not self.ts.environments or (self.one_vertex and depth > 1) \
