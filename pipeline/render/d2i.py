@@ -146,14 +146,14 @@ class D2iRenderer:
         if rows.count == 0:
             return out, 0.0
         buf = self.buffers[name]
-        self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
-                              np.ascontiguousarray(radiance_w, np.float32))
+        radiance = np.ascontiguousarray(radiance_w, np.float32)
+        self.pcl.enqueue_copy(self.queue, self.radiance_buffer, radiance)
         index_type = "ushort" if rows.index.dtype == np.uint16 else "int"
-        event = cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type})(
-            self.queue, (rows.count,), None, buf["offsets"], buf["index"], buf["value"],
-            self.radiance_buffer, np.int32(rows.count), buf["out"])
-        self.pcl.enqueue_copy(self.queue, out, buf["out"], wait_for=[event])
-        return out, cl.event_ms(event)
+        ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type}),
+                    rows.count, buf["offsets"], buf["index"], buf["value"],
+                    self.radiance_buffer, np.int32(rows.count), out=out,
+                    out_buffer=buf["out"])
+        return out, ms
 
     # ------------------------------------------------------------------------ stages
 
@@ -268,15 +268,13 @@ class D2iRenderer:
             rows = glossy.astype(np.int32)
             coefficients = np.ones((len(materials), 1), np.float32)
         out = np.empty((npix, 3), np.float32)
-        out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
-        event = cl.kernel("d2i.cl", "combine")(
-            self.queue, (npix,), None, cl.read_only_buffer(direct), cl.read_only_buffer(dl),
-            cl.read_only_buffer(self.direct.material_id), cl.read_only_buffer(materials),
-            cl.read_only_buffer(first), cl.read_only_buffer(rows), cl.read_only_buffer(tl),
-            cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
-            np.int32(coefficients.shape[1]), np.int32(npix), out_buf)
-        self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
-        return out, cl.event_ms(event)
+        ms = cl.run(cl.kernel("d2i.cl", "combine"), npix, cl.read_only_buffer(direct),
+                    cl.read_only_buffer(dl), cl.read_only_buffer(self.direct.material_id),
+                    cl.read_only_buffer(materials), cl.read_only_buffer(first),
+                    cl.read_only_buffer(rows), cl.read_only_buffer(tl),
+                    cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
+                    np.int32(coefficients.shape[1]), np.int32(npix), out=out)
+        return out, ms
 
     # ------------------------------------------------------------------------ frames
 

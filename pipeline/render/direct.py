@@ -43,9 +43,6 @@ class DirectShader:
     ``shade(materials)`` runs the kernel with packed material rows (a BRDF edit)."""
 
     def __init__(self, workdir: Workdir, tracer: RayTracer | None = None) -> None:
-        import pyopencl as pcl
-
-        self.pcl = pcl
         gbuf = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
         geo = open_artifact(workdir.artifact("geometry"), "geometry")
         self.height, self.width = gbuf.attrs["height"], gbuf.attrs["width"]
@@ -59,7 +56,6 @@ class DirectShader:
         self.tracer = tracer or RayTracer(geo.read("vertices"), geo.read("faces"))
         self.diagonal = float(np.linalg.norm(np.subtract(geo.attrs["bbox_max"],
                                                          geo.attrs["bbox_min"])))
-        self.ctx, self.queue = cl.context(), cl.queue()
         self.gbuffer = [cl.read_only_buffer(a) for a in (self.position, self.normal, self.tangent,
                                                   self.object_id, self.material_id)]
         self.lights = np.zeros((0, LIGHT_FLOATS), np.float32)
@@ -80,20 +76,18 @@ class DirectShader:
 
     def shade(self, materials: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, float, int]:
         """Radiance (P, 3) float32, kernel milliseconds and the bytes it moved."""
-        pcl, n = self.pcl, len(self.position)
+        n = len(self.position)
         out = np.empty((n, 3), np.float32)
-        out_buf = pcl.Buffer(self.ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
         rows = self.lights if len(self.lights) else np.zeros((1, LIGHT_FLOATS), np.float32)
         kernel = cl.kernel("direct.cl", "direct_lighting", light_defines())
-        event = kernel(self.queue, (n,), None, *self.gbuffer, cl.read_only_buffer(materials),
-                       cl.read_only_buffer(rows), np.int32(len(self.lights)),
-                       cl.read_only_buffer(self.visibility), np.int32(self.visibility.shape[1]),
-                       np.array([*camera, 0.0], np.float32), np.int32(n), out_buf)
-        pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
+        ms = cl.run(kernel, n, *self.gbuffer, cl.read_only_buffer(materials),
+                    cl.read_only_buffer(rows), np.int32(len(self.lights)),
+                    cl.read_only_buffer(self.visibility), np.int32(self.visibility.shape[1]),
+                    np.array([*camera, 0.0], np.float32), np.int32(n), out=out)
         moved = sum(a.nbytes for a in (self.position, self.normal, self.tangent,
                                        self.object_id, self.material_id, materials, rows,
                                        self.visibility, out))
-        return out, cl.event_ms(event), moved
+        return out, ms, moved
 
 
 def direct_renderer(scene: Scene, workdir: Workdir) -> Callable[[Scene], Frame]:
