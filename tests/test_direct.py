@@ -74,6 +74,9 @@ def test_kernel_matches_numpy_all_light_types(tmp_path):
     err = np.abs(frame.rgb - expected)
     assert np.all(err <= 1e-5 * np.abs(expected) + 1e-6 * expected.max())
     assert expected.max() > 0.1
+    # one kernel: kernel_bytes are its bytes, counted_kernel_ms its time
+    assert frame.timings["counted_kernel_ms"] == frame.timings["kernel_ms"] > 0
+    assert frame.kernel_bytes > frame.rgb.nbytes
 
 
 def test_point_light_on_plane_is_analytic(tmp_path):
