@@ -1,6 +1,7 @@
 /* Direct lighting of a G-buffer by point, spot, directional and quad lights with each
  * material's analytic BRDF (brdf.h); shadows come in as a visibility mask traced by
- * Embree. One work-item per pixel. Output: linear RGB radiance, float3 per pixel. */
+ * Embree. One work-item per pixel. Output: linear RGB radiance, float3 per pixel.
+ * Built with pipeline.math.lights.light_defines() (the light row layout, lights.h). */
 #include "brdf.h"
 #include "lights.h"
 
@@ -32,7 +33,7 @@ __kernel void direct_lighting(__global const float* position,    /* npix * 3 */
         __global const uchar* vis = visibility + (size_t)i * nsamples;
         for (int l = 0; l < nlights; ++l) {
             __global const float* row = lights + l * LIGHT_FLOATS;
-            rgb += light_vec(row, 10) * light_reflected(row, (uint)l, (uint)i, p, n, t, wo,
+            rgb += light_vec(row, LIGHT_RGB) * light_reflected(row, (uint)l, (uint)i, p, n, t, wo,
                                                         mat, vis);
         }
         rgb += quad_emission(lights, nlights, object_id[i], view);

@@ -126,6 +126,19 @@ def kernel(file: str, name: str, defines: dict[str, Any] | None = None) -> Any:
     return _KERNELS[key]
 
 
+def run(kernel: Any, size: int, *args: Any, out: Any, out_buffer: Any | None = None) -> float:
+    """One launch of ``kernel`` over ``size`` work-items with ``args`` and, last, the
+    output buffer (``out_buffer``, or a new write-only one of ``out``'s size); the output
+    is copied into the host array ``out``. Returns the kernel's milliseconds."""
+    import pyopencl as cl
+
+    if out_buffer is None:
+        out_buffer = cl.Buffer(context(), cl.mem_flags.WRITE_ONLY, out.nbytes)
+    event = kernel(queue(), (size,), None, *args, out_buffer)
+    cl.enqueue_copy(queue(), out, out_buffer, wait_for=[event])
+    return event_ms(event)
+
+
 def event_ms(event: Any) -> float:
     """Milliseconds between an event's start and end (profiling clock); waits for it."""
     event.wait()

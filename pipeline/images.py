@@ -16,9 +16,11 @@ import numpy as np
 from pipeline.errors import PrtError
 
 
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function (IEC 61966-2-1) of values clipped to [0, 1]."""
-    x = np.clip(linear, 0.0, 1.0)
+def srgb_encode(linear: np.ndarray, exposure: float = 1.0) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] (float64) of linear ``linear`` × ``exposure``: the
+    sRGB transfer function (IEC 61966-2-1) of the values clipped to [0, 1]. The PNG
+    previews and the PSNR metric (pipeline/metrics.py) both use it."""
+    x = np.clip(np.asarray(linear, np.float64) * exposure, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 
 
@@ -48,7 +50,7 @@ def write_png(path: str | Path, rgb: np.ndarray, exposure: float = 1.0) -> None:
     from PIL import Image
 
     path = Path(path)
-    encoded = np.round(srgb_encode(np.asarray(rgb, np.float64) * exposure) * 255.0)
+    encoded = np.round(srgb_encode(rgb, exposure) * 255.0)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = _temporary(path)

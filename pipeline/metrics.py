@@ -5,7 +5,7 @@ select the pixels that count (default: all).
 
 * relative RMSE ‖I − R‖₂ / ‖R‖₂ over the selected pixels and all channels (the headline);
 * PSNR in dB of the tonemapped images, tonemap(x) = sRGB(clip(x · exposure, 0, 1)) with
-  ``exposure`` 1 (as the PNG previews), peak 1;
+  ``exposure`` 1 (``pipeline.images.srgb_encode``, as the PNG previews), peak 1;
 * HDR-FLIP (NVIDIA's ꟻLIP, PyPI ``flip-evaluator``) mean error when installed, else None;
 * per-pixel relative error |I − R|₂ / |R|₂ (with a floor) for heat maps.
 """
@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from pipeline.images import srgb_encode
 
 
 def _select(image: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
@@ -30,17 +32,11 @@ def relative_rmse(image: np.ndarray, reference: np.ndarray,
     return math.sqrt(float(np.sum((i - r) ** 2))) / norm if norm > 0 else math.inf
 
 
-def srgb_tonemap(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] of linear ``image`` × ``exposure``."""
-    x = np.clip(np.asarray(image, np.float64) * exposure, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-
-
 def psnr(image: np.ndarray, reference: np.ndarray, exposure: float = 1.0,
          mask: np.ndarray | None = None) -> float:
     """PSNR (dB, peak 1) between the sRGB-tonemapped images; inf when identical."""
-    mse = float(np.mean((_select(srgb_tonemap(image, exposure), mask)
-                         - _select(srgb_tonemap(reference, exposure), mask)) ** 2))
+    mse = float(np.mean((_select(srgb_encode(image, exposure), mask)
+                         - _select(srgb_encode(reference, exposure), mask)) ** 2))
     return math.inf if mse == 0 else -10.0 * math.log10(mse)
 
 

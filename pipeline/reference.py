@@ -30,8 +30,9 @@ lights by light sampling only. Russian roulette (survival probability
 min(max throughput, 0.95)) starts after ``rr_depth`` vertices. ``emission`` adds
 test-only emitting objects reached by BRDF sampling alone (weight 1).
 
-Shading frame: the normal is the barycentric blend of vertex normals turned to face the
-incoming ray (as in the G-buffer), the tangent follows +u of the mesh's uv. A direction
+Shading frame (``pipeline.raytrace.surface_at``, as in the G-buffer, here in float64): the
+normal is the barycentric blend of vertex normals turned to face the incoming ray, the
+tangent follows +u of the mesh's uv. A direction
 on the shading side of the normal but behind the triangle's plane carries nothing. Ray
 origins are offset by ``1e-4`` × the scene diagonal along the triangle's normal.
 
@@ -59,9 +60,8 @@ from pipeline.math import brdf_sampling
 from pipeline.math.brdf import BrdfParams, evaluate, scene_brdfs
 from pipeline.math.camera import pixel_directions
 from pipeline.math.envmap import EnvironmentMap
-from pipeline.math.frames import face_tangents, orthonormalize
-from pipeline.math.lights import TYPE_CODES, pack_lights, smoothstep
-from pipeline.raytrace import RayTracer
+from pipeline.math.lights import TYPE_CODES, LightRow, pack_lights, quad_normal, smoothstep
+from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.scene import Scene
 
 TRANSPORTS = ("direct", "env-direct", "first-glossy", "first-glossy-indirect", "full")
@@ -127,22 +127,17 @@ class TransportScene:
 
     def __init__(self, scene: Scene, geometry: dict, emission: dict | None = None) -> None:
         v = np.asarray(geometry["vertices"], np.float64)
-        self.faces = np.asarray(geometry["faces"], np.int64)
-        self.vertex_normals = np.asarray(geometry["normals"], np.float64)
-        self.face_object = np.asarray(geometry["face_object"], np.int64)
-        self.object_material = np.asarray(geometry["object_material"], np.int64)
+        faces = np.asarray(geometry["faces"], np.int64)
+        # shading attributes at hits, the normal blended in float64
+        self.mesh = Mesh(v, np.asarray(geometry["normals"], np.float64),
+                         np.asarray(geometry["uv"], np.float64), faces,
+                         np.asarray(geometry["face_object"], np.int64),
+                         np.asarray(geometry["object_material"], np.int64))
+        self.face_object = self.mesh.face_object
         object_names = list(geometry["object_names"])
         self.materials = scene_brdfs(scene, list(geometry["material_names"]))
         self.lambert = [BrdfParams("lambert", p.albedo) for p in self.materials]
-        self.vertices = v
-        e1 = v[self.faces[:, 1]] - v[self.faces[:, 0]]
-        e2 = v[self.faces[:, 2]] - v[self.faces[:, 0]]
-        cross = np.cross(e1, e2)
-        self.face_normal = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True),
-                                              1e-300)
-        self.face_tangent = face_tangents(v, np.asarray(geometry["uv"], np.float64),
-                                          self.faces)
-        self.tracer = RayTracer(v, self.faces)
+        self.tracer = RayTracer(v, faces)
         self.epsilon = RAY_EPSILON * float(np.linalg.norm(v.max(0) - v.min(0)))
         self.camera = scene.camera
         lights = [(light.type, light.params) for light in scene.lights
@@ -158,8 +153,8 @@ class TransportScene:
         self.emission = np.zeros((len(object_names), 3))
         self.emitter_light = np.full(len(object_names), -1)
         for i, row in enumerate(self.lights):
-            if int(row[0]) == TYPE_CODES["quad"] and row[16] >= 0:
-                self.emitter_light[int(row[16])] = i
+            if int(row[LightRow.TYPE]) == TYPE_CODES["quad"] and row[LightRow.OBJECT] >= 0:
+                self.emitter_light[int(row[LightRow.OBJECT])] = i
         for name, radiance in (emission or {}).items():
             self.emission[object_names.index(name)] = radiance
 
@@ -251,39 +246,41 @@ class PathTracer:
 
     def next_event(self, vtx: _Vertex, table, rng: np.random.Generator) -> np.ndarray:
         """Light reaching each vertex from every light, reflected towards ``wo`` (N, 3)."""
+        f = LightRow
         n = len(vtx.x)
         out = np.zeros((n, 3))
         for row in self.ts.lights if self.use_local else ():
-            kind = int(row[0])
+            kind = int(row[f.TYPE])
             if kind == TYPE_CODES["directional"]:
-                wi = np.broadcast_to(-row[4:7], (n, 3))
+                wi = np.broadcast_to(-row[f.DIRECTION], (n, 3))
                 dist, scale = np.full(n, 1e30), np.ones(n)
             else:
-                q = row[1:4]
+                q = row[f.POSITION]
                 if kind == TYPE_CODES["quad"]:
                     u = rng.random((n, 2))
-                    q = row[1:4] + u[:, :1] * row[4:7] + u[:, 1:] * row[7:10]
+                    q = row[f.CORNER] + u[:, :1] * row[f.EDGE_U] + u[:, 1:] * row[f.EDGE_V]
                 d = q - vtx.x
                 dist = np.linalg.norm(d, axis=-1)
                 wi = d / np.maximum(dist, 1e-300)[:, None]
                 scale = 1.0 / np.maximum(dist * dist, 1e-300)
                 if kind == TYPE_CODES["spot"]:
-                    scale = scale * smoothstep(row[13], row[14], -(wi @ row[4:7]))
+                    scale = scale * smoothstep(row[f.COS_OUTER], row[f.COS_INNER],
+                                               -(wi @ row[f.DIRECTION]))
             fcos, ok = self._connect(vtx, wi, table)
             if kind == TYPE_CODES["quad"]:
-                nq = np.cross(row[4:7], row[7:10])
+                nq = quad_normal(row)
                 area = np.linalg.norm(nq)
                 cos_l = -(wi @ (nq / area))
                 ok &= cos_l > 0
                 light_pdf = np.divide(dist * dist, cos_l * area, out=np.zeros(n), where=ok)
                 weight = np.ones(n)
-                if row[16] >= 0:  # reachable by BRDF sampling too
+                if row[f.OBJECT] >= 0:  # reachable by BRDF sampling too
                     weight = _power(light_pdf, _brdf_pdf(vtx, vtx.local(wi), table))
                 scale = weight / np.maximum(light_pdf, 1e-300)
             vis = np.zeros(n)
             if ok.any():
                 vis[ok] = self._shadow(_subset(vtx, ok), wi[ok], dist[ok])
-            out += fcos * (row[10:13] * (scale * vis)[:, None])
+            out += fcos * (row[f.RGB] * (scale * vis)[:, None])
         for env in self.ts.environments:
             wi, env_pdf = env.sample(rng.random((n, 3)))
             fcos, ok = self._connect(vtx, wi, table)
@@ -347,20 +344,9 @@ class PathTracer:
         return radiance
 
     def _vertex(self, o, d, hits, hit) -> _Vertex:
-        ts = self.ts
-        prim = hits.prim[hit].astype(np.int64)
-        u, v = hits.u[hit].astype(np.float64), hits.v[hit].astype(np.float64)
-        x = o + hits.t[hit].astype(np.float64)[:, None] * d
-        tri = ts.faces[prim]
-        w = np.stack([1.0 - u - v, u, v], axis=1)[:, :, None]
-        n = np.sum(w * ts.vertex_normals[tri], axis=1)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        n = np.where(np.sum(n * d, -1, keepdims=True) > 0, -n, n)
-        ng = ts.face_normal[prim]
-        ng = np.where(np.sum(ng * d, -1, keepdims=True) > 0, -ng, ng)
-        t = orthonormalize(ts.face_tangent[prim], n)
-        material = ts.object_material[ts.face_object[prim]]
-        return _Vertex(x, n, t, ng, -d, material, prim)
+        s = surface_at(self.ts.mesh, hits.select(hit), o, d)
+        return _Vertex(s.position, s.normal, s.tangent, s.geometric_normal, -d, s.material_id,
+                       s.face)
 
     def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> None:
         if not self.ts.environments or (self.one_vertex and depth > 1) \
@@ -380,7 +366,7 @@ class PathTracer:
             light = ts.emitter_light[obj]
             for li in np.unique(light[light >= 0]):
                 row = ts.lights[li]
-                nq = np.cross(row[4:7], row[7:10])
+                nq = quad_normal(row)
                 area = np.linalg.norm(nq)
                 cos_l = vtx.wo @ (nq / area)
                 sel = (light == li) & (cos_l > 0)
@@ -390,7 +376,7 @@ class PathTracer:
                     d = dist[sel].astype(np.float64)
                     light_pdf = d * d / (cos_l[sel] * area)
                     weight = _power(brdf_pdf[sel], light_pdf)
-                radiance[index[sel]] += throughput[sel] * row[10:13] * weight[:, None]
+                radiance[index[sel]] += throughput[sel] * row[LightRow.RGB] * weight[:, None]
         radiance[index] += throughput * test_emission
 
     def _sample_brdf(self, vtx: _Vertex, table, rng):

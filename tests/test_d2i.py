@@ -178,3 +178,36 @@ def test_non_finite_light_parameters_are_a_clear_error(baked):
     scene, _, renderer = baked
     with pytest.raises(PrtError, match="non-finite"):
         with_light_offset(scene, 0, (float("inf"), 0.0, 0.0))
+
+
+def test_kernel_bytes_and_counted_time_cover_the_same_kernels(baked):
+    """kernel_bytes are the bytes of the frame's sparse-row products (every bounce's Ms
+    launch, D L and T L: rows, radiance vector, outputs) and counted_kernel_ms their
+    time, which leaves out the direct and combination kernels that kernel_ms includes;
+    a BRDF edit that reuses its products counts none, a light edit counts its frozen
+    rows."""
+    scene, _, renderer = baked
+    frame = renderer.render(scene)
+    t = frame.timings
+    launch = 16 * renderer.size  # the float4 radiance vector of each launch
+
+    def moved(rows):
+        return rows.nbytes + launch + 16 * rows.count
+
+    bounces = int(t["bounces"])
+    assert bounces >= 2
+    assert frame.kernel_bytes == bounces * moved(renderer.ms) + moved(renderer.d) + \
+        moved(renderer.t)
+    assert t["counted_kernel_ms"] == pytest.approx(
+        t["bounce_kernel_ms"] + t["product_kernel_ms"], rel=1e-9)
+    assert 0 < t["counted_kernel_ms"] < t["kernel_ms"]
+    assert t["kernel_ms"] == pytest.approx(t["counted_kernel_ms"] + t["direct_kernel_ms"]
+                                           + t["combine_kernel_ms"], rel=1e-9)
+    brdf = renderer.brdf_edits(scene)(with_material_edits(scene, ["glossy_floor.gamma=80"]))
+    assert brdf.kernel_bytes == 0 and brdf.timings["counted_kernel_ms"] == 0
+    frozen = renderer.freeze(renderer.coefficients(scene))
+    light = renderer.light_edits(scene)(with_light_offset(scene, 0, (30.0, 0.0, 0.0)))
+    assert light.kernel_bytes == int(light.timings["bounces"]) * moved(renderer.ms) + \
+        moved(renderer.d) + moved(frozen)
+    assert light.timings["counted_kernel_ms"] == pytest.approx(
+        light.timings["bounce_kernel_ms"] + light.timings["product_kernel_ms"], rel=1e-9)

@@ -74,6 +74,9 @@ def test_kernel_matches_numpy_all_light_types(tmp_path):
     err = np.abs(frame.rgb - expected)
     assert np.all(err <= 1e-5 * np.abs(expected) + 1e-6 * expected.max())
     assert expected.max() > 0.1
+    # one kernel: kernel_bytes are its bytes, counted_kernel_ms its time
+    assert frame.timings["counted_kernel_ms"] == frame.timings["kernel_ms"] > 0
+    assert frame.kernel_bytes > frame.rgb.nbytes
 
 
 def test_point_light_on_plane_is_analytic(tmp_path):
@@ -214,3 +217,58 @@ def test_cornell_floor_shows_its_glossy_highlight(cornell):
 
     assert mean_gain(front) > 0.2  # measured 0.26 at 64 × 64
     assert mean_gain(front) > 10 * mean_gain(back)  # measured 0.001 at the back
+
+
+def test_light_row_layout_is_one_table_for_python_and_opencl():
+    """The row layout lives in LightRow only: its fields tile the used part of a row
+    without overlap (CORNER and EDGE_U are aliases), pack_lights writes each field where
+    LightRow says, and kernels/lights.h and direct.cl index rows only through the
+    LIGHT_* defines that light_defines() passes to the build (no literal offsets)."""
+    import math
+    import re
+
+    from pipeline import cl
+    from pipeline.errors import PrtError
+    from pipeline.math.lights import (
+        LIGHT_FLOATS,
+        TYPE_CODES,
+        LightRow,
+        light_defines,
+        light_fields,
+    )
+
+    fields = light_fields()
+    aliases = {"CORNER": "POSITION", "EDGE_U": "DIRECTION"}
+    assert all(fields[a] == fields[b] for a, b in aliases.items())
+    used = np.zeros(LIGHT_FLOATS, int)
+    for name, (offset, width) in fields.items():
+        if name not in aliases:
+            used[offset:offset + width] += 1
+    assert used.max() == 1 and used[:18].min() == 1
+
+    row = pack_lights([("spot", {"position": [1, 2, 3], "direction": [0, 0, -2],
+                                 "intensity": [4, 5, 6], "angle": 30, "falloff": 0.5}),
+                       ("quad", {"corner": [0, 1, 0], "edge_u": [1, 0, 0],
+                                 "edge_v": [0, 0, 1], "radiance": [7, 8, 9], "samples": 4,
+                                 "object": "lamp"})], {"lamp": 5})
+    spot, quad = row.astype(np.float64)
+    assert spot[LightRow.TYPE] == TYPE_CODES["spot"] and quad[LightRow.TYPE] == 3
+    assert spot[LightRow.POSITION].tolist() == [1, 2, 3]
+    assert spot[LightRow.DIRECTION].tolist() == [0, 0, -1]
+    assert spot[LightRow.RGB].tolist() == [4, 5, 6]
+    assert spot[LightRow.COS_OUTER] == pytest.approx(math.cos(math.radians(30)))
+    assert spot[LightRow.COS_INNER] == pytest.approx(math.cos(math.radians(15)))
+    assert spot[LightRow.OBJECT] == -1 and quad[LightRow.OBJECT] == 5
+    assert quad[LightRow.EDGE_V].tolist() == [0, 0, 1]
+    assert (spot[LightRow.SAMPLES], quad[LightRow.SAMPLES]) == (1, 4)
+    assert (spot[LightRow.SAMPLE_OFFSET], quad[LightRow.SAMPLE_OFFSET]) == (0, 1)
+
+    defines = light_defines()
+    for name in ("lights.h", "direct.cl"):
+        source = (cl.kernel_dir() / name).read_text()
+        code = re.sub(r"/\*.*?\*/", "", source, flags=re.S)
+        assert not re.search(r"row\[\s*\d", code), name
+        assert not re.search(r"light_vec\([^,]+,\s*\d", code), name
+        assert set(re.findall(r"\bLIGHT_[A-Z_]+\b", code)) <= set(defines), name
+    with pytest.raises(PrtError, match="light_defines"):
+        cl.program("direct.cl")

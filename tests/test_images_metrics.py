@@ -79,3 +79,22 @@ def test_metrics_on_known_differences():
     flip = metrics.hdr_flip(1.1 * reference, reference)
     assert flip is None or 0 < flip < 1
     assert metrics.hdr_flip(reference, reference) in (None, 0.0)
+
+
+def test_srgb_encode_serves_previews_and_psnr(tmp_path):
+    """One sRGB encoding: IEC 61966-2-1 values, clipped to [0, 1] after the exposure; the
+    PNG preview stores it rounded to 8 bits and PSNR compares it."""
+    from PIL import Image
+
+    from pipeline.images import srgb_encode, write_png
+
+    linear = np.array([[[0.0, 0.0031308, 0.5], [0.18, 1.0, 7.0]]])
+    expected = [[[0.0, 0.04045, 0.735357], [0.461356, 1.0, 1.0]]]
+    np.testing.assert_allclose(srgb_encode(linear), expected, atol=2e-6)
+    np.testing.assert_allclose(srgb_encode(linear, 0.5), srgb_encode(linear * 0.5))
+    write_png(tmp_path / "p.png", linear, exposure=0.5)
+    stored = np.asarray(Image.open(tmp_path / "p.png"))
+    assert np.array_equal(stored, np.round(srgb_encode(linear, 0.5) * 255))
+    assert metrics.psnr(linear, linear * 1.01, exposure=0.5) == pytest.approx(
+        -10 * np.log10(np.mean((srgb_encode(linear, 0.5) - srgb_encode(linear * 1.01, 0.5))
+                               ** 2)))

@@ -162,15 +162,6 @@ def test_convergence_threshold_uses_fewer_samples_for_far_disks():
     np.testing.assert_allclose(d_near[0, 0], exact / np.pi, rtol=0.02)
 
 
-def _kernel_disks(disks):
-    from pipeline.stages.transfer import GatherDisks
-
-    packed = np.zeros((len(disks.area), 8), np.float32)
-    packed[:, :3], packed[:, 3:6], packed[:, 6] = disks.center, disks.normal, disks.area
-    return GatherDisks(disks.center, disks.normal, packed, disks.points.astype(np.float32),
-                       disks.polygon.astype(np.float32))
-
-
 @pytest.mark.parametrize("model,gamma_range", [(None, None), ("blinn_phong", (3.0, 300.0)),
                                                ("lafortune", (3.0, 300.0)),
                                                ("ward_anisotropic", (0.05, 2.0)),
@@ -197,7 +188,7 @@ def test_opencl_kernel_matches_numpy(scene, model, gamma_range):
     # Ω_s = 0.0093: no pair's Ω / Ω_s lies at a power of two, where float32 and float64
     # may round to different sample counts
     d_ref, t_ref = transfer(receivers, disks, vis, table, solid_angle=0.0093, tolerance=0.0)
-    d, t = TransferKernel(_kernel_disks(disks), 0.0093, 0.0)(receivers, vis, table)
+    d, t = TransferKernel(disks, 0.0093, 0.0)(receivers, vis, table)  # float32 on the device
     scale = np.abs(d_ref).max(axis=1, keepdims=True)
     assert np.all(np.abs(d - d_ref) <= 2e-4 * scale)
     if model is None:

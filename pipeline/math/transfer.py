@@ -82,13 +82,27 @@ class Disks:
     """Gather disks: ``center``, ``normal`` (G, 3), ``area`` (G,), their sub-area
     sample points ``points`` (G, M, 3) (:func:`subarea_points`) and the vertices of the
     equal-area polygons that stand for them in exact integrals, ``polygon`` (G, S, 3)
-    (:func:`disk_polygons`)."""
+    (:func:`disk_polygons`). Scene units, world frame. The NumPy estimators take any
+    float type; the transfer stage holds the gather artifact's float32 areas, points and
+    polygons, as kernels/transfer.cl reads them (with :attr:`packed`)."""
 
     center: np.ndarray
     normal: np.ndarray
     area: np.ndarray
     points: np.ndarray
     polygon: np.ndarray
+
+    @property
+    def packed(self) -> np.ndarray:
+        """(G, 8) float32 rows for kernels/transfer.cl: centre, normal, area, 0."""
+        packed = np.zeros((len(self.area), 8), np.float32)
+        packed[:, 0:3], packed[:, 3:6], packed[:, 6] = self.center, self.normal, self.area
+        return packed
+
+    @property
+    def inverse_area(self) -> np.ndarray:
+        """1/|A_g| (G,) in the areas' type, 0 where |A_g| = 0."""
+        return np.divide(1.0, self.area, out=np.zeros_like(self.area), where=self.area > 0)
 
 
 @dataclass(frozen=True)

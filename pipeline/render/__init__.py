@@ -10,9 +10,12 @@ import numpy as np
 @dataclass
 class Frame:
     """A rendered image: ``rgb`` (height, width, 3) float32 linear radiance, row 0 on
-    top, wall-clock ``timings`` in milliseconds (``setup_ms``, ``kernel_ms``, ...,
-    ``total_ms``) and ``kernel_bytes``, the bytes the frame's kernels read and write
-    (for their effective bandwidth)."""
+    top, wall-clock ``timings`` in milliseconds (``setup_ms``, ``kernel_ms`` (every
+    kernel of the frame), ..., ``total_ms``) and ``kernel_bytes``, the bytes that some
+    of the frame's kernels read and write, with ``timings["counted_kernel_ms"]`` the
+    time of exactly those kernels: their effective bandwidth is ``kernel_bytes`` /
+    ``counted_kernel_ms``. Each renderer says which kernels it counts (direct: its one
+    kernel; d2i: the sparse-row products)."""
 
     method: str
     rgb: np.ndarray

@@ -26,6 +26,12 @@ Edits reuse what did not change (paper §6.2, "freezing", done as caching):
   Σ_j c_j T_j^w (the paper's freezing); a frame traces the shadows, lights the gather
   samples, bounces, and takes one sparse product per pixel for D and one for T.
 * Albedo edit: changes L (every bounce) and the direct term; shadows are kept.
+
+A frame's ``kernel_bytes`` are the bytes its sparse-row products (bounces, D L, T L) move
+at least — each launch's rows (offsets, indices, values), the float4 radiance vector once
+and the float4 outputs — and ``timings["counted_kernel_ms"]`` their kernel time (a
+BRDF-edit frame that reuses its products counts none); ``kernel_ms`` also holds the
+direct and combination kernels.
 """
 
 from __future__ import annotations
@@ -93,6 +99,9 @@ class D2iRenderer:
         import pyopencl as pcl
 
         self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
+        # the sparse-row products since the frame began: their kernel time and the bytes
+        # they moved at least (Frame.kernel_bytes and timings["counted_kernel_ms"])
+        self.counted_ms, self.counted_bytes = 0.0, 0
         self.scene = scene
         self.max_bounces, self.bounce_tolerance = max_bounces, bounce_tolerance
         transport, gather = artifacts["d2i.truncate"], artifacts["d2i.gather"]
@@ -127,7 +136,6 @@ class D2iRenderer:
             self.upload(name, rows)
         self.irradiance = np.zeros((len(self.gather_material), 3))
         self.notes: list[str] = []
-        self.storage_bytes = self.ms.nbytes + self.d.nbytes + self.t.nbytes
 
     # ------------------------------------------------------------------------ device
 
@@ -140,19 +148,23 @@ class D2iRenderer:
                                                     16 * max(rows.count, 1))
 
     def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray) -> tuple[np.ndarray, float]:
-        """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms."""
+        """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms. Adds
+        the launch to the counted kernels: its time, and the bytes it moves at least
+        (the rows' offsets, indices and values, the radiance vector once, the output)."""
         out = np.zeros((rows.count, 4), np.float32)
         if rows.count == 0:
             return out, 0.0
         buf = self.buffers[name]
-        self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
-                              np.ascontiguousarray(radiance_w, np.float32))
+        radiance = np.ascontiguousarray(radiance_w, np.float32)
+        self.pcl.enqueue_copy(self.queue, self.radiance_buffer, radiance)
         index_type = "ushort" if rows.index.dtype == np.uint16 else "int"
-        event = cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type})(
-            self.queue, (rows.count,), None, buf["offsets"], buf["index"], buf["value"],
-            self.radiance_buffer, np.int32(rows.count), buf["out"])
-        self.pcl.enqueue_copy(self.queue, out, buf["out"], wait_for=[event])
-        return out, cl.event_ms(event)
+        ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type}),
+                    rows.count, buf["offsets"], buf["index"], buf["value"],
+                    self.radiance_buffer, np.int32(rows.count), out=out,
+                    out_buffer=buf["out"])
+        self.counted_ms += ms
+        self.counted_bytes += rows.nbytes + radiance.nbytes + out.nbytes
+        return out, ms
 
     # ------------------------------------------------------------------------ stages
 
@@ -267,15 +279,13 @@ class D2iRenderer:
             rows = glossy.astype(np.int32)
             coefficients = np.ones((len(materials), 1), np.float32)
         out = np.empty((npix, 3), np.float32)
-        out_buf = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY, out.nbytes)
-        event = cl.kernel("d2i.cl", "combine")(
-            self.queue, (npix,), None, cl.read_only_buffer(direct), cl.read_only_buffer(dl),
-            cl.read_only_buffer(self.direct.material_id), cl.read_only_buffer(materials),
-            cl.read_only_buffer(first), cl.read_only_buffer(rows), cl.read_only_buffer(tl),
-            cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
-            np.int32(coefficients.shape[1]), np.int32(npix), out_buf)
-        self.pcl.enqueue_copy(self.queue, out, out_buf, wait_for=[event])
-        return out, cl.event_ms(event)
+        ms = cl.run(cl.kernel("d2i.cl", "combine"), npix, cl.read_only_buffer(direct),
+                    cl.read_only_buffer(dl), cl.read_only_buffer(self.direct.material_id),
+                    cl.read_only_buffer(materials), cl.read_only_buffer(first),
+                    cl.read_only_buffer(rows), cl.read_only_buffer(tl),
+                    cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
+                    np.int32(coefficients.shape[1]), np.int32(npix), out=out)
+        return out, ms
 
     # ------------------------------------------------------------------------ frames
 
@@ -290,6 +300,7 @@ class D2iRenderer:
     def render(self, scene: Scene) -> Frame:
         """A full frame for ``scene``'s lights and materials (nothing cached)."""
         t0 = time.perf_counter()
+        self._count_from_here()
         timings = self.trace_lights(scene)
         radiance_w, bounce_t = self.gather_radiance(_albedo(scene_brdfs(scene,
                                                                         self.material_names)))
@@ -313,6 +324,7 @@ class D2iRenderer:
 
         def frame(edited: Scene) -> Frame:
             t0 = time.perf_counter()
+            self._count_from_here()
             timings: dict[str, float] = {"shadow_ms": 0.0}
             new_albedo = _albedo(scene_brdfs(edited, self.material_names))
             if not np.array_equal(new_albedo, cache["albedo"]):
@@ -337,6 +349,7 @@ class D2iRenderer:
                 raise PrtError(edited.path, "light-edit mode keeps the materials as frozen; "
                                "render a BRDF-edit sequence to change them")
             t0 = time.perf_counter()
+            self._count_from_here()
             timings = self.trace_lights(edited)
             radiance_w, bounce_t = self.gather_radiance(
                 _albedo(scene_brdfs(edited, self.material_names)))
@@ -361,10 +374,15 @@ class D2iRenderer:
         timings = {**timings, "direct_kernel_ms": direct_ms, "combine_kernel_ms": combine_ms,
                    "pixel_ms": (t2 - t1) * 1e3, "total_ms": (t2 - t0) * 1e3,
                    "setup_ms": (t1 - t0) * 1e3,
-                   "kernel_ms": direct_ms + combine_ms + timings.get("bounce_kernel_ms", 0.0)}
+                   "kernel_ms": direct_ms + combine_ms + timings.get("bounce_kernel_ms", 0.0),
+                   "counted_kernel_ms": self.counted_ms}
         h, w = self.direct.height, self.direct.width
         return Frame("d2i", rgb.reshape(h, w, 3), timings, list(self.notes),
-                     self.storage_bytes)
+                     self.counted_bytes)
+
+    def _count_from_here(self) -> None:
+        """Start a frame's count of sparse-row products (kernel time and bytes)."""
+        self.counted_ms, self.counted_bytes = 0.0, 0
 
 
 def _settled_ratio(previous: np.ndarray, bounce: np.ndarray, last: np.ndarray | None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.executors import map_slices
-from pipeline.math.lights import TYPE_CODES, light_sample_points, total_samples
+from pipeline.math.lights import TYPE_CODES, LightRow, light_sample_points, total_samples
 from pipeline.raytrace import RayTracer
 
 SHADOW_EPSILON = 1e-4  # ray origin offset along the normal, relative to the scene diagonal
@@ -39,11 +39,11 @@ def _batch_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
     vis = np.zeros((len(position), total_samples(packed)), np.uint8)
     origin = np.asarray(position + eps * normal, np.float32)
     for i, row in enumerate(packed):
-        off = int(row[17])
-        if int(row[0]) == TYPE_CODES["directional"]:
-            point = np.flatnonzero(normal @ -row[4:7] > 0)
+        off = int(row[LightRow.SAMPLE_OFFSET])
+        if int(row[LightRow.TYPE]) == TYPE_CODES["directional"]:
+            point = np.flatnonzero(normal @ -row[LightRow.DIRECTION] > 0)
             sample = np.zeros(len(point), np.int64)
-            dirs = np.broadcast_to(-row[4:7], (len(point), 3))
+            dirs = np.broadcast_to(-row[LightRow.DIRECTION], (len(point), 3))
             dists = np.full(len(point), far, np.float32)
         else:
             delta = light_sample_points(packed, i, pixel) - origin[:, None, :]

@@ -58,7 +58,7 @@ from pipeline.math.brdf_sampling import cos_power_direction, frame_to_world
 from pipeline.math.frames import tangent_from_normal
 from pipeline.math.spacecurve import chart_order
 from pipeline.math.transfer import disk_pattern
-from pipeline.raytrace import RayTracer
+from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
 
 NEIGHBOURS = 8     # gather samples considered for each surface sample
@@ -71,7 +71,7 @@ MAX_RAYS_PER_SAMPLE = 64  # rays shot per requested sample before settling for f
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     geo = {n: ctx.inputs["geometry"].read(n) for n in
-           ("vertices", "normals", "faces", "face_object", "object_material")}
+           ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
     gbuf = ctx.inputs["gbuffer"]
     position = gbuf.read("position").reshape(-1, 3).astype(np.float64)
     normal = gbuf.read("normal").reshape(-1, 3).astype(np.float64)
@@ -89,7 +89,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     tracer = RayTracer(geo["vertices"], geo["faces"])
     cam = np.asarray(ctx.scene["camera"]["position"], np.float64)
-    shoot = _Shooter(tracer, geo, position, normal, cam, RAY_EPSILON * diagonal, ctx.rng)
+    shoot = _Shooter(tracer, Mesh.from_arrays(geo), position, normal, cam,
+                     RAY_EPSILON * diagonal, ctx.rng)
     diffuse = shoot(seen, count - n_glossy, exponent=None)
     glossy = shoot(glossy_pixels, n_glossy, exponent=float(ctx.params["gather.glossy_exponent"]))
     samples = {k: np.concatenate([diffuse[k], glossy[k]]) for k in diffuse}
@@ -130,8 +131,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
 class _Shooter:
     """Draws gather samples: rays from view samples, first hits kept."""
 
-    def __init__(self, tracer, geo, position, normal, eye, epsilon, rng) -> None:
-        self.tracer, self.geo, self.rng, self.epsilon = tracer, geo, rng, epsilon
+    def __init__(self, tracer, mesh, position, normal, eye, epsilon, rng) -> None:
+        self.tracer, self.mesh, self.rng, self.epsilon = tracer, mesh, rng, epsilon
         self.position, self.normal, self.eye = position, normal, eye
 
     def __call__(self, pool: np.ndarray, n: int, exponent: float | None) -> dict:
@@ -159,15 +160,9 @@ class _Shooter:
         above = np.sum(d * nx, axis=1) > 0.0
         hits = self.tracer.intersect(x + self.epsilon * nx, d)
         ok = above & (hits.prim >= 0)
-        face = hits.prim[ok].astype(np.int64)
-        tri = self.geo["faces"][face]
-        w = np.stack([1.0 - hits.u[ok] - hits.v[ok], hits.u[ok], hits.v[ok]], 1)[:, :, None]
-        p = x[ok] + hits.t[ok, None] * d[ok]
-        n = np.sum(w * self.geo["normals"][tri], axis=1).astype(np.float64)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        n = np.where(np.sum(n * d[ok], 1, keepdims=True) > 0, -n, n)
-        return {"position": p, "normal": n, "face": face,
-                "object_id": self.geo["face_object"][face], "source_pixel": pixel[ok]}
+        surface = surface_at(self.mesh, hits.select(ok), x[ok], d[ok], normal_dtype=np.float64)
+        return {"position": surface.position, "normal": surface.normal, "face": surface.face,
+                "object_id": surface.object_id, "source_pixel": pixel[ok]}
 
 
 class _Seen:

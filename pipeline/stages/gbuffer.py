@@ -3,7 +3,8 @@
 Per pixel tile (one chunk each) it stores the hit position, the shading normal
 (barycentric blend of vertex normals, turned to face the camera), a tangent (along +u of
 the mesh's uv where that is well defined, else a frame from the normal), object and
-material ids, interpolated uv and camera-space depth. Schema ``gbuffer``.
+material ids, interpolated uv (all from ``pipeline.raytrace.surface_at``; the normal
+normalised in float32) and camera-space depth. Schema ``gbuffer``.
 """
 
 from __future__ import annotations
@@ -11,22 +12,22 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.math.camera import camera_frame, camera_rays
-from pipeline.math.frames import face_tangents, orthonormalize
-from pipeline.raytrace import RayTracer
+from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output, stitch_tiles
 
-_TRACERS: dict[str, tuple[RayTracer, dict[str, np.ndarray]]] = {}
+_TRACERS: dict[str, tuple[RayTracer, Mesh]] = {}
 
 
-def _scene_tracer(ctx: ChunkContext) -> tuple[RayTracer, dict[str, np.ndarray]]:
-    """The Embree scene of the geometry input, built once per process and input key."""
+def _scene_tracer(ctx: ChunkContext) -> tuple[RayTracer, Mesh]:
+    """The Embree scene of the geometry input and its mesh attributes, built once per
+    process and input key."""
     geometry = ctx.inputs["geometry"]
     key = geometry.record["key"]
     if key not in _TRACERS:
         arrays = {n: geometry.read(n) for n in
                   ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
         _TRACERS.clear()
-        _TRACERS[key] = (RayTracer(arrays["vertices"], arrays["faces"]), arrays)
+        _TRACERS[key] = (RayTracer(arrays["vertices"], arrays["faces"]), Mesh.from_arrays(arrays))
     return _TRACERS[key]
 
 
@@ -36,40 +37,29 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     shape = (y1 - y0, x1 - x0)
     origins, dirs = camera_rays(cam["position"], cam["look_at"], cam["up"], cam["fov"],
                                 cam["width"], cam["height"], ctx.chunk.region)
-    tracer, geo = _scene_tracer(ctx)
+    tracer, mesh = _scene_tracer(ctx)
     hits = tracer.intersect(origins, dirs)
     hit = hits.prim >= 0
-    prim = np.where(hit, hits.prim, 0)
-    tri = geo["faces"][prim]
-    w = np.stack([1.0 - hits.u - hits.v, hits.u, hits.v], axis=1)[:, :, None]
     d = dirs.reshape(-1, 3).astype(np.float64)
-
-    position = origins.reshape(-1, 3) + hits.t[:, None] * d
-    normal = np.sum(w * geo["normals"][tri], axis=1)
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
-    normal = np.where(np.sum(normal * d, axis=1, keepdims=True) > 0, -normal, normal)
-    uv = np.sum(w * geo["uv"][tri], axis=1)
-    tangent = orthonormalize(face_tangents(geo["vertices"], geo["uv"], geo["faces"][prim]),
-                             normal)
+    surface = surface_at(mesh, hits.select(hit), origins.reshape(-1, 3)[hit], d[hit],
+                         normal_dtype=np.float32)
     forward = camera_frame(cam["position"], cam["look_at"], cam["up"])[2]
     depth = hits.t * (d @ forward)
 
-    obj = np.where(hit, geo["face_object"][prim], -1)
-    mask = hit[:, None]
-
-    def image(a: np.ndarray, dtype) -> np.ndarray:
-        a = np.where(mask, a, 0) if a.ndim == 2 else np.where(hit, a, 0)
-        return a.astype(dtype).reshape(*shape, *a.shape[1:])
+    def image(a: np.ndarray, dtype, fill=0) -> np.ndarray:
+        """Per-hit values ``a`` as a tile (``fill`` where the ray missed)."""
+        out = np.full((len(hit), *a.shape[1:]), fill, dtype)
+        out[hit] = a
+        return out.reshape(*shape, *a.shape[1:])
 
     return {
-        "position": image(position, np.float32),
-        "normal": image(normal, np.float32),
-        "tangent": image(tangent, np.float32),
-        "object_id": obj.astype(np.int32).reshape(shape),
-        "material_id": np.where(hit, geo["object_material"][np.maximum(obj, 0)], -1)
-        .astype(np.int32).reshape(shape),
-        "uv": image(uv, np.float32),
-        "depth": image(depth, np.float32),
+        "position": image(surface.position, np.float32),
+        "normal": image(surface.normal, np.float32),
+        "tangent": image(surface.tangent, np.float32),
+        "object_id": image(surface.object_id, np.int32, -1),
+        "material_id": image(surface.material_id, np.int32, -1),
+        "uv": image(surface.uv, np.float32),
+        "depth": image(depth[hit], np.float32),
     }
 
 

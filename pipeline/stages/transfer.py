@@ -29,7 +29,6 @@ stage.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -42,6 +41,7 @@ from pipeline.math.brdf_pca import read_basis
 from pipeline.math.transfer import (
     FIRST_CHECK,
     PLANE_MARGIN,
+    Disks,
     GlossyTable,
     Receivers,
     disk_polygons,
@@ -56,46 +56,24 @@ PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows
 COMPRESS_BLOCK = 128  # rows per compression task: its temporaries stay in cache
 
 
-@dataclass
-class GatherDisks:
-    """The gather artifact's disks as the kernel wants them: ``packed`` (G, 8) float32
-    (centre, normal, area, 0), sub-area ``points`` (G, M, 3) float32, the equal-area
-    ``polygon`` vertices (G, S, 3) float32; and ``inverse_area`` (G,) float32, 1/|A_g|
-    (0 where |A_g| = 0)."""
-
-    center: np.ndarray
-    normal: np.ndarray
-    packed: np.ndarray
-    points: np.ndarray
-    polygon: np.ndarray
-
-    @property
-    def area(self) -> np.ndarray:
-        return self.packed[:, 6]
-
-    @property
-    def inverse_area(self) -> np.ndarray:
-        area = self.packed[:, 6]
-        return np.divide(1.0, area, out=np.zeros_like(area), where=area > 0)
-
-    @classmethod
-    def from_artifact(cls, gather: Any) -> GatherDisks:
-        center = gather.read("position").astype(np.float64)
-        normal = gather.read("normal").astype(np.float64)
-        area = gather.read("area").astype(np.float64)
-        tangent = gather.read("disk_tangent").astype(np.float64)
-        points = subarea_points(center, normal, tangent, gather.read("radius").astype(np.float64),
-                                gather.read("disk_rotation").astype(np.float64),
-                                gather.read("disk_pattern").astype(np.float64))
-        packed = np.zeros((len(area), 8), np.float32)
-        packed[:, 0:3], packed[:, 3:6], packed[:, 6] = center, normal, area
-        polygon = disk_polygons(center, normal, tangent, area)
-        return cls(center, normal, packed, np.ascontiguousarray(points, np.float32),
-                   np.ascontiguousarray(polygon, np.float32))
+def gather_disks(gather: Any) -> Disks:
+    """The gather artifact's disks: centres and normals in float64; areas (as stored),
+    sub-area points and polygons in float32, as the kernel reads them."""
+    center = gather.read("position").astype(np.float64)
+    normal = gather.read("normal").astype(np.float64)
+    area = gather.read("area").astype(np.float64)
+    tangent = gather.read("disk_tangent").astype(np.float64)
+    points = subarea_points(center, normal, tangent, gather.read("radius").astype(np.float64),
+                            gather.read("disk_rotation").astype(np.float64),
+                            gather.read("disk_pattern").astype(np.float64))
+    polygon = disk_polygons(center, normal, tangent, area)
+    return Disks(center, normal, area.astype(np.float32),
+                 np.ascontiguousarray(points, np.float32),
+                 np.ascontiguousarray(polygon, np.float32))
 
 
 def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
-                      disks: GatherDisks, epsilon: float) -> np.ndarray:
+                      disks: Disks, epsilon: float) -> np.ndarray:
     """V (P, G) uint8: 1 where receiver p and disk centre g face each other
     (n_p·ω > 0, n_g·ω < 0) and nothing lies between them. The facing tests are two
     matrix products; rays run from p to g, both offset by ``epsilon`` along their
@@ -130,14 +108,14 @@ def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
 class TransferKernel:
     """kernels/transfer.cl over one set of gather disks (uploaded once)."""
 
-    def __init__(self, disks: GatherDisks, solid_angle: float, tolerance: float) -> None:
+    def __init__(self, disks: Disks, solid_angle: float, tolerance: float) -> None:
         import pyopencl as pcl
 
         self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
-        self.count, self.subarea = len(disks.packed), disks.points.shape[1]
+        self.count, self.subarea = len(disks.area), disks.points.shape[1]
         self.disks = cl.read_only_buffer(disks.packed)
-        self.points = cl.read_only_buffer(disks.points)
-        self.polygons = cl.read_only_buffer(disks.polygon)
+        self.points = cl.read_only_buffer(np.asarray(disks.points, np.float32))
+        self.polygons = cl.read_only_buffer(np.asarray(disks.polygon, np.float32))
         self.sides = disks.polygon.shape[1]
         self.solid_angle, self.tolerance = np.float32(solid_angle), np.float32(tolerance)
 
@@ -271,13 +249,13 @@ def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
     return tables
 
 
-def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, GatherDisks, TransferKernel, float]:
+def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, Disks, TransferKernel, float]:
     """The Embree scene, the gather disks, the transfer kernel over them (each built once
     per process and input key) and the ray offset (scene units)."""
     geometry, gather = ctx.inputs["geometry"], ctx.inputs["d2i.gather"]
     tracer = _cached("tracer", geometry.record["key"], lambda: RayTracer(
         geometry.read("vertices"), geometry.read("faces")))
-    disks = _cached("disks", gather.record["key"], lambda: GatherDisks.from_artifact(gather))
+    disks = _cached("disks", gather.record["key"], lambda: gather_disks(gather))
     solid_angle = ctx.params["transfer.subarea_solid_angle"]
     tolerance = ctx.params["transfer.subarea_tolerance"]
     kernel = _cached("kernel", f"{gather.record['key']}{solid_angle}{tolerance}",
