@@ -36,7 +36,8 @@ import numpy as np
 from pipeline import job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
-from pipeline.render.d2i import D2iRenderer, Rows
+from pipeline.render.d2i import D2iRenderer
+from pipeline.rows import Rows
 from pipeline.runner import stage_chunks, stage_params
 from pipeline.scene import Light, default_scene_path, load_scene
 from pipeline.scene_edits import with_light_offset, with_material_edits

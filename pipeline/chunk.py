@@ -37,6 +37,11 @@ class Chunk:
         return (own,) if own is not None else self.get("materials")
 
     @property
+    def index(self) -> int | None:
+        """The position of an object or material chunk in the scene's order."""
+        return self.get("index")
+
+    @property
     def region(self) -> tuple[int, int, int, int] | None:
         return self.get("region")
 

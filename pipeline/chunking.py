@@ -13,8 +13,8 @@ Chunkings (``chunks:`` in stages.yaml):
 by              chunks                                 coordinates
 =============== ====================================== ==================================
 none            one, id ``all``                        –
-object          one per scene object                   ``object``
-material        one per scene material                 ``material``
+object          one per scene object                   ``object``, ``index`` (scene order)
+material        one per scene material                 ``material``, ``index``
 tile            pixel tiles of ``size`` (a param)      ``region`` (y0, y1, x0, x1) px;
                                                        ``materials`` seen in it if
                                                        ``materials_from`` names a stage
@@ -114,9 +114,11 @@ Chunker = Callable[[StageSpec, Scene, dict[str, Any], Mapping[str, Any]], list[C
 CHUNKERS: dict[str, Chunker] = {
     "none": lambda spec, scene, params, upstream: [ALL],
     "object": lambda spec, scene, params, upstream: [
-        make_chunk(name, "object", object=name) for name in scene.objects],
+        make_chunk(name, "object", object=name, index=i)
+        for i, name in enumerate(scene.objects)],
     "material": lambda spec, scene, params, upstream: [
-        make_chunk(name, "material", material=name) for name in scene.materials],
+        make_chunk(name, "material", material=name, index=i)
+        for i, name in enumerate(scene.materials)],
     "tile": _pixel_tiles,
     "block": _blocks,
     "texel_tile": _texel_tiles,

@@ -293,12 +293,8 @@ def inspect_artifact(path: Path) -> dict[str, Any]:
     """Schema kind and version, and per array its shape, dtype, chunks, stored bytes and
     statistics (min, max, mean over finite values; NaN count)."""
 
-    from pipeline.store import open_group
-
     path = Path(path)
-    artifact = open_group(path)
-    if artifact.record.get("kind") != "chunk":
-        artifact = open_artifact(path)
+    artifact = open_artifact(path)
     arrays = {}
     for name in artifact.names:
         arr = artifact.array(name)

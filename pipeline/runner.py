@@ -18,8 +18,9 @@ Keys (SHA-256 of canonical JSON):
 A stage is planned once its inputs are fresh (its chunks may depend on their
 attributes, pipeline/chunking.py); before that ``prt status`` reports it as waiting for
 them. An artifact is fresh when its stored key equals the planned key. Otherwise its
-chunks whose cached results carry the planned chunk key are reused and the rest run;
-then the stage's ``assemble`` writes the artifact atomically. Planning reads only
+chunks whose records carry the planned chunk key are kept and the rest run, each
+writing its part of the artifact in place (pipeline/chunkwrite.py); the artifact is
+complete when every chunk is recorded. Planning reads only
 ``zarr.json`` files (and, for ``materials_from``, one small label image), never the
 large arrays.
 """
@@ -29,6 +30,7 @@ from __future__ import annotations
 import datetime
 import hashlib
 import importlib
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -37,8 +39,10 @@ from typing import Any
 
 import numpy as np
 
+from pipeline import chunkwrite
 from pipeline.chunk import Chunk
 from pipeline.chunking import plan_chunks
+from pipeline.chunkwrite import Block
 from pipeline.codeversion import code_version
 from pipeline.errors import PrtError
 from pipeline.executors import Executor, InProcessExecutor, one_blas_thread
@@ -47,17 +51,8 @@ from pipeline.keys import digest, seed_from_key
 from pipeline.scene import Scene
 from pipeline.schema import load_schema
 from pipeline.stagefile import StageFile, StageSpec
-from pipeline.stages import AssembleContext, ChunkContext
-from pipeline.store import (
-    Artifact,
-    Workdir,
-    open_artifact,
-    open_group,
-    read_record,
-    software_versions,
-    write_artifact,
-    write_group,
-)
+from pipeline.stages import AssembleContext, ChunkContext, Layout
+from pipeline.store import Artifact, Workdir, open_artifact, read_record, software_versions
 
 STAGE_PACKAGE = "pipeline.stages"
 
@@ -105,7 +100,9 @@ class ChunkTask:
     scene: dict[str, Any]
     inputs: dict[str, tuple[str, str]]  # input name -> (artifact path, schema kind)
     meshes: dict[str, tuple[str, Any]]  # object -> ("file", path) | ("primitive", spec)
-    workdir: str
+    output: tuple[str, str]  # (artifact path, schema kind) of the stage's own artifact
+    marker: str  # where the chunk is recorded once written
+    sizes: dict[str, int]  # symbolic zarr chunk sizes of the stage's layout
 
 
 # ------------------------------------------------------------------------------ planning
@@ -260,6 +257,8 @@ def _state(path: Path, key: str, parts: dict[str, Any]) -> tuple[str, str]:
         return "stale", exc.problem
     if record is None:
         return "missing", "not built yet"
+    if record.get("complete") is False:
+        return "stale", "incomplete: an earlier run was interrupted; it resumes"
     if record.get("key") == key:
         return "fresh", ""
     return "stale", explain_change(record.get("key_parts") or {}, parts)
@@ -295,13 +294,15 @@ def explain_change(old: dict[str, Any], new: dict[str, Any]) -> str:
 # ----------------------------------------------------------------------------- execution
 
 
-def arrays_digest(arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = None) -> str:
-    """SHA-256 of arrays (name, dtype, shape and bytes, in name order) and attrs: equal
-    output, equal digest, whatever code or machine produced it."""
+def arrays_digest(arrays: dict[str, Any], attrs: dict[str, Any] | None = None) -> str:
+    """SHA-256 of arrays (name, dtype, shape, bytes and, for a Block, where it goes; in
+    name order) and attrs: equal output, equal digest, whatever produced it."""
     h = hashlib.sha256()
     for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        value = arrays[name]
+        start = value.start if isinstance(value, Block) else None
+        a = np.ascontiguousarray(value.data if isinstance(value, Block) else value)
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|{start}|".encode())
         h.update(a.data)
     if attrs is not None:
         h.update(digest(attrs).encode())
@@ -309,12 +310,11 @@ def arrays_digest(arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = 
 
 
 def execute_chunk(task: ChunkTask) -> tuple[str, float]:
-    """Run one chunk and store its result (and its digest) in the chunk cache."""
+    """Run one chunk, write its arrays into the artifact in place and record it."""
     from pipeline.meshio import primitive_mesh, read_mesh
 
     one_blas_thread()
     start = time.perf_counter()
-    workdir = Workdir(task.workdir)
     meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
               for name, (kind, src) in task.meshes.items()}
     inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
@@ -322,11 +322,12 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs, chunk=task.chunk,
                        key=task.key, rng=np.random.default_rng(task.seed), meshes=meshes)
     arrays = load_impl(task.impl).run_chunk(ctx)
+    path, kind = task.output
+    chunkwrite.write_chunk(Path(path), load_schema(kind), task.chunk.id, arrays, task.sizes)
     seconds = time.perf_counter() - start
-    record = {"format": 1, "kind": "chunk", "stage": task.stage, "chunk": task.chunk.id,
-              "key": task.key, "digest": arrays_digest(arrays), "seconds": seconds}
-    write_group(workdir, workdir.piece(task.stage, task.chunk.id), arrays, {"prt": record},
-                chunks={}, dims={})
+    chunkwrite.record_chunk(Path(task.marker), {
+        "stage": task.stage, "chunk": task.chunk.id, "key": task.key,
+        "digest": arrays_digest(arrays), "seconds": seconds, "meta": ctx.meta})
     return task.chunk.id, seconds
 
 
@@ -338,18 +339,11 @@ def _mesh_sources(spec: StageSpec, scene: Scene, chunk: Chunk) -> dict[str, tupl
             else ("primitive", scene.objects[n].primitive) for n in names}
 
 
-def _piece_is_current(workdir: Workdir, stage: str, chunk: str, key: str) -> bool:
-    record = read_record_or_none(workdir.piece(stage, chunk))
-    return record is not None and record.get("key") == key and "digest" in record
-
-
 def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None = None,
         force: tuple[str, ...] = (), executor: Executor | None = None,
         progress: bool = True, targets: set[str] | None = None) -> list[StageRun]:
     """Bring the artifacts of all stages (or of ``targets``, or ``until``, and their
     upstream) up to date; each stage is planned when its inputs are fresh."""
-    from tqdm import tqdm
-
     executor = executor or InProcessExecutor()
     for name in force:
         if name not in stagefile.stages:
@@ -359,72 +353,93 @@ def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None 
     params_all = stage_params(stagefile, scene)
     report: list[StageRun] = []
     with workdir.lock():
+        one_blas_thread()
         for name in topological_order(stagefile):
             if selected is not None and name not in selected:
                 continue
-            spec = stagefile.stages[name]
-            p = plan_stage(spec, scene, stagefile, workdir, params_all)
-            forced = name in force
-            if p.state == "fresh" and not forced:
+            p = plan_stage(stagefile.stages[name], scene, stagefile, workdir, params_all)
+            if p.state == "fresh" and name not in force:
                 report.append(StageRun(name, "skipped"))
                 continue
-            start = time.perf_counter()
-            todo = [c for c in p.chunks if forced or spec.chunks.by == "none"
-                    or not _piece_is_current(workdir, name, c.id, p.chunk_keys[c.id])]
-            tasks = [_task(p, scene, stagefile, workdir, c) for c in todo]
-            bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
-                       file=sys.stderr, leave=False)
-            for _ in executor.map_unordered(execute_chunk, tasks):
-                bar.update()
-            bar.close()
-            _assemble(p, stagefile, workdir, start)
-            _drop_stale_pieces(workdir, name, {c.id for c in p.chunks})
-            done = {c.id for c in todo}
-            report.append(StageRun(name, "ran", [c.id for c in p.chunks if c.id in done],
-                                   [c.id for c in p.chunks if c.id not in done],
-                                   time.perf_counter() - start,
-                                   "forced" if forced else p.reason))
+            report.append(_run_stage(p, scene, stagefile, workdir, executor, progress,
+                                     name in force))
     return report
 
 
-def _task(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdir,
-          chunk: Chunk) -> ChunkTask:
-    inputs = {dep: (str(workdir.artifact(dep)), stagefile.stages[dep].output)
-              for dep in p.spec.inputs}
-    return ChunkTask(p.spec.name, p.spec.impl, chunk, p.chunk_keys[chunk.id],
-                     p.seeds[chunk.id], p.params, p.sections[chunk.id], inputs,
-                     _mesh_sources(p.spec, scene, chunk), str(workdir.root))
-
-
-def _assemble(p: StagePlan, stagefile: StageFile, workdir: Workdir, start: float) -> None:
-    name = p.spec.name
+def _stage_context(p: StagePlan, stagefile: StageFile, workdir: Workdir) -> AssembleContext:
+    """What a stage's ``layout`` and ``finalize`` see: params, every chunk's scene
+    sections, inputs."""
+    sections: dict[str, Any] = {}
+    for s in p.sections.values():
+        sections.update(s)
     inputs: dict[str, Artifact] = {
         dep: open_artifact(workdir.artifact(dep), stagefile.stages[dep].output)
         for dep in p.spec.inputs}
-    all_sections: dict[str, Any] = {}
-    for s in p.sections.values():
-        all_sections.update(s)
-    groups = [(c, open_group(workdir.piece(name, c.id))) for c in p.chunks]
-    pieces = [(c, g.read_all()) for c, g in groups]
-    chunk_digests = {c.id: g.record["digest"] for c, g in groups}
-    ctx = AssembleContext(params=p.params, scene=all_sections, inputs=inputs)
-    output = load_impl(p.spec.impl).assemble(ctx, pieces)
-    record = {"stage": name, "key": p.key, "chunk_keys": p.chunk_keys,
-              "chunk_digests": chunk_digests,
-              "digest": arrays_digest(output.arrays, output.attrs),
-              "key_parts": p.key_parts, "seconds": time.perf_counter() - start,
-              "software": software_versions(),
-              "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}
-    write_artifact(workdir, workdir.artifact(name), load_schema(p.spec.output), output.arrays,
-                   output.attrs, record, output.sizes)
+    return AssembleContext(params=p.params, scene=sections, inputs=inputs)
 
 
-def _drop_stale_pieces(workdir: Workdir, stage: str, keep: set[str]) -> None:
-    import shutil
+def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdir,
+               executor: Executor, progress: bool, forced: bool) -> StageRun:
+    """Run the chunks of one stage that have no current record, in place, then finish
+    its artifact (pipeline/chunkwrite.py)."""
+    from tqdm import tqdm
 
-    folder = workdir.pieces(stage)
-    kept = {workdir.piece(stage, chunk).name for chunk in keep}
+    start = time.perf_counter()
+    spec, name = p.spec, p.spec.name
+    impl = load_impl(spec.impl)
+    schema = load_schema(spec.output)
+    ctx = _stage_context(p, stagefile, workdir)
+    layout = impl.layout(ctx) if hasattr(impl, "layout") else Layout()
+    path = workdir.artifact(name)
+    ids = [c.id for c in p.chunks]
+    kept = chunkwrite.begin(workdir, path, schema, {
+        "stage": name, "key": p.key, "chunk_keys": p.chunk_keys, "chunks": ids,
+        "key_parts": p.key_parts}, layout.shapes, layout.sizes)
+    if not kept:
+        shutil.rmtree(workdir.markers(name), ignore_errors=True)
+    markers = {c: chunkwrite.read_marker(workdir.marker(name, c)) for c in ids}
+    todo = [c for c in p.chunks if forced or spec.chunks.by == "none"
+            or (markers[c.id] or {}).get("key") != p.chunk_keys[c.id]]
+    tasks = [ChunkTask(name, spec.impl, c, p.chunk_keys[c.id], p.seeds[c.id], p.params,
+                       p.sections[c.id], {dep: (str(workdir.artifact(dep)),
+                                                stagefile.stages[dep].output)
+                                          for dep in spec.inputs},
+                       _mesh_sources(spec, scene, c), (str(path), spec.output),
+                       str(workdir.marker(name, c.id)), layout.sizes) for c in todo]
+    bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
+               file=sys.stderr, leave=False)
+    for _ in executor.map_unordered(execute_chunk, tasks):
+        bar.update()
+    bar.close()
+    records = [chunkwrite.read_marker(workdir.marker(name, c)) for c in ids]
+    lost = [c for c, r in zip(ids, records, strict=True)
+            if r is None or r.get("key") != p.chunk_keys[c]]
+    if lost:
+        raise PrtError(workdir.marker(name, lost[0]), "chunk record missing after the run")
+    output = impl.finalize(ctx, [(c, r["meta"]) for c, r in zip(p.chunks, records,
+                                                                strict=True)])
+    chunk_digests = {c: r["digest"] for c, r in zip(ids, records, strict=True)}
+    seconds = time.perf_counter() - start
+    chunkwrite.finish(path, schema, ids, output.arrays, output.attrs, {
+        "chunk_digests": chunk_digests,
+        "digest": digest({"chunks": [chunk_digests[c] for c in ids],
+                          "finalized": arrays_digest(output.arrays, output.attrs)}),
+        "seconds": seconds, "chunk_seconds": {c: r["seconds"] for c, r in
+                                              zip(ids, records, strict=True)},
+        "software": software_versions(),
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
+        layout.sizes)
+    _drop_stale_markers(workdir, name, set(ids))
+    done = {c.id for c in todo}
+    return StageRun(name, "ran", [c for c in ids if c in done],
+                    [c for c in ids if c not in done], seconds,
+                    "forced" if forced else p.reason)
+
+
+def _drop_stale_markers(workdir: Workdir, stage: str, keep: set[str]) -> None:
+    kept = {workdir.marker(stage, chunk).name for chunk in keep}
+    folder = workdir.markers(stage)
     if folder.is_dir():
         for child in folder.iterdir():
             if child.name not in kept:
-                shutil.rmtree(child, ignore_errors=True)
+                child.unlink(missing_ok=True)

@@ -1,11 +1,22 @@
 """Artifact schemas: one versioned YAML file per artifact kind in ``data_schema/``.
 
-A schema declares, for each array, its dimension names, dtype and chunk shape, plus the
-required attributes and their types. Chunk entries are integers or symbols: a symbol that
-names one of the array's own dimensions means "that whole dimension"; any other symbol
-(``tile``, ``vertex_chunk``) is a size the writer supplies. Writers call
-:meth:`Schema.check_arrays` before writing; readers compare kind and version with
-:meth:`Schema.check_header`.
+A schema declares, for each array, its dimension names, dtype and chunk shape, how a
+chunked stage writes it, plus the required attributes and their types. ``write``:
+
+* ``whole`` (default): written at once, by an unchunked stage's one chunk or by the
+  stage's ``finalize``;
+* ``region``: a fixed full shape (the stage's ``layout``); each chunk writes its block
+  in place (pixel tiles, one material's row), zarr chunks aligned with the blocks;
+* ``segments``: each chunk writes its own variable-length piece along the first
+  dimension (a pixel tile's CSR rows, an object's vertices); readers see the pieces
+  concatenated in chunk order. ``offset_by: ARRAY`` marks segment-local indices into
+  another segmented array (an object's faces into its vertices): read back, each
+  piece is offset by where that array's piece of the same chunk starts.
+
+Chunk entries are integers or symbols: a symbol that names one of the array's own
+dimensions means "that whole dimension"; any other symbol (``tile``, ``vertex_chunk``)
+is a size the writer supplies. Writers check arrays, pieces and attributes before
+writing; readers compare kind and version with :meth:`Schema.check_header`.
 """
 
 from __future__ import annotations
@@ -21,6 +32,7 @@ import yaml
 from pipeline.errors import PrtError
 from pipeline.searchpath import schema_dirs
 
+WRITES = ("whole", "region", "segments")
 _ATTR_TYPES = {"int": int, "float": (int, float), "str": str, "list": list, "dict": dict,
                "bool": bool}
 
@@ -34,6 +46,8 @@ class ArraySpec:
     dtype: np.dtype
     chunks: tuple[int | str, ...]
     description: str
+    write: str = "whole"
+    offset_by: str | None = None
 
     def chunk_shape(self, shape: tuple[int, ...], sizes: dict[str, int]) -> tuple[int, ...]:
         """Concrete chunk shape for an array of ``shape`` (each entry clipped to [1, dim])."""
@@ -72,17 +86,30 @@ class Schema:
         dim_sizes: dict[str, tuple[int, str]] = {}
         for name, spec in self.arrays.items():
             data = arrays[name]
-            if data.ndim != len(spec.dims):
-                raise PrtError(where, f"array {name}: expected {len(spec.dims)} dimensions "
-                               f"{list(spec.dims)}, found shape {data.shape}")
-            if data.dtype != spec.dtype:
-                raise PrtError(where, f"array {name}: expected dtype {spec.dtype}, "
-                               f"found {data.dtype}")
+            self.check_array(name, data, where)
             for dim, size in zip(spec.dims, data.shape, strict=True):
                 seen = dim_sizes.setdefault(dim, (size, name))
                 if seen[0] != size:
                     raise PrtError(where, f"dimension {dim}: {size} in array {name} but "
                                    f"{seen[0]} in array {seen[1]}")
+        self.check_attrs(attrs, where)
+
+    def check_array(self, name: str, data: np.ndarray, where: str) -> None:
+        """Raise PrtError unless ``data`` (a whole array or a chunk's piece of it) has
+        the declared rank and dtype of array ``name``."""
+        spec = self.arrays.get(name)
+        if spec is None:
+            raise PrtError(where, f"array {name!r} is not in schema {self.kind} "
+                           f"v{self.version} (arrays: {', '.join(self.arrays)})")
+        if data.ndim != len(spec.dims):
+            raise PrtError(where, f"array {name}: expected {len(spec.dims)} dimensions "
+                           f"{list(spec.dims)}, found shape {data.shape}")
+        if data.dtype != spec.dtype:
+            raise PrtError(where, f"array {name}: expected dtype {spec.dtype}, "
+                           f"found {data.dtype}")
+
+    def check_attrs(self, attrs: dict[str, Any], where: str) -> None:
+        """Raise PrtError unless every required attribute is present and typed."""
         for key, type_name in self.attrs.items():
             if key not in attrs:
                 raise PrtError(where, f"missing attribute {key!r} required by schema "
@@ -117,12 +144,20 @@ def _load_schema(kind: str, dirs: tuple[Path, ...]) -> Schema:
     try:
         arrays = {
             name: ArraySpec(name, tuple(spec["dims"]), np.dtype(spec["dtype"]),
-                            tuple(spec["chunks"]), spec.get("description", ""))
+                            tuple(spec["chunks"]), spec.get("description", ""),
+                            spec.get("write", "whole"), spec.get("offset_by"))
             for name, spec in doc["arrays"].items()
         }
         for spec in arrays.values():
             if len(spec.chunks) != len(spec.dims):
                 raise ValueError(f"array {spec.name}: chunks and dims differ in length")
+            if spec.write not in WRITES:
+                raise ValueError(f"array {spec.name}: write {spec.write!r}, expected one "
+                                 f"of {', '.join(WRITES)}")
+            if spec.offset_by is not None and (
+                    spec.write != "segments"
+                    or arrays.get(spec.offset_by, spec).write != "segments"):
+                raise ValueError(f"array {spec.name}: offset_by needs two segmented arrays")
         attrs = {k: v for k, v in (doc.get("attrs") or {}).items()}
         unknown = sorted(set(attrs.values()) - set(_ATTR_TYPES))
         if unknown:

@@ -2,9 +2,10 @@
 
 Layout of a work directory (default ``./.prt/<scene name>/``)::
 
-    <stage>.zarr/            the stage's artifact: a zarr v3 group conforming to its schema
-    .chunks/<stage>/<chunk>/ cached per-chunk results of chunked stages (zarr groups)
-    .tmp/                    writes in progress; renamed into place only when complete
+    <stage>.zarr/            the stage's artifact: a zarr v3 group conforming to its schema,
+                             written chunk by chunk in place (pipeline/chunkwrite.py)
+    .chunks/<stage>/<chunk>.json  the record of each chunk written (key, digest, seconds)
+    .tmp/                    whole writes in progress (references), renamed into place
     .lock                    held by the one run that may write here
 
 Every group carries a provenance record in its attributes under ``prt`` (format
@@ -43,11 +44,11 @@ class Workdir:
     def artifact(self, name: str) -> Path:
         return self.root / f"{name}.zarr"
 
-    def piece(self, stage: str, chunk: str) -> Path:
-        """The cached result of one chunk (a ``/`` in a chunk id becomes ``~``)."""
-        return self.root / ".chunks" / stage / chunk.replace("/", "~")
+    def marker(self, stage: str, chunk: str) -> Path:
+        """The record of one written chunk (a ``/`` in a chunk id becomes ``~``)."""
+        return self.root / ".chunks" / stage / f"{chunk.replace('/', '~')}.json"
 
-    def pieces(self, stage: str) -> Path:
+    def markers(self, stage: str) -> Path:
         return self.root / ".chunks" / stage
 
     @property
@@ -166,7 +167,9 @@ def read_record(path: Path) -> dict[str, Any] | None:
 
 
 class Artifact:
-    """A read-only zarr group: checked header, lazily readable arrays."""
+    """A read-only zarr group: checked header, lazily readable arrays. A segmented array
+    (pipeline/schema.py: one piece per chunk, a zarr group of arrays) reads as the
+    concatenation of its pieces in the record's chunk order."""
 
     def __init__(self, path: Path, group: Any, record: dict[str, Any]) -> None:
         self.path = path
@@ -175,29 +178,62 @@ class Artifact:
 
     @property
     def attrs(self) -> dict[str, Any]:
-        return dict(self.group.attrs)
+        return {k: v for k, v in self.group.attrs.items() if k != "prt"}
 
     @property
     def names(self) -> list[str]:
-        return sorted(name for name, _ in self.group.arrays())
+        return sorted([name for name, _ in self.group.arrays()]
+                      + [name for name, _ in self.group.groups()])
 
     def array(self, name: str) -> Any:
-        """The zarr array (lazy); raise PrtError if absent."""
+        """The zarr array (lazy), or for a segmented array its first piece; raise
+        PrtError if absent."""
+        node = self._node(name)
+        return node if not self.is_segmented(name) else next(iter(self.pieces(name)), node)
+
+    def _node(self, name: str) -> Any:
         try:
             return self.group[name]
         except KeyError:
             raise PrtError(self.path, f"has no array {name!r}") from None
 
+    def is_segmented(self, name: str) -> bool:
+        import zarr
+
+        return isinstance(self._node(name), zarr.Group)
+
+    def pieces(self, name: str) -> list[Any]:
+        """A segmented array's pieces (zarr arrays) in chunk order."""
+        node = self._node(name)
+        order = [c.replace("/", "~") for c in self.record.get("chunks", [])]
+        present = {n: a for n, a in node.arrays()}
+        return [present[c] for c in order if c in present]
+
     def read(self, name: str, region: tuple[slice, ...] | None = None) -> np.ndarray:
         """Read an array (or a region of it) into memory, naming a corrupt chunk file."""
-        arr = self.array(name)
+        if self.is_segmented(name):
+            whole = self._read_segments(name)
+            return whole if region is None else whole[region]
+        return self._read_array(self._node(name), region)
+
+    def _read_array(self, arr: Any, region: tuple[slice, ...] | None = None) -> np.ndarray:
         try:
             return np.asarray(arr[...] if region is None else arr[region])
         except Exception as exc:  # codec errors come in many types
-            bad = _find_bad_chunk(arr) or name
+            bad = _find_bad_chunk(arr) or arr.path
             raise PrtError(self.path / bad, f"corrupt or truncated chunk "
                            f"({type(exc).__name__}: {exc}); re-bake with `prt run --force "
                            f"{self.record.get('stage', 'STAGE')}`") from None
+
+    def _read_segments(self, name: str) -> np.ndarray:
+        parts = [self._read_array(p) for p in self.pieces(name)]
+        spec = load_schema(self.record["kind"]).arrays[name]
+        if spec.offset_by is not None:
+            starts = np.cumsum([0] + [p.shape[0] for p in self.pieces(spec.offset_by)])
+            parts = [part + starts[i] for i, part in enumerate(parts)]
+        if not parts:
+            return np.zeros((0, *([0] * (len(spec.dims) - 1))), spec.dtype)
+        return np.concatenate(parts).astype(spec.dtype, copy=False)
 
     def read_all(self) -> dict[str, np.ndarray]:
         return {name: self.read(name) for name in self.names}
@@ -211,7 +247,7 @@ def _find_bad_chunk(arr: Any) -> str | None:
         try:
             arr[region]
         except Exception:
-            return "/".join([arr.basename, "c", *map(str, index)])
+            return "/".join([arr.path, "c", *map(str, index)])
     return None
 
 
@@ -222,6 +258,9 @@ def open_group(path: Path) -> Artifact:
     record = read_record(path)
     if record is None:
         raise PrtError(path, "artifact not found; run `prt run` first")
+    if record.get("complete") is False:
+        raise PrtError(path, "artifact is incomplete (a run was interrupted); `prt run` "
+                       "finishes it")
     try:
         group = zarr.open_group(store=str(path), mode="r", zarr_format=3)
     except Exception as exc:

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
+from pipeline.errors import PrtError
 from pipeline.executors import LocalPoolExecutor
 from pipeline.runner import plan, run
 from pipeline.scene import load_scene
@@ -50,7 +51,7 @@ def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path, jobs):
     args = ("run", str(scene_path), "--stages", str(STAGEFILE), "--workdir", str(killed.root),
             "--jobs", jobs, "-q")
     proc = cli(*args)
-    pieces = killed.pieces("tiles")
+    pieces = killed.markers("tiles")
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         if pieces.is_dir() and len(list(pieces.iterdir())) >= 3:
@@ -60,16 +61,21 @@ def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path, jobs):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     time.sleep(0.5)  # let the kernel deliver SIGKILL to pool workers too (PDEATHSIG)
-    finished_before_kill = sorted(p.name for p in pieces.iterdir())
+    finished_before_kill = sorted(p.stem for p in pieces.glob("*.json"))
     assert 3 <= len(finished_before_kill) < 9
 
-    # Every earlier artifact is complete, readable and fresh; tiles was never written.
+    # Every earlier artifact is complete, readable and fresh; tiles is incomplete, and
+    # refused by readers until a run finishes it.
     scene = load_scene(scene_path)
-    states = {p.spec.name: p.state for p in plan(scene, stagefile, killed)}
-    assert states == {"geometry": "fresh", "gbuffer": "fresh", "per_object": "fresh",
-                      "total": "fresh", "tiles": "missing"}
+    states = {p.spec.name: (p.state, p.reason) for p in plan(scene, stagefile, killed)}
+    assert {n: s for n, (s, _) in states.items()} == {
+        "geometry": "fresh", "gbuffer": "fresh", "per_object": "fresh", "total": "fresh",
+        "tiles": "stale"}
+    assert states["tiles"][1].startswith("incomplete")
     for stage in STAGES[:-1]:
         open_artifact(killed.artifact(stage)).read_all()
+    with pytest.raises(PrtError, match="incomplete"):
+        open_artifact(killed.artifact("tiles"))
 
     report = run(scene, stagefile, killed, progress=False)
     tiles = [r for r in report if r.name == "tiles"][0]
@@ -91,3 +97,21 @@ def test_two_jobs_equal_one_job(tmp_path):
     for stage in STAGES:
         assert read_record(serial.artifact(stage))["key"] == \
             read_record(parallel.artifact(stage))["key"]
+
+
+def outside_artifacts(workdir: Workdir) -> list[Path]:
+    """Files of a work directory that are not inside an artifact (``*.zarr``)."""
+    return [p for p in workdir.root.rglob("*") if p.is_file()
+            and not any(part.endswith(".zarr") for part in p.relative_to(workdir.root).parts)]
+
+
+def test_workdir_holds_one_copy_of_each_artifact(tmp_path):
+    """Chunks are written in place: besides the artifacts, a work directory holds only
+    the chunks' small JSON records and the lock, no second copy of any data."""
+    workdir = Workdir(tmp_path / "w")
+    run(load_scene(write_scene(tmp_path, small_scene_dict())), load_stagefile(STAGEFILE),
+        workdir, progress=False)
+    others = outside_artifacts(workdir)
+    assert {p.suffix for p in others} <= {".json", ""} and \
+        {p.name for p in others if p.suffix == ""} == {".lock"}
+    assert sum(p.stat().st_size for p in others) < 64 * 1024

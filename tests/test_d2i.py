@@ -11,7 +11,8 @@ from pipeline import job, metrics
 from pipeline.errors import PrtError
 from pipeline.method import get_method
 from pipeline.reference import ReferenceSettings
-from pipeline.render.d2i import D2iRenderer, Rows
+from pipeline.render.d2i import D2iRenderer
+from pipeline.rows import Rows
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.scene_edits import with_light_offset, with_material_edits
 from pipeline.store import open_artifact

@@ -99,7 +99,8 @@ def test_truncate_stage_cut_agrees_with_truncating_from_scratch():
     """The d2i.truncate stage cuts stored rows (kept near-losslessly, with their residual) to a
     tolerance; that gives the same counts as truncating the full rows to that tolerance,
     and its CSR prefix cut keeps exactly those coefficients."""
-    from pipeline.stages.truncate import cut_rows, kept_counts
+    from pipeline.rows import cut_rows
+    from pipeline.stages.truncate import kept_counts
 
     rows = np.cumsum(np.random.default_rng(6).normal(size=(8, 512)), axis=1)
     w = haar.forward(rows)

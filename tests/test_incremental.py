@@ -175,6 +175,11 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
 
     fresh = Workdir(tmp_path / "fresh")
     job.bake(load_scene(write_scene(tmp_path, edited, "edited.yaml")), fresh, quiet=True)
+    # one copy on disk: outside the artifacts only the chunk records (small JSON)
+    artifacts = sum(p.stat().st_size for p in fresh.root.glob("*.zarr/**/*") if p.is_file())
+    others = [p for p in fresh.root.rglob("*") if p.is_file() and ".zarr" not in str(p)]
+    assert all(p.suffix == ".json" or p.name == ".lock" for p in others)
+    assert sum(p.stat().st_size for p in others) < 0.05 * artifacts
     for name in ("brdf_basis", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate"):
         a, b = (open_artifact(w.artifact(name)).read_all() for w in (workdir, fresh))
         assert a.keys() == b.keys()

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -52,43 +51,12 @@ from pipeline.math.lights import shade_direct
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader, packed_scene_lights
 from pipeline.render.shadows import light_visibility
+from pipeline.rows import Rows
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
 GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
-
-
-@dataclass
-class Rows:
-    """CSR rows on the host: ``offsets`` (rows + 1,) int32, ``index`` uint16 where the
-    radiance vector has at most 2^16 entries (a quarter fewer bytes for the products to
-    stream), else int32, ``value`` float32."""
-
-    offsets: np.ndarray
-    index: np.ndarray
-    value: np.ndarray
-
-    @classmethod
-    def from_counts(cls, count: np.ndarray, index: np.ndarray, value: np.ndarray,
-                    size: int) -> Rows:
-        """Rows over a radiance vector of ``size`` entries."""
-        offsets = np.concatenate([[0], np.cumsum(count, dtype=np.int64)]).astype(np.int32)
-        return cls(offsets, np.ascontiguousarray(index, index_dtype(size)),
-                   np.ascontiguousarray(value, np.float32))
-
-    @property
-    def count(self) -> int:
-        return len(self.offsets) - 1
-
-    @property
-    def nbytes(self) -> int:
-        return self.offsets.nbytes + self.index.nbytes + self.value.nbytes
-
-
-def index_dtype(size: int) -> type:
-    """The narrowest index type of rows over a radiance vector of ``size`` entries."""
-    return np.uint16 if size <= 1 << 16 else np.int32
 
 
 class D2iRenderer:

@@ -1,14 +1,22 @@
 """Stage implementations and the contract between a stage and the runner.
 
-A stage module provides two plain functions:
+A stage module provides plain functions:
 
-``run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]``
-    computes one chunk (an object, a pixel tile, or the whole stage) from its declared
-    inputs, params and scene sections; it opens no files and picks no paths.
-``assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output``
-    combines the chunks' results (in chunk order) into the artifact's arrays and attrs.
+``layout(ctx: AssembleContext) -> Layout`` (optional)
+    before any chunk runs: the full shapes of the artifact's ``region`` arrays and the
+    symbolic zarr chunk sizes of its schema (``tile``, ``row_chunk``, ...);
+``run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray | Block]``
+    computes one chunk (an object, a pixel tile, a block, or the whole stage) from its
+    declared inputs, params and scene sections: a :class:`Block` of each ``region``
+    array, its piece of each ``segments`` array, the ``whole`` arrays of an unchunked
+    stage (pipeline/schema.py); small per-chunk facts for ``finalize`` go in
+    ``ctx.meta`` (JSON values). It opens no files and picks no paths;
+``finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output``
+    once every chunk is written: the artifact's attributes, and any small ``whole``
+    arrays derived from the chunks' metadata (in chunk order).
 
-The runner owns everything else: keys, I/O, seeding, progress and executors.
+The runner owns everything else: keys, I/O (chunks are written in place into the final
+artifact, pipeline/chunkwrite.py), seeding, progress and executors.
 
 stages.yaml names a stage's implementation by module: ``impl: transfer`` is the module
 ``pipeline.stages.transfer``; a dotted name (``toy.per_object``, ``pkg.mod:attr``) is
@@ -23,10 +31,12 @@ from typing import Any
 import numpy as np
 
 from pipeline.chunk import ALL, Chunk
+from pipeline.chunkwrite import Block
 from pipeline.meshio import RawMesh
 from pipeline.store import Artifact
 
-__all__ = ["AssembleContext", "Chunk", "ChunkContext", "Output", "stitch_tiles"]
+__all__ = ["AssembleContext", "Block", "Chunk", "ChunkContext", "Layout", "Output",
+           "tile_blocks"]
 
 
 @dataclass
@@ -48,26 +58,27 @@ class ChunkContext(AssembleContext):
     key: str = ""
     rng: np.random.Generator = field(default_factory=np.random.default_rng)
     meshes: dict[str, RawMesh] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Layout:
+    """What a chunked artifact looks like before its chunks run: ``shapes`` of its
+    ``region`` arrays, ``sizes`` resolving symbolic chunk entries (``{"tile": 64}``)."""
+
+    shapes: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    sizes: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
 class Output:
-    """An artifact's content: arrays and attrs as its schema declares, plus the sizes
-    that resolve symbolic chunk entries (e.g. ``{"tile": 64}``)."""
+    """What ``finalize`` adds: the artifact's ``attrs`` and small ``whole`` arrays."""
 
-    arrays: dict[str, np.ndarray]
     attrs: dict[str, Any]
-    sizes: dict[str, int] = field(default_factory=dict)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def stitch_tiles(pieces: list[tuple[Chunk, dict[str, np.ndarray]]], height: int,
-                 width: int) -> dict[str, np.ndarray]:
-    """Place tile chunks' (th, tw, ...) arrays into full (height, width, ...) images."""
-    first = pieces[0][1]
-    images = {name: np.zeros((height, width, *a.shape[2:]), dtype=a.dtype)
-              for name, a in first.items()}
-    for chunk, arrays in pieces:
-        y0, y1, x0, x1 = chunk.region
-        for name, a in arrays.items():
-            images[name][y0:y1, x0:x1] = a
-    return images
+def tile_blocks(chunk: Chunk, arrays: dict[str, np.ndarray]) -> dict[str, Block]:
+    """A pixel (or texel) tile chunk's (th, tw, ...) arrays as blocks of full images."""
+    y0, _, x0, _ = chunk.region
+    return {name: Block((y0, x0), a) for name, a in arrays.items()}

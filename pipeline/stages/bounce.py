@@ -16,13 +16,12 @@ import numpy as np
 
 from pipeline.math.frames import tangent_from_normal
 from pipeline.math.transfer import Receivers
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.stages.transfer import (
     PIXEL_BATCH,
-    ROW_FIELDS,
     center_visibility,
     compress_rows,
-    join_arrays,
     scene_tools,
 )
 
@@ -41,15 +40,15 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         vis = center_visibility(tracer, position, normal, disks, epsilon)
         ms, _ = kernel(receivers, vis, None)
         parts.append(compress_rows(ms * disks.inverse_area, disks.area, keep, cap))
-    return {k: join_arrays([p[k] for p in parts], dt) for k, dt in ROW_FIELDS.items()}
+    return {f"ms_{k}": join_arrays([p[k] for p in parts], dt) for k, dt in ROW_FIELDS.items()}
 
 
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
-    arrays = {f"ms_{k}": join_arrays([a[k] for _, a in pieces], dt)
-              for k, dt in ROW_FIELDS.items()}
-    count = int(ctx.inputs["d2i.gather"].attrs["count"])
-    return Output(arrays, attrs={
-        "gather_count": count,
+def layout(ctx: AssembleContext) -> Layout:
+    return Layout(sizes=ROW_CHUNKS)
+
+
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    return Output({
+        "gather_count": int(ctx.inputs["d2i.gather"].attrs["count"]),
         "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
-        "max_coefficients": int(ctx.params["transfer.max_coefficients"])},
-        sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})
+        "max_coefficients": int(ctx.params["transfer.max_coefficients"])})

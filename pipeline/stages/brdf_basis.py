@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.brdf_pca import BASIS_FIELDS, build_basis, gamma_test_grid
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.stages import AssembleContext, Block, Chunk, ChunkContext, Layout, Output
 
 _FIELDS = BASIS_FIELDS
 
@@ -23,7 +23,29 @@ def _material_section(ctx: AssembleContext, name: str, key: str) -> Any:
     return ctx.scene.get(f"materials.{name}.{key}")
 
 
-def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+def layout(ctx: AssembleContext) -> Layout:
+    """One row per scene material in every array."""
+    n = len({key.split(".")[1] for key in ctx.scene if key.startswith("materials.")})
+    max_k = int(ctx.params["brdf_basis.max_k"])
+    h = int(ctx.params["brdf_basis.coordinate_samples"])
+    n_gamma = int(ctx.params["brdf_basis.gamma_samples"])
+    n_test = len(gamma_test_grid(1.0, 2.0, n_gamma))
+    return Layout({"grid": (n, h), "gamma_samples": (n, n_gamma), "mean": (n, h),
+                   "basis": (n, max_k, h), "projection": (n, max_k, h),
+                   "singular_values": (n, n_gamma), "gamma_test": (n, n_test),
+                   "rms": (n, max_k + 1, n_test), "rel_rms": (n, max_k + 1, n_test),
+                   "k": (n,)})
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, Block]:
+    """The material's row of every array; whether the tolerance was reached goes to
+    ``finalize`` through ``ctx.meta``."""
+    arrays, reached = _basis_arrays(ctx)
+    ctx.meta["reached"] = reached
+    return {name: Block((ctx.chunk.index,), a[None]) for name, a in arrays.items()}
+
+
+def _basis_arrays(ctx: ChunkContext) -> tuple[dict[str, np.ndarray], bool]:
     name = ctx.chunk.material
     model = _material_section(ctx, name, "model")
     max_k = int(ctx.params["brdf_basis.max_k"])
@@ -35,15 +57,15 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
                 "basis": np.zeros((max_k, h)), "projection": np.zeros((max_k, h)),
                 "singular_values": np.zeros(n_gamma), "gamma_test": np.zeros(n_test),
                 "rms": np.zeros((max_k + 1, n_test)), "rel_rms": np.zeros((max_k + 1, n_test)),
-                "k": np.zeros(1, np.int32), "reached": np.ones(1, bool)}
+                "k": np.zeros((), np.int32)}, True
     lo, hi = _material_section(ctx, name, "gamma_range")
     tolerance = _tolerance(ctx, name)
     params = BrdfParams(model, (0.0, 0.0, 0.0), gamma=lo,
                         alpha_ratio=_material_section(ctx, name, "alpha_ratio") or 1.0)
     basis = build_basis(params, (lo, hi), tolerance, max_k, n_gamma, h)
     arrays = {f: getattr(basis, f) for f in _FIELDS}
-    reached = basis.rel_rms[basis.k].max() <= tolerance
-    return {**arrays, "k": np.array([basis.k], np.int32), "reached": np.array([reached])}
+    reached = bool(basis.rel_rms[basis.k].max() <= tolerance)
+    return {**arrays, "k": np.array(basis.k, np.int32)}, reached
 
 
 def _tolerance(ctx: AssembleContext, name: str) -> float:
@@ -51,17 +73,15 @@ def _tolerance(ctx: AssembleContext, name: str) -> float:
     return float(own if own is not None else ctx.params["brdf_basis.tolerance"])
 
 
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
-    names = [chunk.material for chunk, _ in pieces]
-    arrays = {f: np.stack([a[f] for _, a in pieces]) for f in _FIELDS}
-    arrays["k"] = np.concatenate([a["k"] for _, a in pieces]).astype(np.int32)
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    names = [chunk.material for chunk, _ in metas]
     models = [_material_section(ctx, n, "model") for n in names]
-    return Output(arrays, attrs={
+    return Output({
         "material_names": names,
         "models": models,
         "gamma_ranges": [_material_section(ctx, n, "gamma_range") for n in names],
         "tolerances": [None if m == "lambert" else _tolerance(ctx, n)
                        for n, m in zip(names, models, strict=True)],
-        "reached": [bool(a["reached"][0]) for _, a in pieces],
+        "reached": [bool(m["reached"]) for _, m in metas],
         "max_k": int(ctx.params["brdf_basis.max_k"]),
     })

@@ -59,7 +59,7 @@ from pipeline.math.frames import tangent_from_normal
 from pipeline.math.spacecurve import chart_order
 from pipeline.math.transfer import disk_pattern
 from pipeline.raytrace import Mesh, RayTracer, surface_at
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 NEIGHBOURS = 8     # gather samples considered for each surface sample
 FACING = 0.5       # least n_g · n_s for a surface sample to join gather sample g
@@ -110,6 +110,10 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     subarea_max = int(ctx.params["gather.subarea_max"])
     if subarea_max & (subarea_max - 1):
         raise PrtError(None, f"gather.subarea_max = {subarea_max}: expected a power of two")
+    area32 = area.astype(np.float32)
+    ctx.meta.update({"dropped_area": float(dropped), "requested": int(count),
+                     "count": len(area32), "glossy_count": int(samples["group"].sum()),
+                     "total_area": float(area32.sum(dtype=np.float64))})
     return {
         "position": samples["position"].astype(np.float32),
         "normal": samples["normal"].astype(np.float32),
@@ -118,13 +122,11 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         "face": samples["face"].astype(np.int32),
         "group": samples["group"],
         "source_pixel": samples["source_pixel"].astype(np.int32),
-        "area": area.astype(np.float32),
+        "area": area32,
         "radius": np.sqrt(area / np.pi).astype(np.float32),
         "disk_tangent": tangent_from_normal(samples["normal"]).astype(np.float32),
         "disk_rotation": ctx.rng.uniform(0.0, 2.0 * np.pi, found).astype(np.float32),
         "disk_pattern": disk_pattern(subarea_max).astype(np.float32),
-        "dropped_area": np.array([dropped]),
-        "requested": np.array([count]),
     }
 
 
@@ -232,14 +234,15 @@ def _areas(position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
     return area, dropped
 
 
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
-    arrays = dict(pieces[0][1])
-    dropped = float(arrays.pop("dropped_area")[0])
-    requested = int(arrays.pop("requested")[0])
-    count = len(arrays["area"])
-    return Output(arrays, attrs={
-        "count": count, "requested": requested, "glossy_count": int(arrays["group"].sum()),
+def layout(ctx: AssembleContext) -> Layout:
+    return Layout(sizes={"gather": max(int(ctx.params["gather.count"]), 1)})
+
+
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    meta = metas[0][1]
+    return Output({
+        "count": meta["count"], "requested": meta["requested"],
+        "glossy_count": meta["glossy_count"],
         "glossy_exponent": float(ctx.params["gather.glossy_exponent"]),
         "subarea_max": int(ctx.params["gather.subarea_max"]),
-        "total_area": float(arrays["area"].sum(dtype=np.float64)), "dropped_area": dropped},
-        sizes={"gather": count})
+        "total_area": meta["total_area"], "dropped_area": meta["dropped_area"]})

@@ -13,7 +13,15 @@ import numpy as np
 
 from pipeline.math.camera import camera_frame, camera_rays
 from pipeline.raytrace import Mesh, RayTracer, surface_at
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output, stitch_tiles
+from pipeline.stages import (
+    AssembleContext,
+    Block,
+    Chunk,
+    ChunkContext,
+    Layout,
+    Output,
+    tile_blocks,
+)
 
 _TRACERS: dict[str, tuple[RayTracer, Mesh]] = {}
 
@@ -31,7 +39,16 @@ def _scene_tracer(ctx: ChunkContext) -> tuple[RayTracer, Mesh]:
     return _TRACERS[key]
 
 
-def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+def layout(ctx: AssembleContext) -> Layout:
+    """Full images, zarr chunks of the stage's tile."""
+    cam = ctx.scene["camera"]
+    h, w = cam["height"], cam["width"]
+    shapes = {"position": (h, w, 3), "normal": (h, w, 3), "tangent": (h, w, 3),
+              "object_id": (h, w), "material_id": (h, w), "uv": (h, w, 2), "depth": (h, w)}
+    return Layout(shapes, {"tile": int(ctx.params["gbuffer.tile"])})
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, Block]:
     cam = ctx.scene["camera"]
     y0, y1, x0, x1 = ctx.chunk.region
     shape = (y1 - y0, x1 - x0)
@@ -52,7 +69,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         out[hit] = a
         return out.reshape(*shape, *a.shape[1:])
 
-    return {
+    return tile_blocks(ctx.chunk, {
         "position": image(surface.position, np.float32),
         "normal": image(surface.normal, np.float32),
         "tangent": image(surface.tangent, np.float32),
@@ -60,13 +77,10 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         "material_id": image(surface.material_id, np.int32, -1),
         "uv": image(surface.uv, np.float32),
         "depth": image(depth[hit], np.float32),
-    }
+    })
 
 
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     cam = ctx.scene["camera"]
-    tile = int(ctx.params["gbuffer.tile"])
-    return Output(stitch_tiles(pieces, cam["height"], cam["width"]),
-                  attrs={"width": cam["width"], "height": cam["height"], "tile": tile,
-                         "camera": cam},
-                  sizes={"tile": tile})
+    return Output({"width": cam["width"], "height": cam["height"],
+                   "tile": int(ctx.params["gbuffer.tile"]), "camera": cam})

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
 
@@ -76,51 +76,50 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         length = np.linalg.norm(normals, axis=1)
     normals /= length[:, None]
 
+    vertices = world.astype(np.float32)
+    ctx.meta.update({
+        "vertices": len(vertices), "faces": len(faces),
+        "bbox_min": vertices.min(axis=0).astype(float).tolist(),
+        "bbox_max": vertices.max(axis=0).astype(float).tolist(),
+        "repairs": dict(zip(REPAIRS, (int(degenerate.sum()), int((bad_vertex & ~used).sum()),
+                                      int(cancelled.sum())), strict=True))})
     return {
-        "vertices": world.astype(np.float32),
+        "vertices": vertices,
         "normals": normals.astype(np.float32),
         "uv": uv.astype(np.float32),
-        "faces": faces.astype(np.int32),
-        "repairs": np.array([int(degenerate.sum()), int((bad_vertex & ~used).sum()),
-                             int(cancelled.sum())], dtype=np.int64),
+        "faces": faces.astype(np.int32),  # the object's own vertex indices (offset_by)
+        "face_object": np.full(len(faces), ctx.chunk.index, np.int32),
     }
 
 
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
+REPAIRS = ("degenerate_faces_dropped", "unused_nonfinite_vertices_dropped",
+           "normals_from_face")
+
+
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    """Object ranges and materials, the scene's bounding box, the repairs made."""
     material_names = list(ctx.scene["material_table"])
-    object_names = [chunk.object for chunk, _ in pieces]
-    offsets_v = np.cumsum([0] + [len(p["vertices"]) for _, p in pieces])
-    offsets_f = np.cumsum([0] + [len(p["faces"]) for _, p in pieces])
-    faces = np.concatenate([p["faces"] + offsets_v[i] for i, (_, p) in enumerate(pieces)])
-    vertices = np.concatenate([p["vertices"] for _, p in pieces])
+    object_names = [chunk.object for chunk, _ in metas]
+    offsets_v = np.cumsum([0] + [m["vertices"] for _, m in metas])
+    offsets_f = np.cumsum([0] + [m["faces"] for _, m in metas])
     ranges = np.stack([offsets_v[:-1], offsets_v[1:], offsets_f[:-1], offsets_f[1:]], axis=1)
     materials = [material_names.index(ctx.scene[f"objects.{name}.material"])
                  for name in object_names]
-    repairs = {
-        name: dict(zip(("degenerate_faces_dropped", "unused_nonfinite_vertices_dropped",
-                        "normals_from_face"), map(int, p["repairs"]), strict=True))
-        for (_, p), name in zip(pieces, object_names, strict=True)
-    }
     return Output(
-        arrays={
-            "vertices": vertices,
-            "normals": np.concatenate([p["normals"] for _, p in pieces]),
-            "uv": np.concatenate([p["uv"] for _, p in pieces]),
-            "faces": faces.astype(np.int32),
-            "face_object": np.repeat(np.arange(len(pieces), dtype=np.int32),
-                                     np.diff(offsets_f)),
-            "object_ranges": ranges.astype(np.int64),
-            "object_material": np.asarray(materials, dtype=np.int32),
-        },
         attrs={
             "object_names": object_names,
             "material_names": material_names,
-            "bbox_min": vertices.min(axis=0).astype(float).tolist(),
-            "bbox_max": vertices.max(axis=0).astype(float).tolist(),
-            "repairs": repairs,
-            "vertex_counts": {name: int(offsets_v[i + 1] - offsets_v[i])
-                              for i, name in enumerate(object_names)},
+            "bbox_min": np.min([m["bbox_min"] for _, m in metas], axis=0).tolist(),
+            "bbox_max": np.max([m["bbox_max"] for _, m in metas], axis=0).tolist(),
+            "repairs": {name: m["repairs"] for (_, m), name in zip(metas, object_names,
+                                                                   strict=True)},
+            "vertex_counts": {name: int(m["vertices"]) for (_, m), name in
+                              zip(metas, object_names, strict=True)},
         },
-        sizes={"vertex_chunk": int(ctx.params["geometry.vertex_chunk"]),
-               "face_chunk": int(ctx.params["geometry.vertex_chunk"])},
-    )
+        arrays={"object_ranges": ranges.astype(np.int64),
+                "object_material": np.asarray(materials, dtype=np.int32)})
+
+
+def layout(ctx: AssembleContext) -> Layout:
+    chunk = int(ctx.params["geometry.vertex_chunk"])
+    return Layout(sizes={"vertex_chunk": chunk, "face_chunk": chunk})

@@ -49,7 +49,8 @@ from pipeline.math.transfer import (
     subarea_points,
 )
 from pipeline.raytrace import RayTracer
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays, sort_rows
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
@@ -308,7 +309,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
                     1))
     out = {f"d_{k}": v for k, v in _rows_by_pixel(pixel, d_parts).items()}
     out.update({f"t_{k}": v for k, v in _rows_by_pixel(pixel, t_parts).items()})
-    return out
+    return out  # the tile's rows: pieces of the artifact's segmented arrays
 
 
 def _rows_by_pixel(pixel: np.ndarray, parts: list[tuple[np.ndarray, dict, int]]
@@ -323,43 +324,17 @@ def _rows_by_pixel(pixel: np.ndarray, parts: list[tuple[np.ndarray, dict, int]]
     return out
 
 
-ROW_FIELDS = {"count": np.int32, "residual": np.float32, "index": np.int32,
-               "value": np.float32}
+def layout(ctx: AssembleContext) -> Layout:
+    return Layout(sizes=ROW_CHUNKS)
 
 
-def join_arrays(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
-    return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
-
-
-def sort_rows(key: np.ndarray, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """CSR rows (``count``, ``residual`` per row; flat ``index``, ``value``) reordered by
-    ``key`` (one per row; stable, so rows with equal keys keep their order)."""
-    order = np.argsort(key, kind="stable")
-    count = rows["count"].astype(np.int64)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    new_count = count[order]
-    new_start = np.concatenate([[0], np.cumsum(new_count)[:-1]])
-    entry = np.repeat(start[order] - new_start, new_count) + np.arange(new_count.sum())
-    return {"count": rows["count"][order], "residual": rows["residual"][order],
-            "index": rows["index"][entry], "value": rows["value"][entry]}
-
-
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
-    """All tiles' rows: D in raster order of the whole image, T rows of the glossy pixels
-    in raster order (each pixel's b0 row first)."""
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    """The rows are the tiles' pieces in tile order; ``d_pixel`` and ``t_pixel`` name
+    each row's pixel (the truncate stage orders them by pixel)."""
     cam = ctx.scene["camera"]
-    arrays: dict[str, np.ndarray] = {}
-    for m in ("d", "t"):
-        rows = {k: join_arrays([a[f"{m}_{k}"] for _, a in pieces], dt)
-                for k, dt in ROW_FIELDS.items()}
-        key = join_arrays([a[f"{m}_pixel"] for _, a in pieces], np.int32)
-        arrays.update({f"{m}_{k}": v for k, v in sort_rows(key, rows).items()})
-        if m == "t":
-            arrays["t_pixel"] = np.sort(key, kind="stable")
     gather_count = int(ctx.inputs["d2i.gather"].attrs["count"])
-    return Output(arrays, attrs={
+    return Output({
         "width": cam["width"], "height": cam["height"], "gather_count": gather_count,
         "haar_length": haar.padded_length(gather_count),
         "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
-        "max_coefficients": int(ctx.params["transfer.max_coefficients"])},
-        sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})
+        "max_coefficients": int(ctx.params["transfer.max_coefficients"])})

@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
+from pipeline.rows import ROW_CHUNKS, cut_rows, sort_rows
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 BUDGETS = ("tolerance", "proportional")
 
@@ -59,19 +60,6 @@ def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
     return np.minimum(needed + 1, count)
 
 
-def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.ndarray
-             ) -> dict[str, np.ndarray]:
-    """CSR rows cut to their first ``keep`` entries (≤ count)."""
-    count = count.astype(np.int64)
-    keep = np.minimum(keep.astype(np.int64), count)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    row_of = np.repeat(np.arange(len(count)), count)
-    position = np.arange(len(index)) - start[row_of]
-    mask = position < keep[row_of]
-    return {"count": keep.astype(np.int32), "index": index[mask].astype(np.int32),
-            "value": value[mask].astype(np.float32)}
-
-
 def _budget(ctx: AssembleContext, prefix: str, arrays: dict[str, np.ndarray],
             proportional: np.ndarray | None) -> dict[str, np.ndarray]:
     count, value = arrays[f"{prefix}_count"], arrays[f"{prefix}_value"]
@@ -95,11 +83,20 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     transfer, bounce = ctx.inputs["d2i.transfer"], ctx.inputs["d2i.bounce"]
     arrays: dict[str, Any] = {n: transfer.read(n) for n in transfer.names}
     arrays.update({n: bounce.read(n) for n in bounce.names})
-    out = _budget(ctx, "d", arrays, None)
+    out = _by_pixel(_budget(ctx, "d", arrays, None), arrays["d_pixel"], "d")
     out.update(_budget(ctx, "ms", arrays, None))
-    out.update(_budget(ctx, "t", arrays, _proportional_t(ctx, arrays)))
-    out["t_pixel"] = arrays["t_pixel"]
+    out.update(_by_pixel(_budget(ctx, "t", arrays, _proportional_t(ctx, arrays)),
+                         arrays["t_pixel"], "t"))
+    out["t_pixel"] = np.sort(arrays["t_pixel"], kind="stable")
     return out
+
+
+def _by_pixel(rows: dict[str, np.ndarray], pixel: np.ndarray, prefix: str
+              ) -> dict[str, np.ndarray]:
+    """Rows (in the transfer stage's tile order) in raster order of their pixels, a
+    pixel's rows staying in order."""
+    plain = {k[len(prefix) + 1:]: v for k, v in rows.items()}
+    return {f"{prefix}_{k}": v for k, v in sort_rows(pixel, plain).items()}
 
 
 def _proportional_t(ctx: AssembleContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
@@ -120,13 +117,15 @@ def _proportional_t(ctx: AssembleContext, arrays: dict[str, np.ndarray]) -> np.n
     return np.maximum(np.round(coefficients * ratio), 1).astype(np.int64)
 
 
-def assemble(ctx: AssembleContext, pieces: list[tuple[Chunk, dict]]) -> Output:
-    arrays = pieces[0][1]
+def layout(ctx: AssembleContext) -> Layout:
+    return Layout(sizes=ROW_CHUNKS)
+
+
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     transfer = ctx.inputs["d2i.transfer"].attrs
-    return Output(arrays, attrs={
+    return Output({
         "width": transfer["width"], "height": transfer["height"],
         "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
         "budget": ctx.params["truncate.budget"],
         "tolerance": float(ctx.params["truncate.tolerance"]),
-        "coefficients": int(ctx.params["truncate.coefficients"])},
-        sizes={"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16})
+        "coefficients": int(ctx.params["truncate.coefficients"])})

@@ -5,16 +5,19 @@ from __future__ import annotations
 
 import time
 
-from pipeline.stages import Output, stitch_tiles
+from pipeline.stages import Layout, Output, tile_blocks
+
+
+def layout(ctx):
+    cam = ctx.scene["camera"]
+    return Layout({"value": (cam["height"], cam["width"])}, {"tile": ctx.params["toy.tile"]})
 
 
 def run_chunk(ctx):
     time.sleep(ctx.params["toy.sleep"])
     y0, y1, x0, x1 = ctx.chunk.region
-    return {"value": ctx.rng.random((y1 - y0, x1 - x0)).astype("float32")}
+    return tile_blocks(ctx.chunk, {"value": ctx.rng.random((y1 - y0, x1 - x0)).astype("float32")})
 
 
-def assemble(ctx, pieces):
-    cam = ctx.scene["camera"]
-    return Output(stitch_tiles(pieces, cam["height"], cam["width"]), {},
-                  {"tile": ctx.params["toy.tile"]})
+def finalize(ctx, metas):
+    return Output({})

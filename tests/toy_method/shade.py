@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline import cl
-from pipeline.stages import Output, stitch_tiles
+from pipeline.stages import Layout, Output, tile_blocks
 
 
 def run_chunk(ctx):
@@ -19,10 +19,14 @@ def run_chunk(ctx):
     event = cl.kernel("toy_shade.cl", "toy_shade")(
         cl.queue(), (len(out),), None, cl.read_only_buffer(normal), buf, np.int32(len(out)))
     pcl.enqueue_copy(cl.queue(), out, buf, wait_for=[event])
-    return {"shade": out.reshape(y1 - y0, x1 - x0)}
+    return tile_blocks(ctx.chunk, {"shade": out.reshape(y1 - y0, x1 - x0)})
 
 
-def assemble(ctx, pieces):
+def layout(ctx):
     cam = ctx.scene["camera"]
-    return Output(stitch_tiles(pieces, cam["height"], cam["width"]), {},
+    return Layout({"shade": (cam["height"], cam["width"])},
                   {"tile": ctx.params["toy.shade_tile"]})
+
+
+def finalize(ctx, metas):
+    return Output({})

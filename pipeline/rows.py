@@ -1,0 +1,88 @@
+"""Transport rows in CSR form: the packed row format shared by the d2i stages that write
+rows (transfer, bounce), the stage that cuts them (truncate) and the renderer.
+
+A set of rows is stored as per-row arrays (``count``: entries in the row, ``residual``:
+the norm the row's compression dropped over the row's norm) and flat entry arrays
+(``index``, ``value``): row r's entries are the next ``count[r]`` entries. Within a row,
+entries come in the order the writer chose (near entries first, then Haar coefficients
+largest first: pipeline/stages/transfer.py). On the device the same rows are
+``offsets`` (rows + 1), ``index`` and ``value`` (:class:`Rows`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+# zarr chunk lengths of stored rows' arrays: entries (index, value), rows (count, ...)
+ROW_CHUNKS = {"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16}
+ROW_FIELDS = {"count": np.int32, "residual": np.float32, "index": np.int32,
+               "value": np.float32}
+
+
+def join_arrays(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
+    return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+
+def sort_rows(key: np.ndarray, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """CSR rows (``count`` and, if present, ``residual`` per row; flat ``index``,
+    ``value``) reordered by ``key`` (one per row; stable, so rows with equal keys keep
+    their order)."""
+    order = np.argsort(key, kind="stable")
+    count = rows["count"].astype(np.int64)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    new_count = count[order]
+    new_start = np.concatenate([[0], np.cumsum(new_count)[:-1]])
+    entry = np.repeat(start[order] - new_start, new_count) + np.arange(new_count.sum())
+    out = {"count": rows["count"][order], "index": rows["index"][entry],
+           "value": rows["value"][entry]}
+    if "residual" in rows:
+        out["residual"] = rows["residual"][order]
+    return out
+
+
+def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.ndarray
+             ) -> dict[str, np.ndarray]:
+    """CSR rows cut to their first ``keep`` entries (≤ count)."""
+    count = count.astype(np.int64)
+    keep = np.minimum(keep.astype(np.int64), count)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    row_of = np.repeat(np.arange(len(count)), count)
+    position = np.arange(len(index)) - start[row_of]
+    mask = position < keep[row_of]
+    return {"count": keep.astype(np.int32), "index": index[mask].astype(np.int32),
+            "value": value[mask].astype(np.float32)}
+
+
+@dataclass
+class Rows:
+    """CSR rows on the host: ``offsets`` (rows + 1,) int32, ``index`` uint16 where the
+    radiance vector has at most 2^16 entries (a quarter fewer bytes for the products to
+    stream), else int32, ``value`` float32."""
+
+    offsets: np.ndarray
+    index: np.ndarray
+    value: np.ndarray
+
+    @classmethod
+    def from_counts(cls, count: np.ndarray, index: np.ndarray, value: np.ndarray,
+                    size: int) -> Rows:
+        """Rows over a radiance vector of ``size`` entries."""
+        offsets = np.concatenate([[0], np.cumsum(count, dtype=np.int64)]).astype(np.int32)
+        return cls(offsets, np.ascontiguousarray(index, index_dtype(size)),
+                   np.ascontiguousarray(value, np.float32))
+
+    @property
+    def count(self) -> int:
+        return len(self.offsets) - 1
+
+    @property
+    def nbytes(self) -> int:
+        return self.offsets.nbytes + self.index.nbytes + self.value.nbytes
+
+
+def index_dtype(size: int) -> type:
+    """The narrowest index type of rows over a radiance vector of ``size`` entries."""
+    return np.uint16 if size <= 1 << 16 else np.int32
