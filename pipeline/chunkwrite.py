@@ -170,6 +170,11 @@ def finish(path: Path, schema: Schema, chunk_ids: list[str], arrays: dict[str, n
     _set_record(path, {**old, **record, "complete": True})
 
 
+def restore_record(path: Path, record: dict[str, Any]) -> None:
+    """Put back the record :func:`begin` replaced, when the run wrote nothing after it."""
+    _set_record(path, record)
+
+
 def _record_or_none(path: Path) -> dict[str, Any] | None:
     try:
         return read_record(path)

@@ -321,7 +321,11 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
               task.inputs.items()}
     ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs, chunk=task.chunk,
                        key=task.key, rng=np.random.default_rng(task.seed), meshes=meshes)
-    arrays = load_impl(task.impl).run_chunk(ctx)
+    try:
+        arrays = load_impl(task.impl).run_chunk(ctx)
+    except Exception as exc:
+        exc.nothing_written = True  # the artifact is as it was: see _run_stage
+        raise
     path, kind = task.output
     chunkwrite.write_chunk(Path(path), load_schema(kind), task.chunk.id, arrays, task.sizes)
     seconds = time.perf_counter() - start
@@ -392,6 +396,7 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
     layout = impl.layout(ctx) if hasattr(impl, "layout") else Layout()
     path = workdir.artifact(name)
     ids = [c.id for c in p.chunks]
+    previous = read_record_or_none(path)
     kept = chunkwrite.begin(workdir, path, schema, {
         "stage": name, "key": p.key, "chunk_keys": p.chunk_keys, "chunks": ids,
         "key_parts": p.key_parts}, layout.shapes, layout.sizes)
@@ -408,9 +413,21 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
                        str(workdir.marker(name, c.id)), layout.sizes) for c in todo]
     bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
                file=sys.stderr, leave=False)
-    for _ in executor.map_unordered(execute_chunk, tasks):
-        bar.update()
-    bar.close()
+    try:
+        for _ in executor.map_unordered(execute_chunk, tasks):
+            bar.update()
+    except Exception as exc:
+        # A chunk failed before writing anything (bad input, say) and no other chunk
+        # was written this run (the executor returns once every started task ended):
+        # the artifact still holds exactly what its previous record says.
+        written = [c for c in todo if (chunkwrite.read_marker(workdir.marker(name, c.id))
+                                       or {}).get("key") == p.chunk_keys[c.id]]
+        if kept and not written and getattr(exc, "nothing_written", False) \
+                and previous is not None:
+            chunkwrite.restore_record(path, previous)
+        raise
+    finally:
+        bar.close()
     records = [chunkwrite.read_marker(workdir.marker(name, c)) for c in ids]
     lost = [c for c, r in zip(ids, records, strict=True)
             if r is None or r.get("key") != p.chunk_keys[c]]
