@@ -25,7 +25,6 @@ scene material, in the scene's order), ``materials.*`` is the chunk's material; 
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,11 +64,19 @@ class StageFile:
 
 
 def default_stagefile_path() -> Path:
-    """stages.yaml from the checkout, else the copy installed under ``share/``."""
+    """stages.yaml from the checkout, else the copy that pyproject.toml packages with
+    the code as ``pipeline/project/stages.yaml`` (so that ``pip install --target`` or
+    ``--user`` finds it too). Without either, the checkout's path, which load_stagefile
+    reports as not found."""
     checkout = Path(__file__).resolve().parent.parent / "stages.yaml"
     if checkout.is_file():
         return checkout
-    return Path(sys.prefix) / "share" / "prt-pipeline" / "stages.yaml"
+    from importlib.resources import files
+
+    # Through the regular package ``pipeline``: files() of the namespace package
+    # pipeline.project is a MultiplexedPath, whose str() is no file name.
+    packaged = Path(str(files("pipeline").joinpath("project", "stages.yaml")))
+    return packaged if packaged.is_file() else checkout
 
 
 def load_stagefile(path: str | Path | None = None) -> StageFile:
