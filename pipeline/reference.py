@@ -37,11 +37,30 @@ on the shading side of the normal but behind the triangle's plane carries nothin
 origins are offset by ``1e-4`` × the scene diagonal along the triangle's normal.
 
 Progressive rendering. Passes of ``spp_per_pass`` paths per pixel accumulate per-pixel
-sums and sums of squares; the variance of each pixel's mean is s²/n. The image's
-estimated relative RMSE is √(Σ s²/n) / √(Σ mean²) over pixels and channels; rendering
-stops once it is ≤ ``tolerance`` (after ``min_spp``) or at ``max_spp``. Pass p draws its
-random numbers from ``numpy.random.default_rng([seed, p])``: a given seed gives the same
-image bit for bit.
+sums and sums of squares; the variance of each pixel's mean is s²/n. The estimated
+relative RMSE is √(Σ s²/n) / √(Σ mean²) over the channels of the *surface* pixels;
+rendering stops once it is ≤ ``tolerance`` (after ``min_spp``) or at ``max_spp``. Pass p
+draws its random numbers from ``numpy.random.default_rng([seed, p])``: a given seed gives
+the same image bit for bit.
+
+Which pixels the estimate covers. A pixel is left out (an *emitter pixel*) when any of
+its camera paths so far took radiance straight from a light at the first ray: its first
+hit is an emitting surface seen from its emitting side (a quad light's ``object``, or a
+test ``emission`` object) whose emission the transport counts, or the ray escapes to an
+environment map the transport shows. Those pixels hold the light's own radiance, exact
+or nearly so, and it can dwarf the lit surfaces (the Cornell luminaire: 18 against
+≈ 0.3 W/(m² sr)): over the whole image, their Σ mean² fills the norm. On
+scenes/cornell_box_lambert.yaml at 128² (box filter) the whole-image estimate stopped
+at 832 spp saying 1.0 % while the surfaces were 2.1 % off a 3864-spp render; at 20²
+with pixel-centre paths it says 0.4 % where the surfaces are 5 % off. The environment
+background counts as an emitter pixel for the same reason, although it is no surface: a
+map seen directly is exact with the ``center`` filter (with ``box``, its only noise is
+the map's variation across the pixel, not light transport) and a bright map would
+likewise hide the error of the objects in front of it. An emitter seen from behind, or
+one the transport leaves out (``env-direct`` ignores quad lights, ``first-glossy-indirect`` all
+light seen directly), is an ordinary surface pixel. If every pixel is an emitter pixel,
+the estimate covers them all. ``history`` also keeps the whole-image estimate, to show
+what the two would have decided.
 
 Pixel filter: ``center`` traces every path through the pixel centre, like the methods'
 one view sample per pixel (so edges match them); ``box`` jitters uniformly over the
@@ -73,8 +92,9 @@ PATHS_PER_PASS = 1 << 17
 @dataclass(frozen=True)
 class ReferenceSettings:
     """How to render: ``transport`` (one of :data:`TRANSPORTS`), stop at estimated
-    relative RMSE ``tolerance`` or ``max_spp`` paths per pixel, never before
-    ``min_spp``; ``max_depth`` bounds the shading vertices per path (-1: none)."""
+    relative RMSE ``tolerance`` (a fraction, over the surface pixels: see the module
+    docstring) or ``max_spp`` paths per pixel, never before ``min_spp``; ``max_depth``
+    bounds the shading vertices per path (-1: none)."""
 
     transport: str = "full"
     tolerance: float = 0.01
@@ -98,10 +118,14 @@ class ReferenceSettings:
 
 @dataclass
 class ReferenceImage:
-    """A rendered reference: ``mean`` (H, W, 3) radiance, ``variance`` (H, W, 3) the
-    estimated variance of each pixel's mean, ``spp`` paths per pixel, ``estimate`` the
-    estimated relative RMSE, ``seconds`` of rendering, ``rays`` traced, and ``history``
-    [(spp, estimate, seconds)] after every pass."""
+    """A rendered reference: ``mean`` (H, W, 3) radiance in W/(m² sr), ``variance``
+    (H, W, 3) the estimated variance of each pixel's mean, ``spp`` paths per pixel,
+    ``estimate`` the estimated relative RMSE (a fraction, 0.01 = 1 %) over the surface
+    pixels (see the module docstring), ``seconds`` of rendering, ``rays`` traced,
+    ``history`` [(spp, estimate, seconds, whole-image estimate)] after every pass, and
+    ``emitter_pixels`` (H, W) bool, True where a camera path saw a light directly: the
+    pixels the estimate leaves out (None for an image read back from a cache, which
+    does not store it; older caches' history rows have three entries)."""
 
     mean: np.ndarray
     variance: np.ndarray
@@ -109,11 +133,17 @@ class ReferenceImage:
     estimate: float
     seconds: float
     rays: int
-    history: list[tuple[int, float, float]] = field(default_factory=list)
+    history: list[tuple[int, float, float, float]] = field(default_factory=list)
+    emitter_pixels: np.ndarray | None = None
 
 
-def relative_rmse_estimate(mean: np.ndarray, variance: np.ndarray) -> float:
-    """√(Σ variance) / √(Σ mean²): the expected relative RMSE of ``mean``."""
+def relative_rmse_estimate(mean: np.ndarray, variance: np.ndarray,
+                           mask: np.ndarray | None = None) -> float:
+    """√(Σ variance) / √(Σ mean²) over the pixels in ``mask`` (None or all False:
+    every pixel): the expected relative RMSE of ``mean`` there, a fraction. ``mean``
+    and ``variance`` are (..., 3), ``mask`` has their leading shape."""
+    if mask is not None and np.any(mask):
+        mean, variance = mean[mask], variance[mask]
     norm = float(np.sum(np.square(mean, dtype=np.float64)))
     return math.sqrt(float(np.sum(variance, dtype=np.float64)) / norm) if norm > 0 else math.inf
 
@@ -293,8 +323,12 @@ class PathTracer:
 
     # ------------------------------------------------------------------------- paths
 
-    def camera_paths(self, pixel: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """One path sample per entry of ``pixel`` (flat pixel ids): radiance (N, 3)."""
+    def camera_paths(self, pixel: np.ndarray, rng: np.random.Generator,
+                     sees_light: np.ndarray | None = None) -> np.ndarray:
+        """One path sample per entry of ``pixel`` (flat pixel ids): radiance (N, 3) in
+        W/(m² sr). ``sees_light`` (N,) bool, if given, is set True where the camera ray
+        itself took emitted or environment radiance (the module docstring's emitter
+        pixels)."""
         cam = self.ts.camera
         row, col = np.divmod(pixel, cam.width)
         jitter = rng.random((len(pixel), 2)) if self.s.pixel_filter == "box" \
@@ -311,15 +345,20 @@ class PathTracer:
             hits = self.ts.tracer.intersect(o, d)
             self.rays += len(o)
             miss = hits.prim < 0
-            self._add_environment(radiance, alive[miss], throughput[miss], d[miss],
-                                  brdf_pdf[miss], depth)
+            shown = self._add_environment(radiance, alive[miss], throughput[miss], d[miss],
+                                          brdf_pdf[miss], depth)
+            if sees_light is not None and depth == 0 and shown:
+                sees_light[alive[miss]] = True
             hit = ~miss
             alive, o, d, throughput, brdf_pdf = (alive[hit], o[hit], d[hit], throughput[hit],
                                                  brdf_pdf[hit])
             if not len(alive):
                 break
             vtx = self._vertex(o, d, hits, hit)
-            self._add_emission(radiance, alive, throughput, vtx, hits.t[hit], brdf_pdf, depth)
+            emitted = self._add_emission(radiance, alive, throughput, vtx, hits.t[hit],
+                                         brdf_pdf, depth)
+            if sees_light is not None and depth == 0:
+                sees_light[alive[emitted]] = True
             if self.one_vertex and depth == 1 or depth == self.s.max_depth:
                 break
             table = self.ts.lambert if self.lambert_bounces and depth > 0 \
@@ -348,20 +387,28 @@ class PathTracer:
         return _Vertex(s.position, s.normal, s.tangent, s.geometric_normal, -d, s.material_id,
                        s.face)
 
-    def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> None:
+    def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> bool:
+        """Add the environment's radiance to escaped paths; whether this transport
+        counts it at this depth."""
         if not self.ts.environments or (self.one_vertex and depth > 1) \
                 or (self.skip_direct and depth <= 1):
-            return
+            return False
         for env in self.ts.environments:
             weight = np.ones(len(d)) if depth == 0 else _power(brdf_pdf, env.pdf(d))
             radiance[index] += throughput * env.radiance(d) * weight[:, None]
+        return True
 
-    def _add_emission(self, radiance, index, throughput, vtx, dist, brdf_pdf, depth) -> None:
+    def _add_emission(self, radiance, index, throughput, vtx, dist, brdf_pdf,
+                      depth) -> np.ndarray:
+        """Add emitted radiance where the paths hit an emitter; (N,) bool, True where
+        an emitter sends radiance back along the path (before MIS weights)."""
+        emitted = np.zeros(len(index), bool)
         if self.skip_direct and depth <= 1:
-            return
+            return emitted
         ts = self.ts
         obj = ts.face_object[vtx.prim]
         test_emission = ts.emission[obj]
+        emitted |= np.any(test_emission > 0, axis=-1)
         if self.use_local:
             light = ts.emitter_light[obj]
             for li in np.unique(light[light >= 0]):
@@ -370,6 +417,7 @@ class PathTracer:
                 area = np.linalg.norm(nq)
                 cos_l = vtx.wo @ (nq / area)
                 sel = (light == li) & (cos_l > 0)
+                emitted |= sel & bool(np.any(row[10:13] > 0))
                 if depth == 0:
                     weight = np.ones(int(sel.sum()))
                 else:
@@ -378,6 +426,7 @@ class PathTracer:
                     weight = _power(brdf_pdf[sel], light_pdf)
                 radiance[index[sel]] += throughput[sel] * row[LightRow.RGB] * weight[:, None]
         radiance[index] += throughput * test_emission
+        return emitted
 
     def _sample_brdf(self, vtx: _Vertex, table, rng):
         """Sampled local directions, their densities and BRDF × cos / density (N, 3)."""
@@ -412,6 +461,7 @@ def render(scene: Scene, geometry: dict, settings: ReferenceSettings,
     per_pass = settings.spp_per_pass or max(1, PATHS_PER_PASS // npix)
     total = np.zeros((npix, 3))
     total_sq = np.zeros((npix, 3))
+    emitter = np.zeros(npix, bool)  # a path of the pixel saw a light directly
     spp, estimate, history = 0, math.inf, []
     bar = _progress_bar(settings, progress)
     pass_index = 0
@@ -419,14 +469,17 @@ def render(scene: Scene, geometry: dict, settings: ReferenceSettings,
         count = min(per_pass, settings.max_spp - spp)
         rng = np.random.default_rng([settings.seed, pass_index])
         pixel = np.tile(np.arange(npix), count)
-        samples = tracer.camera_paths(pixel, rng).reshape(count, npix, 3)
+        sees_light = np.zeros(len(pixel), bool)
+        samples = tracer.camera_paths(pixel, rng, sees_light).reshape(count, npix, 3)
+        emitter |= sees_light.reshape(count, npix).any(axis=0)
         total += samples.sum(axis=0)
         total_sq += np.square(samples).sum(axis=0)
         spp += count
         pass_index += 1
         mean, variance = _moments(total, total_sq, spp)
-        estimate = relative_rmse_estimate(mean, variance)
-        history.append((spp, estimate, time.perf_counter() - start))
+        estimate = relative_rmse_estimate(mean, variance, ~emitter)
+        history.append((spp, estimate, time.perf_counter() - start,
+                        relative_rmse_estimate(mean, variance)))
         if bar is not None:
             bar.update(count)
             bar.set_postfix_str(f"rel. RMSE ≈ {estimate:.4f}")
@@ -438,7 +491,8 @@ def render(scene: Scene, geometry: dict, settings: ReferenceSettings,
     shape = (cam.height, cam.width, 3)
     return ReferenceImage(mean.reshape(shape).astype(np.float32),
                           variance.reshape(shape).astype(np.float32), spp, estimate,
-                          time.perf_counter() - start, tracer.rays, history)
+                          time.perf_counter() - start, tracer.rays, history,
+                          emitter.reshape(shape[:2]))
 
 
 def _moments(total: np.ndarray, total_sq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,9 @@ _ENV = {"kernels": "PRT_KERNEL_PATH", "data_schema": "PRT_SCHEMA_PATH"}
 
 def _project_dir(name: str) -> Path:
     checkout = Path(__file__).resolve().parent.parent / name
-    return checkout if checkout.is_dir() else Path(str(files(f"pipeline.{name}")))
+    # through the regular package: files() of a folder without __init__.py is a
+    # MultiplexedPath, whose str() is no file name
+    return checkout if checkout.is_dir() else Path(str(files("pipeline").joinpath(name)))
 
 
 def _dirs(kind: str) -> list[Path]:

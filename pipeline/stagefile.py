@@ -174,13 +174,19 @@ def _read(path: Path) -> _File:
 
 
 def default_stagefile_path() -> Path:
-    """stages.yaml from the checkout, else the copy installed with the package."""
+    """stages.yaml from the checkout, else the copy that pyproject.toml packages with
+    the code as ``pipeline/project/stages.yaml`` (so that ``pip install --target`` or
+    ``--user`` finds it too). Without either, the checkout's path, which load_stagefile
+    reports as not found."""
     checkout = Path(__file__).resolve().parent.parent / "stages.yaml"
     if checkout.is_file():
         return checkout
     from importlib.resources import files
 
-    return Path(str(files("pipeline.project") / "stages.yaml"))
+    # Through the regular package ``pipeline``: files() of the namespace package
+    # pipeline.project is a MultiplexedPath, whose str() is no file name.
+    packaged = Path(str(files("pipeline").joinpath("project", "stages.yaml")))
+    return packaged if packaged.is_file() else checkout
 
 
 def _chunk_spec(chunks: Any) -> ChunkSpec:

@@ -6,9 +6,15 @@ pixels, z = (I − exact)/σ must average near 0 and z² near 1. With a few hund
 the mean of z² has a standard deviation of about √(2/N) ≈ 0.07, so the accepted band
 [0.7, 1.4] fails a biased or a dishonest estimator but not a correct one by chance
 (seeds are fixed, so each test's outcome is deterministic anyway).
+
+The stopping estimate covers the surface pixels, not those whose camera ray sees a light
+(the Cornell luminaire, an environment's background): see pipeline/reference.py.
+Radiance is in W/(m² sr); errors and tolerances are relative RMSEs (fractions).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -17,7 +23,7 @@ from helpers import PROJECT, constant_environment, scene_geometry
 from pipeline import job
 from pipeline.math.camera import camera_rays
 from pipeline.metrics import relative_rmse
-from pipeline.reference import ReferenceSettings, render
+from pipeline.reference import ReferenceSettings, relative_rmse_estimate, render
 
 
 def _camera(position, look_at, size, fov=40.0):
@@ -57,6 +63,11 @@ def test_convex_lambertian_object_under_uniform_environment_shows_albedo_times_r
         rel = image.mean[sphere].mean(0) / (albedo * radiance)
         np.testing.assert_allclose(rel, 1.0, atol=0.005)
         np.testing.assert_allclose(image.mean[0, 0], radiance, rtol=1e-6)  # background
+        # The background shows the environment directly: left out of the estimate.
+        assert image.emitter_pixels[0, 0] and not image.emitter_pixels[sphere].any()
+        assert image.estimate == pytest.approx(relative_rmse_estimate(  # float32 image
+            image.mean, image.variance, ~image.emitter_pixels), rel=1e-6)
+        assert image.estimate > 1.5 * image.history[-1][3]  # the exact background hid it
 
 
 def test_closed_emitting_lambertian_enclosure_shows_le_over_one_minus_albedo(tmp_path):
@@ -74,6 +85,11 @@ def test_closed_emitting_lambertian_enclosure_shows_le_over_one_minus_albedo(tmp
     z_mean, z2 = _z_scores(image.mean, exact, image.variance, everywhere)
     assert abs(z_mean) < 0.2 and 0.7 < z2 < 1.4, (z_mean, z2)
     np.testing.assert_allclose(image.mean.mean((0, 1)), emitted / (1.0 - albedo), rtol=0.005)
+    # Every pixel sees the emitting room: the estimate falls back to the whole image.
+    assert image.emitter_pixels.all()
+    assert image.estimate == image.history[-1][3]
+    assert image.estimate == pytest.approx(relative_rmse_estimate(image.mean, image.variance),
+                                           rel=1e-6)  # the image is stored as float32
 
 
 def test_point_light_on_a_lambertian_plane_matches_the_inverse_square_law(tmp_path):
@@ -149,24 +165,94 @@ def small_cornell(tmp_path_factory):
 
 
 def test_convergence_estimate_is_within_a_factor_1_5_of_the_measured_error(small_cornell):
+    """At a fixed sample count the estimate (over the surface pixels) agrees with the
+    error measured there against a render with 16× the paths, whose own error, 1/4 of
+    the first's, adds only √(1 + 1/16) ≈ 1.03 to the measured one; 1.5 leaves room for
+    the spread of a sum dominated by a few hundred noisy pixels."""
     scene, geometry = small_cornell
     for transport, spp in (("full", 32), ("direct", 8)):
         image = render(scene, geometry, ReferenceSettings(transport, tolerance=0,
                                                           max_spp=spp, seed=1))
         better = render(scene, geometry, ReferenceSettings(transport, tolerance=0,
                                                            max_spp=16 * spp, seed=2))
-        measured = relative_rmse(image.mean, better.mean)
+        measured = relative_rmse(image.mean, better.mean, ~image.emitter_pixels)
         assert 1 / 1.5 < image.estimate / measured < 1.5, (transport, image.estimate,
                                                             measured)
 
 
-def test_progressive_rendering_stops_at_the_tolerance(small_cornell):
+# A tolerance in the spirit of the default 0.01 that this test can afford: at 20x20 the
+# surfaces' error is ≈ 0.6/√spp (full transport), so 0.05 stops near 150 spp and the 16×
+# longer truth takes ≈ 2.5k spp (about 10 s); 0.01 would take 4k and 60k spp.
+STOP_TOLERANCE = 0.05
+STOP_PASS_SPP = 8  # small passes, so that the history shows where each estimate crossed
+
+
+@pytest.fixture(scope="module")
+def stopped_cornell(small_cornell):
+    """The Lambertian Cornell box at 20x20 (full transport, pixel centres) rendered until
+    its estimate is ≤ STOP_TOLERANCE, and a render with 16× its paths (another seed)
+    as the truth: (scene, geometry, stopped image, truth)."""
     scene, geometry = small_cornell
-    image = render(scene, geometry, ReferenceSettings("full", tolerance=0.004, max_spp=4096,
-                                                      min_spp=4, spp_per_pass=4))
-    assert image.estimate <= 0.004 and image.spp < 4096
-    assert image.history[-2][1] > 0.004  # the pass before had not reached it yet
+    image = render(scene, geometry, ReferenceSettings(
+        "full", tolerance=STOP_TOLERANCE, max_spp=4096, spp_per_pass=STOP_PASS_SPP, seed=1))
+    truth = render(scene, geometry, ReferenceSettings(
+        "full", tolerance=0, max_spp=16 * image.spp, seed=2))
+    return scene, geometry, image, truth
+
+
+def test_progressive_rendering_stops_at_the_tolerance(stopped_cornell):
+    _, _, image, _ = stopped_cornell
+    assert image.estimate <= STOP_TOLERANCE and image.spp < 4096
+    assert image.history[-2][1] > STOP_TOLERANCE  # the pass before had not reached it yet
     assert image.spp == image.history[-1][0]
+    assert image.estimate == image.history[-1][1]
+
+
+def test_stopping_estimate_is_honest_about_the_surfaces(stopped_cornell):
+    """The luminaire's pixels (radiance 18.4 in red against < 2 on the surfaces) are
+    exactly the ones left out, and the surfaces' error measured against the truth agrees
+    with the estimate the render stopped on. The truth's own noise is taken out in
+    quadrature (its estimate there, ≈ 1/4 of the stopped image's since it has 16× the
+    paths: it would add √(1 + 1/16) ≈ 1.03 to the measured error); the remaining error
+    must lie within a factor 1.25 of the estimate. Seeds 1, 3 and 5 give ratios 1.00,
+    1.02 and 1.04 (a sum over 1.2k pixel channels, and the stopping rule stops on an
+    estimate that has just dipped below the tolerance); the whole-image estimate was
+    13× too low here (0.0037 against 0.050). So the image's real surface error is at
+    most 1.25 × STOP_TOLERANCE."""
+    _, _, image, truth = stopped_cornell
+    emitter = image.emitter_pixels
+    bright = image.mean[..., 0] > 10
+    assert emitter.any() and np.array_equal(emitter, bright)
+    surfaces = ~emitter
+    truth_noise = relative_rmse_estimate(truth.mean, truth.variance, surfaces)
+    assert 0.15 < truth_noise / image.estimate < 0.4  # ≈ 1/√16, a different seed
+    measured = relative_rmse(image.mean, truth.mean, surfaces)
+    error = math.sqrt(max(measured ** 2 - truth_noise ** 2, 0.0))
+    assert 1 / 1.25 < error / image.estimate < 1.25, (image.estimate, error, measured)
+    assert error < 1.25 * STOP_TOLERANCE
+
+
+def test_the_whole_image_estimate_would_have_stopped_far_too_early(stopped_cornell):
+    """The bug this estimate fixes: over the whole image, the luminaire's Σ mean² fills
+    the norm, so the whole-image estimate (kept in the history) fell below the tolerance
+    at the minimum sample count (0.011 at 16 spp), where the surfaces were still ≈ 3×
+    the tolerance off (error ≈ 0.6/√16; measured 0.155). The render (152 spp) must go on
+    at least 4× longer than that, and the image
+    at that point (same seed and passes: the same paths) must measure more than twice
+    the tolerance against the truth while its whole-image estimate said it was done."""
+    scene, geometry, image, truth = stopped_cornell
+    settings = ReferenceSettings("full", tolerance=STOP_TOLERANCE, max_spp=4096,
+                                 spp_per_pass=STOP_PASS_SPP, seed=1)
+    old_stop = next(spp for spp, _, _, whole in image.history
+                    if spp >= settings.min_spp and whole <= STOP_TOLERANCE)
+    assert image.spp >= 4 * old_stop, (image.spp, old_stop)
+    early = render(scene, geometry, ReferenceSettings(
+        "full", tolerance=0, max_spp=old_stop, spp_per_pass=STOP_PASS_SPP, seed=1))
+    same = [(spp, estimate, whole) for spp, estimate, _, whole in image.history]
+    assert [(spp, e, w) for spp, e, _, w in early.history] == same[:len(early.history)]
+    assert early.history[-1][3] <= STOP_TOLERANCE
+    surfaces = ~image.emitter_pixels
+    assert relative_rmse(early.mean, truth.mean, surfaces) > 2 * STOP_TOLERANCE
 
 
 def test_a_seed_gives_the_same_image_bit_for_bit(small_cornell):
@@ -188,7 +274,8 @@ def test_first_glossy_transport_lies_between_direct_and_full_light(small_cornell
     results = {t: render(scene, geometry, ReferenceSettings(t, tolerance=0, max_spp=64,
                                                             seed=3))
                for t in ("direct", "first-glossy", "full")}
-    assert relative_rmse(results["first-glossy"].mean, results["full"].mean) < 3 * max(
+    surfaces = ~results["full"].emitter_pixels  # where the estimates apply
+    assert relative_rmse(results["first-glossy"].mean, results["full"].mean, surfaces) < 3 * max(
         results["first-glossy"].estimate, results["full"].estimate)
     assert results["first-glossy"].mean.sum() > 1.1 * results["direct"].mean.sum()
 
@@ -210,3 +297,6 @@ def test_first_glossy_indirect_is_first_glossy_less_direct(small_cornell):
     indirect = results["first-glossy-indirect"].mean
     assert indirect.max() < 0.2 * results["direct"].mean.max()
     assert indirect.sum() > 0.05 * results["direct"].mean.sum()
+    # The luminaire seen from the camera is an emitter pixel only where its light counts.
+    assert results["first-glossy"].emitter_pixels.any()
+    assert not results["first-glossy-indirect"].emitter_pixels.any()
