@@ -4,7 +4,7 @@ Measures, in one run on this machine:
 
 * bake time per stage, and where the transfer stage's time goes (visibility rays,
   the transfer kernel, Haar compression), timed on a sample of its tiles;
-* storage of T, D and Ms after the haar stage (bytes on disk and raw CSR bytes), beside
+* storage of T, D and Ms after the d2i.truncate stage (bytes on disk and raw CSR bytes), beside
   paper 000 Table 5 (152, 60, 20 MB);
 * frame times, medians of ``REPEATS``: light-edit frames with a point light at the
   luminaire's centre (moved each frame) and with the scene's 16-sample area light;
@@ -36,12 +36,12 @@ import numpy as np
 from pipeline import job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
+from pipeline.method import get_method
 from pipeline.render.d2i import D2iRenderer
 from pipeline.rows import Rows
-from pipeline.runner import stage_chunks, stage_params
+from pipeline.runner import stage_params
 from pipeline.scene import Light, default_scene_path, load_scene
 from pipeline.scene_edits import with_light_offset, with_material_edits
-from pipeline.stagefile import load_stagefile
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
@@ -54,6 +54,7 @@ def transfer_breakdown(scene, workdir) -> dict[str, float]:
     """Seconds of visibility, kernel and compression over a few transfer tiles, run again
     in this process (the stage's own run is not instrumented)."""
     import pipeline.stages.transfer as stage
+    from pipeline.chunking import plan_chunks
     from pipeline.runner import plan
     from pipeline.stages import ChunkContext
     from pipeline.store import open_artifact
@@ -74,11 +75,11 @@ def transfer_breakdown(scene, workdir) -> dict[str, float]:
     stage.compress_rows = timed("compress", stage.compress_rows)
     stage.TransferKernel.__call__ = timed("kernel", stage.TransferKernel.__call__)
     try:
-        stagefile = load_stagefile(None)
-        p = next(p for p in plan(scene, stagefile, workdir) if p.spec.name == "transfer")
+        stagefile = job.stages()
+        p = next(p for p in plan(scene, stagefile, workdir) if p.spec.name == "d2i.transfer")
         params = stage_params(stagefile, scene)
-        chunks = stage_chunks(p.spec, scene, params)
         inputs = {n: open_artifact(workdir.artifact(n)) for n in p.spec.inputs}
+        chunks = plan_chunks(p.spec, scene, {k: params[k] for k in p.spec.params}, inputs)
         picks = [chunks[i] for i in np.linspace(0, len(chunks) - 1, PROFILED_TILES).astype(int)]
         start = time.perf_counter()
         for chunk in picks:
@@ -94,15 +95,15 @@ def transfer_breakdown(scene, workdir) -> dict[str, float]:
 def storage(workdir) -> dict[str, dict[str, float]]:
     from pipeline.store import open_artifact
 
-    art = open_artifact(workdir.artifact("haar"))
-    root = workdir.artifact("haar")
+    art = open_artifact(workdir.artifact("d2i.truncate"))
+    root = workdir.artifact("d2i.truncate")
     out = {}
     for label, prefix in (("T", "t_"), ("D", "d_"), ("Ms", "ms_")):
         names = [n for n in art.names if n.startswith(prefix)]
         disk = sum(f.stat().st_size for n in names for f in (root / n).rglob("*") if f.is_file())
-        raw = sum(art.array(n).nbytes for n in names)
-        entries = int(art.array(prefix + "value").shape[0])
-        rows = int(art.array(prefix + "count").shape[0])
+        raw = sum(art.read(n).nbytes for n in names)
+        entries = int(art.read(prefix + "value").shape[0])
+        rows = int(art.read(prefix + "count").shape[0])
         out[label] = {"disk_mb": disk / 1e6, "raw_mb": raw / 1e6, "rows": rows,
                       "coefficients": entries, "per_row": entries / max(rows, 1),
                       "paper_mb": PAPER_TABLE5_MB[label]}
@@ -129,7 +130,7 @@ def point_light_scene(scene):
 
 def frame_times(scene, workdir) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
     """Median frame timings per mode, and the product kernels' measurement."""
-    renderer = D2iRenderer(scene, workdir)
+    renderer = D2iRenderer(scene, job.method_artifacts(get_method("d2i"), workdir))
     renderer.render(scene)  # builds kernels
     results = {}
     for label, sc in (("light_edit_point", point_light_scene(scene)),
@@ -187,7 +188,7 @@ def main() -> None:
     if args.rebake:
         job.clean(workdir)
     start = time.perf_counter()
-    report = job.bake(scene, workdir, until="haar", quiet=True)
+    report = job.bake(scene, workdir, until="d2i.truncate", quiet=True)
     bake_wall = time.perf_counter() - start
     from pipeline.store import read_record
 

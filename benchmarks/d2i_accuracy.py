@@ -4,8 +4,8 @@ Bakes the default scene (or ``--scene``) with ``--set`` stage parameters, render
 frame and the direct frame (their difference is d2i's indirect image, without noise:
 both share one direct shader), and compares with the reference renderer at ``--spp``:
 
-* full image and surfaces (pixels not seeing an emitter) against ``--transport d2i``;
-* the indirect-only image against ``--transport d2i-indirect`` (the reference's
+* full image and surfaces (pixels not seeing an emitter) against ``--transport first-glossy``;
+* the indirect-only image against ``--transport first-glossy-indirect`` (the reference's
   indirect light alone, so its noise is the indirect light's only);
 * per object, the indirect image's error and its mean radiance over the reference's (on
   a glossy object, the glossy indirect error of paper 000 Fig. 2).
@@ -63,15 +63,15 @@ def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, out)
         params[name] = json.loads(value)
     baked = base.with_settings(params) if params else base
     wd = job.workdir_for(baked, workdir)
-    job.bake(baked, wd, until="haar", quiet=True)
+    job.bake(baked, wd, until="d2i.truncate", quiet=True)
     scene = with_material_edits(baked, list(edits)) if edits else baked
     frame = job.render_frame(scene, wd, "d2i", {"max_bounces": bounces}).rgb
     direct = job.render_frame(scene, wd, "direct").rgb
     ref_wd = job.workdir_for(scene, reference_dir) if reference_dir else wd
     refs = {t: job.reference(scene, ref_wd, ReferenceSettings(t, tolerance=0.0, min_spp=spp,
                                                           max_spp=spp), quiet=True).image
-            for t in ("d2i", "d2i-indirect")}
-    full, indirect_ref = refs["d2i"], refs["d2i-indirect"]
+            for t in ("first-glossy", "first-glossy-indirect")}
+    full, indirect_ref = refs["first-glossy"], refs["first-glossy-indirect"]
     surfaces = ~emitter_pixels(scene, wd)
     indirect = frame - direct
     result = {"settings": params, "edits": list(edits), "spp": spp, "bounces": bounces}

@@ -1,5 +1,5 @@
 """Where method d2i breaks down (issue 6): three studies on variants of the default
-Cornell box at a small size, each against the reference renderer's ``d2i-indirect``
+Cornell box at a small size, each against the reference renderer's ``first-glossy-indirect``
 transport (the indirect image is what d2i approximates; its direct term is exact).
 
 ``gathers``     a small glossy object: the small box made Blinn-Phong (γ = 100), gather
@@ -10,7 +10,7 @@ transport (the indirect image is what d2i approximates; its direct term is exact
                 to 1 and 2; the floor's indirect error next to the basis's own error.
 ``truncation``  a sharp indirect shadow: a narrow spot light (the only light) lights a
                 low patch of the back wall behind the small box, which casts that
-                patch's indirect shadow on the floor in front of it. haar.tolerance
+                patch's indirect shadow on the floor in front of it. truncate.tolerance
                 swept; the floor's indirect error.
 
 Each study writes ``d2i_breakdown_<study>.json`` and a chart (PNG) into ``--out``, and
@@ -58,14 +58,14 @@ def _variant(folder: Path, name: str, edit) -> Scene:
 def _indirect_errors(scene: Scene, baked: Scene, workdir: Path, spp: int,
                      objects: list[str]) -> dict[str, Any]:
     """Bake ``baked`` (stage settings), render ``scene`` (run-time edits of it) and
-    compare its indirect image with the d2i-indirect reference, per object in
+    compare its indirect image with the first-glossy-indirect reference, per object in
     ``objects`` and over all surfaces; noise-corrected errors alongside."""
     wd = job.workdir_for(baked, workdir / "bake")
-    job.bake(baked, wd, until="haar", quiet=True)
+    job.bake(baked, wd, until="d2i.truncate", quiet=True)
     frame = job.render_frame(scene, wd, "d2i")
     indirect = frame.rgb - job.render_frame(scene, wd, "direct").rgb
     ref = job.reference(scene, job.workdir_for(scene, workdir / "reference"),
-                        ReferenceSettings("d2i-indirect", tolerance=0.0, min_spp=spp,
+                        ReferenceSettings("first-glossy-indirect", tolerance=0.0, min_spp=spp,
                                           max_spp=spp), quiet=True).image
     geometry, _ = job.load_geometry(scene, wd)
     names = geometry["object_names"]
@@ -178,12 +178,12 @@ def _truncation(out: Path, workdir: Path, size: int, spp: int) -> None:
     scene = _variant(workdir, "cornell_spot", spot_on_back_wall).with_image_size(size, size)
     rows = []
     for tolerance in (0.001, 0.005, 0.02, 0.05, 0.1, 0.2, 0.4):
-        baked = scene.with_settings({"gather.count": 4096, "haar.tolerance": tolerance})
+        baked = scene.with_settings({"gather.count": 4096, "truncate.tolerance": tolerance})
         row = _indirect_errors(baked, baked, workdir, spp, ["floor"])
-        rows.append({"haar.tolerance": tolerance, **row})
+        rows.append({"truncate.tolerance": tolerance, **row})
         click.echo(f"tolerance {tolerance}: floor {row['floor']['noise_corrected']:.3f}")
-    _save(out, "truncation", rows, "haar.tolerance", ["floor", "surfaces"],
-          "haar.tolerance (relative L2 per row)")
+    _save(out, "truncation", rows, "truncate.tolerance", ["floor", "surfaces"],
+          "truncate.tolerance (relative L2 per row)")
 
 
 STUDIES = {"gathers": _gathers, "gamma": _gamma, "truncation": _truncation}

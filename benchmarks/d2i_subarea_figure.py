@@ -47,7 +47,7 @@ def main(with_path: Path, without_path: Path, glossy: str, out: Path) -> None:
     reference = with_path.with_suffix("")
     axes[0, 2].imshow(plt.imread(f"{reference}_indirect_reference.png"))
     spp = json.loads(with_path.read_text())["spp"]
-    axes[0, 2].set_title(f"reference (d2i-indirect, {spp} spp)", fontsize=8)
+    axes[0, 2].set_title(f"reference (first-glossy-indirect, {spp} spp)", fontsize=8)
     axes[1, 2].axis("off")
     for ax in axes.ravel():
         ax.set_xticks([])
