@@ -156,9 +156,9 @@ def _pathtrace_equal_error(scene: Scene, geometry: dict, transport: str, target:
                            reference: Any, mask: np.ndarray | None,
                            max_spp: int) -> dict[str, Any]:
     """Time the reference renderer (seed 1) needs until its estimated error over ``mask``
-    (None: every pixel) is ``target``. It stops on its whole-image estimate, which falls
-    in proportion with the masked one (both as 1/√spp): the target is scaled by their
-    ratio in the converged ``reference``."""
+    (None: every pixel) is ``target``. It stops on its own estimate (over the pixels
+    that do not see an emitter), which falls in proportion with the masked one (both as
+    1/√spp): the target is scaled by their ratio in the converged ``reference``."""
     from pipeline.reference import render
 
     scale = 1.0 if mask is None else reference.estimate / max(_noise(reference, mask), 1e-30)
