@@ -185,3 +185,41 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
         assert a.keys() == b.keys()
         for array in a:
             assert a[array].tobytes() == b[array].tobytes(), (name, array)
+
+
+CHUNKED = TESTS / "toy" / "chunked_stages.yaml"
+
+
+def test_texel_tiles_and_vertex_batches_are_planned_from_upstream_data(tmp_path):
+    """A stage chunked by texel tiles gets one chunk per tile of each object's texture
+    (the sizes an upstream stage recorded); one chunked by vertex batches gets runs of
+    vertices per object (the geometry's vertex counts). Their pieces cover exactly the
+    textures' texels and the geometry's vertices; changing the atlas re-plans the tiles."""
+    import math
+
+    doc = small_scene_dict()
+    scene = load_scene(write_scene(tmp_path, doc))
+    workdir = Workdir(tmp_path / "w")
+    report = run(scene, load_stagefile(CHUNKED), workdir, progress=False)
+    sizes = open_artifact(workdir.artifact("atlas")).attrs["texture_sizes"]
+    tiles = [f"{obj}/y{y:05d}_x{x:05d}" for obj, (h, w) in sizes.items()
+             for y in range(0, h, 4) for x in range(0, w, 4)]
+    assert ran(report)["texels"] == tiles
+    texels = open_artifact(workdir.artifact("texels")).read("texels")
+    assert int(texels.sum()) == sum(h * w for h, w in sizes.values())
+
+    geometry = open_artifact(workdir.artifact("geometry"))
+    counts = geometry.attrs["vertex_counts"]
+    assert ran(report)["vertex_sums"] == [f"{obj}/v{s:08d}" for obj, n in counts.items()
+                                          for s in range(0, n, 7)]
+    vertices = open_artifact(workdir.artifact("vertex_sums")).read("vertices")
+    assert vertices.tobytes() == geometry.read("vertices").tobytes()
+
+    doc["settings"] = {"toy.texels_per_vertex": 2.0}
+    report = run(load_scene(write_scene(tmp_path, doc)), load_stagefile(CHUNKED), workdir,
+                 progress=False)
+    sizes = open_artifact(workdir.artifact("atlas")).attrs["texture_sizes"]
+    assert sizes["box"][0] == math.ceil(math.sqrt(counts["box"] * 2.0))
+    assert set(ran(report)) == {"atlas", "texels"}
+    assert len(ran(report)["texels"]) == sum(-(-h // 4) * -(-w // 4) for h, w in
+                                             sizes.values())

@@ -1,4 +1,5 @@
-"""Stage toy.shade: max(0, n · up) per pixel of a tile, by the kernel toy_shade.cl."""
+"""Stage toy.shade: max(0, n · up) per pixel of a tile, by the kernel toy_shade.cl, plus
+a little seeded noise (so that tests see a code edit draw the same random numbers)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ def run_chunk(ctx):
     buf = pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, max(out.nbytes, 4))
     event = cl.kernel("toy_shade.cl", "toy_shade")(
         cl.queue(), (len(out),), None, cl.read_only_buffer(normal), buf, np.int32(len(out)))
-    pcl.enqueue_copy(cl.queue(), out, buf, wait_for=[event])
+    pcl.enqueue_copy(cl.queue(), out, buf, wait_for=[event]).wait()
+    out += np.float32(1e-3) * ctx.rng.random(len(out), dtype=np.float32)
     return tile_blocks(ctx.chunk, {"shade": out.reshape(y1 - y0, x1 - x0)})
 
 
