@@ -302,7 +302,8 @@ def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, w
 
     sc = job.open_scene(scene, parse_size(size))
     m = get_method(method) if method else scene_methods(sc)[0]
-    sweep, cap = evaluate.default_plan(m, evaluate.parse_sweep(list(sweeps)), reference_max_spp)
+    sc, sweep, cap = evaluate.default_plan(sc, m, evaluate.parse_sweep(list(sweeps)),
+                                           reference_max_spp, size is not None)
     settings = evaluate.EvaluateSettings(repeats, cap)
     records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), m.name, sweep, out,
                                 settings, quiet)

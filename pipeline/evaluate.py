@@ -81,13 +81,18 @@ class EvaluateSettings:
     pathtrace_max_spp: int = 4096
 
 
-def default_plan(method: Method, sweep: dict[str, list[Any]], reference_max_spp: int | None
-                 ) -> tuple[dict[str, list[Any]], int]:
-    """The sweep and reference cap to run: the given ones, or the method's own bounded
-    defaults when no sweep is given."""
+def default_plan(scene: Scene, method: Method, sweep: dict[str, list[Any]],
+                 reference_max_spp: int | None, sized: bool
+                 ) -> tuple[Scene, dict[str, list[Any]], int]:
+    """The scene, sweep and reference cap to run: the given ones, or, when no sweep is
+    given, the method's own bounded defaults (its sweep, on the scene resized to its
+    ``evaluate_size`` unless ``sized``: the user chose the size)."""
     if sweep:
-        return sweep, reference_max_spp or 4096
-    return dict(method.evaluate_sweep), reference_max_spp or method.evaluate_reference_spp
+        return scene, sweep, reference_max_spp or 4096
+    if method.evaluate_size and not sized:
+        scene = apply_budget(scene, {"size": method.evaluate_size})
+    return scene, dict(method.evaluate_sweep), \
+        reference_max_spp or method.evaluate_reference_spp
 
 
 def parse_sweep(items: list[str]) -> dict[str, list[Any]]:

@@ -80,8 +80,9 @@ class Method:
     ``sequences``: ``"module:function"``; ``function(scene, artifacts, spec)`` returns
     (kind, edited scenes, labels) for a ``--frames`` spec, or raises PrtError.
     ``main_sequences``: the sequences ``prt run`` renders beside the frame.
-    ``evaluate_sweep``, ``evaluate_reference_spp``: what ``prt evaluate`` runs without
-    options (bounded: a few minutes on two cores).
+    ``evaluate_sweep``, ``evaluate_size``, ``evaluate_reference_spp``: what ``prt
+    evaluate`` runs without options (bounded: a few minutes on two cores): the sweep, on
+    the scene resized to ``evaluate_size`` pixels wide, references capped at that spp.
     ``check_scene``: ``"module:function"`` raising PrtError if the method cannot render
     the scene (e.g. a material lacks a setting it needs).
     ``stagefile``, ``schema_dir``, ``kernel_dir``: a plug-in's own stages, schemas and
@@ -99,6 +100,7 @@ class Method:
     sequences: str | None = None
     main_sequences: tuple[str, ...] = ()
     evaluate_sweep: dict[str, list[Any]] = field(default_factory=dict)
+    evaluate_size: int | None = None
     evaluate_reference_spp: int = 1024
     check_scene: str | None = None
     stagefile: Path | None = None

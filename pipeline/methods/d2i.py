@@ -49,8 +49,9 @@ METHOD = Method(
     ),
     sequences="pipeline.methods.d2i:sequence",
     main_sequences=("light:8", "gamma:8"),
-    evaluate_sweep={"size": [48, 96]},
-    evaluate_reference_spp=256,
+    evaluate_sweep={"gather.count": [4096, 16384]},
+    evaluate_size=96,
+    evaluate_reference_spp=1024,
     check_scene="pipeline.methods.d2i:check_scene",
 )
 

@@ -15,5 +15,6 @@ METHOD = Method(
     reference="direct",
     headline="rel_rmse",
     evaluate_sweep={"size": [64, 128]},
+    evaluate_size=128,
     evaluate_reference_spp=1024,
 )

@@ -27,6 +27,7 @@ METHOD = Method(
     sequences="toy_method.render:sequence",
     main_sequences=("gain:2",),
     evaluate_sweep={"size": [8]},
+    evaluate_size=8,
     evaluate_reference_spp=16,
     stagefile=HERE / "stages.yaml",
     schema_dir=HERE / "schema",
