@@ -127,7 +127,9 @@ def inspect_cmd(path, as_json) -> None:
         stats = ("" if a["min"] is None else
                  f" min {a['min']:.4g} max {a['max']:.4g} mean {a['mean']:.4g}")
         click.echo(f"  {name:<16} {a['dtype']:<8} {str(tuple(a['shape'])):<18} dims "
-                   f"{a['dims']} chunks {tuple(a['chunks'])} {a['stored_bytes']} B stored "
+                   f"{a['dims']} chunks {tuple(a['chunks'])}"
+                   f"{'' if a['pieces'] is None else ' in ' + str(a['pieces']) + ' pieces'} "
+                   f"{a['stored_bytes']} B stored "
                    f"(x{a['compression_ratio']}){stats} NaN {a['nan_count']}")
 
 

@@ -291,19 +291,21 @@ def clean(workdir: Workdir) -> int:
 
 def inspect_artifact(path: Path) -> dict[str, Any]:
     """Schema kind and version, and per array its shape, dtype, chunks, stored bytes and
-    statistics (min, max, mean over finite values; NaN count)."""
-
+    statistics (min, max, mean over finite values; NaN count). A segmented array (one
+    piece per chunk) reports its pieces and the zarr chunks of the largest."""
     path = Path(path)
     artifact = open_artifact(path)
     arrays = {}
     for name in artifact.names:
-        arr = artifact.array(name)
+        pieces = artifact.pieces(name) if artifact.is_segmented(name) else None
+        arr = max(pieces, key=lambda p: p.shape[0]) if pieces else artifact.array(name)
         data = artifact.read(name)
         stored = sum(p.stat().st_size for p in (path / name).rglob("*") if p.is_file())
         numeric = data.astype(np.float64) if data.size else np.zeros(1)
         finite = numeric[np.isfinite(numeric)]
         arrays[name] = {
             "shape": list(data.shape), "dtype": str(data.dtype), "chunks": list(arr.chunks),
+            "pieces": None if pieces is None else len(pieces),
             "dims": list(arr.metadata.dimension_names or []),
             "stored_bytes": stored, "bytes": int(data.nbytes),
             "compression_ratio": round(data.nbytes / stored, 2) if stored else None,
