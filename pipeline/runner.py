@@ -171,7 +171,7 @@ def _input_digests(spec: StageSpec, chunk: Chunk, records: dict[str, dict[str, A
     for dep in spec.inputs:
         record = records[dep]
         if dep not in spec.chunk_inputs:
-            out[dep] = record["digest"]
+            out[dep] = record.get("digest")  # None: written by an older prt, re-runs
             continue
         by = stagefile.stages[dep].chunks.by
         wanted = (chunk.materials if by == "material" else
@@ -458,5 +458,5 @@ def _drop_stale_markers(workdir: Workdir, stage: str, keep: set[str]) -> None:
     folder = workdir.markers(stage)
     if folder.is_dir():
         for child in folder.iterdir():
-            if child.name not in kept:
-                child.unlink(missing_ok=True)
+            if child.name not in kept:  # a file, or a chunk folder of an older prt
+                shutil.rmtree(child) if child.is_dir() else child.unlink(missing_ok=True)
