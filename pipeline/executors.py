@@ -200,12 +200,31 @@ class InProcessExecutor:
         self.close()
 
 
-def _init_worker(parent: int, threads: int) -> None:
-    """Worker initializer: die with the parent (``_die_with_parent``); then this worker's
-    share of the cores: ``threads`` threads per task for ``map_slices`` and Embree, PoCL's
-    CPU device limited to ``threads`` (set before any OpenCL context exists here), and
-    BLAS and OpenMP at one thread."""
+def _search_dirs() -> tuple[list[str], list[str]]:
+    """This process's kernel and schema folders (pipeline/searchpath.py), which include
+    those that method plug-ins added when they were imported."""
+    from pipeline.searchpath import kernel_dirs, schema_dirs
+
+    return [str(p) for p in kernel_dirs()], [str(p) for p in schema_dirs()]
+
+
+def _init_worker(parent: int, threads: int, search: tuple[list[str], list[str]]) -> None:
+    """Worker initializer: die with the parent (``_die_with_parent``); find kernels and
+    schemas where the parent does (``search``: the plug-ins' folders, which a worker
+    would otherwise only learn by importing the plug-ins); then this worker's share of
+    the cores: ``threads`` threads per task for ``map_slices`` and Embree, PoCL's CPU
+    device limited to ``threads`` (set before any OpenCL context exists here), and BLAS
+    and OpenMP at one thread."""
+    from pathlib import Path
+
+    from pipeline.searchpath import add_kernel_dir, add_schema_dir, kernel_dirs, schema_dirs
+
     _die_with_parent(parent)
+    for folders, have, add in ((search[0], kernel_dirs(), add_kernel_dir),
+                               (search[1], schema_dirs(), add_schema_dir)):
+        for folder in map(Path, folders):
+            if folder not in have:
+                add(folder)
     global _task_threads
     _task_threads = threads
     cap_opencl_threads(threads)
@@ -248,7 +267,7 @@ class LocalPoolExecutor:
     def _new_pool(self) -> ProcessPoolExecutor:
         ctx = multiprocessing.get_context("spawn")
         return ProcessPoolExecutor(self.jobs, mp_context=ctx, initializer=_init_worker,
-                                   initargs=(os.getpid(), self.threads))
+                                   initargs=(os.getpid(), self.threads, _search_dirs()))
 
     def map_unordered(self, fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Any]:
         tasks = list(tasks)

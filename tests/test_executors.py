@@ -131,3 +131,20 @@ def test_cli_jobs_and_threads_options(tmp_path, monkeypatch):
     with pytest.raises(SystemExit) as exit_info:
         main()
     assert exit_info.value.code == 2
+
+
+def kernel_folders(_task: int) -> list[str]:
+    from pipeline.searchpath import kernel_dirs
+
+    return [str(p) for p in kernel_dirs()]
+
+
+def test_pool_workers_find_kernels_where_this_process_does(tmp_path, monkeypatch):
+    """A folder a plug-in added (pipeline/searchpath.py) is searched in the workers too:
+    they run the plug-in's stages without importing the plug-in."""
+    from pipeline import searchpath
+
+    monkeypatch.setitem(searchpath._EXTRA, "kernels", [tmp_path])
+    with LocalPoolExecutor(2, 1) as executor:
+        seen = list(executor.map_unordered(kernel_folders, range(2)))
+    assert seen == [kernel_folders(0)] * 2 and str(tmp_path) in seen[0]
