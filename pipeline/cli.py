@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from pipeline.errors import PrtError
+from pipeline.executors import Cores, available_cpus, use_cores
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -18,8 +19,26 @@ WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=Non
 STAGES = click.option("--stages", "stagefile", type=click.Path(path_type=Path), default=None,
                       help="Stage file [default: the project's stages.yaml].")
 QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-JOBS = click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
-                    help="Chunks computed in parallel (worker processes).")
+_AUTO = Cores.auto()
+JOBS = click.option(
+    "--jobs", "-j", type=click.IntRange(min=1), default=None,
+    help=f"Chunks computed at once: worker processes (1: in this process). [default: "
+         f"$PRT_JOBS, else with --threads T the cores / T, else chosen for the cores: "
+         f"{_AUTO.workers} here ({_AUTO.describe()} on {available_cpus()} cores)]")
+THREADS = click.option(
+    "--threads", type=click.IntRange(min=1), default=None,
+    help=f"Threads per chunk (its thread pools, Embree's ray batches, the OpenCL CPU "
+         f"device's threads). [default: $PRT_THREADS, else with --jobs N the cores / N, "
+         f"else chosen for the cores: {_AUTO.threads} here]")
+
+
+def cores_option(jobs: int | None, threads: int | None) -> Cores:
+    """The Cores setting of a command's --jobs and --threads (see pipeline/executors.py
+    ``Cores.resolve``), applied to this process (its frames use as many threads, and
+    PoCL's CPU device no more, when fewer than the cores)."""
+    cores = Cores.resolve(jobs, threads)
+    use_cores(cores)
+    return cores
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
@@ -54,16 +73,20 @@ def cli() -> None:
 @WORKDIR
 @STAGES
 @JOBS
+@THREADS
 @QUIET
-def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, quiet) -> None:
+def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, threads,
+            quiet) -> None:
     """Bake every stale stage, then render the scene's frames."""
     from pipeline import job
 
+    cores = cores_option(jobs, threads)
     sc = job.open_scene(scene)
     wd = job.workdir_for(sc, workdir)
     frames = frames or Path("frames") / sc.name
-    report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force), jobs,
-                                               quiet, stagefile)
+    report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force),
+                                               cores.workers, quiet, stagefile,
+                                               threads=cores.threads)
     if as_json:
         click.echo(json.dumps({
             "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
@@ -189,22 +212,25 @@ def methods_cmd(as_json) -> None:
               help="Print one JSON line with timings (ms) and the image size.")
 @WORKDIR
 @JOBS
+@THREADS
 @QUIET
 def render_cmd(scene, method, out, sequence, options, size, edits, as_json, workdir, jobs,
-               quiet) -> None:
+               threads, quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
     from pipeline.method import get_method, scene_methods
     from pipeline.scene_edits import with_material_edits
 
+    cores = cores_option(jobs, threads)
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
     m = get_method(method) if method else scene_methods(sc)[0]
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
     wd = job.workdir_for(sc, workdir)
-    result = job.render(sc, wd, m.name, out, jobs=jobs, quiet=quiet, options=values)
+    result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
+                        threads=cores.threads)
     frame = result.frame
     if sequence:
         seq = job.render_sequence(sc, wd, m.name, sequence, out, values)

@@ -54,15 +54,19 @@ def baked_stages(scene: Scene, methods: list[Method] | None = None) -> set[str]:
 
 
 def bake(scene: Scene, workdir: Workdir, until: str | None = None,
-         force: tuple[str, ...] = (), jobs: int = 1, quiet: bool = False,
+         force: tuple[str, ...] = (), jobs: int | None = None, quiet: bool = False,
          stagefile: str | Path | None = None,
-         methods: list[Method] | None = None) -> list[StageRun]:
+         methods: list[Method] | None = None, threads: int | None = None) -> list[StageRun]:
     """Run every stale stage that the scene's methods (or ``methods``) need, or those
-    ``until`` needs; a custom ``stagefile`` runs all of its stages."""
+    ``until`` needs; a custom ``stagefile`` runs all of its stages. Chunks run on
+    ``jobs`` worker processes (1: in this process) with ``threads`` threads each; either
+    None: pipeline/executors.py ``Cores.resolve`` (``$PRT_JOBS``, ``$PRT_THREADS``, else
+    chosen from the available cores). The artifacts do not depend on either."""
     graph = stages(stagefile)
     targets = None if until or stagefile else baked_stages(scene, methods)
-    return run(scene, graph, workdir, until=until, force=force, executor=make_executor(jobs),
-               progress=not quiet, targets=targets)
+    with make_executor(jobs, threads) as executor:
+        return run(scene, graph, workdir, until=until, force=force, executor=executor,
+                   progress=not quiet, targets=targets)
 
 
 def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
@@ -105,10 +109,12 @@ class RenderResult:
     baked: list[StageRun]
 
 
-def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1,
+def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | None = None,
            quiet: bool = False, reuse: bool = False,
-           options: dict[str, Any] | None = None) -> RenderResult:
-    """Bake what ``method`` needs, render one frame, write ``out`` (EXR) and a PNG beside.
+           options: dict[str, Any] | None = None, threads: int | None = None
+           ) -> RenderResult:
+    """Bake what ``method`` needs (``jobs``, ``threads``: as for :func:`bake`), render
+    one frame, write ``out`` (EXR) and a PNG beside.
 
     With ``reuse``, a frame whose inputs (see :func:`frame_key`) are unchanged since it
     was written is not rendered again."""
@@ -119,7 +125,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int = 1
 
     check_method_scene(m, scene)
     options = m.option_values({}) | (options or {})
-    baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m])
+    baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
     key = frame_key(scene, workdir, m, options)
     if reuse and out.is_file() and png.is_file() and _stored_key(meta) == key:
@@ -193,21 +199,21 @@ def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out:
 
 
 def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
-             force: tuple[str, ...], jobs: int, quiet: bool,
-             stagefile: str | Path | None = None
+             force: tuple[str, ...], jobs: int | None, quiet: bool,
+             stagefile: str | Path | None = None, threads: int | None = None
              ) -> tuple[list[StageRun], RenderResult | None, list[SequenceResult]]:
     """``prt run``: bake every stale stage of the scene's methods, then (unless
     ``until``, or with a custom stage file) bring the frame of the scene's first method
     and its edit sequences in ``frames`` up to date (the sequences are rendered again
     whenever the frame is)."""
     report = bake(scene, workdir, until=until, force=force, jobs=jobs, quiet=quiet,
-                  stagefile=stagefile)
+                  stagefile=stagefile, threads=threads)
     if until or stagefile:
         return report, None, []
     method = scene_methods(scene)[0]
     result = render(scene, workdir, method.name,
                     frames / f"{scene.name}_{method.name}.exr", jobs=jobs, quiet=quiet,
-                    reuse=True)
+                    reuse=True, threads=threads)
     sequences = [] if result.frame is None else \
         [render_sequence(scene, workdir, method.name, spec, result.exr)
          for spec in method.main_sequences]

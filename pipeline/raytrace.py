@@ -1,8 +1,10 @@
 """Ray casting with Embree (through embreex), batched across a thread pool.
 
 embreex releases the GIL inside ``EmbreeScene.run``, so batches of a few tens of
-thousands of rays run concurrently on all cores. Rays start at their origin (there is no
-t_near): callers offset shadow-ray origins off the surface themselves.
+thousands of rays run concurrently on a thread pool of this task's share of the cores
+(pipeline/executors.py ``task_threads``: all of them in a one-worker run, a worker's
+threads in a pool). Rays start at their origin (there is no t_near): callers offset
+shadow-ray origins off the surface themselves.
 
 :func:`surface_at` turns first hits into surface attributes (position, shading and
 geometric normals, tangent, uv, object and material) for every caller that shades or
@@ -11,13 +13,12 @@ samples at hits: the G-buffer, the gather samples and the reference path tracer.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-from pipeline.executors import map_slices
+from pipeline.executors import map_slices, task_threads
 from pipeline.math.frames import face_tangents, orthonormalize
 
 BATCH = 32768
@@ -39,7 +40,9 @@ class Hits:
 
 
 class RayTracer:
-    """An Embree scene over one triangle soup: ``vertices`` (V, 3), ``faces`` (F, 3)."""
+    """An Embree scene over one triangle soup: ``vertices`` (V, 3), ``faces`` (F, 3).
+    Rays are traced in batches on ``threads`` threads (default: ``task_threads()`` at
+    each call, so a tracer cached across tasks follows each task's share)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int | None = None):
         from embreex import rtcore_scene
@@ -48,7 +51,12 @@ class RayTracer:
         self.scene = rtcore_scene.EmbreeScene()
         triangles = np.ascontiguousarray(np.asarray(vertices, np.float32)[faces])
         TriangleMesh(self.scene, triangles)
-        self.threads = threads or os.cpu_count() or 1
+        self._threads = threads
+
+    @property
+    def threads(self) -> int:
+        """Threads a batched call uses now."""
+        return self._threads or task_threads()
 
     def _batched(self, fn, n: int, threads: int | None = None) -> list:
         return map_slices(fn, n, BATCH, threads or self.threads)

@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
+from pipeline import job
 from pipeline.errors import PrtError
-from pipeline.executors import LocalPoolExecutor
+from pipeline.executors import InProcessExecutor, LocalPoolExecutor
 from pipeline.runner import plan, run
-from pipeline.scene import load_scene
+from pipeline.scene import default_scene_path, load_scene
 from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact, read_record
 
@@ -86,13 +87,16 @@ def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path, jobs):
     assert not any(Path(killed.tmp).iterdir())
 
 
-def test_two_jobs_equal_one_job(tmp_path):
-    """--jobs 2 (a process pool) writes the same bytes as the in-process executor."""
+@pytest.mark.parametrize("threads", [1, 2])
+def test_two_jobs_equal_one_job(tmp_path, threads):
+    """--jobs 2 (a process pool) with 1 or 2 threads per task writes the same bytes as
+    the in-process executor with one thread."""
     scene = load_scene(write_scene(tmp_path, small_scene_dict()))
     stagefile = load_stagefile(STAGEFILE)
     serial, parallel = Workdir(tmp_path / "serial"), Workdir(tmp_path / "parallel")
-    run(scene, stagefile, serial, progress=False)
-    run(scene, stagefile, parallel, executor=LocalPoolExecutor(2), progress=False)
+    run(scene, stagefile, serial, executor=InProcessExecutor(threads=1), progress=False)
+    with LocalPoolExecutor(2, threads) as executor:
+        run(scene, stagefile, parallel, executor=executor, progress=False)
     assert artifact_bytes(serial) == artifact_bytes(parallel)
     for stage in STAGES:
         assert read_record(serial.artifact(stage))["key"] == \
@@ -115,3 +119,28 @@ def test_workdir_holds_one_copy_of_each_artifact(tmp_path):
     assert {p.suffix for p in others} <= {".json", ""} and \
         {p.name for p in others if p.suffix == ""} == {".lock"}
     assert sum(p.stat().st_size for p in others) < 64 * 1024
+
+
+D2I_STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer",
+              "d2i.bounce", "d2i.truncate")
+
+
+def test_d2i_bake_is_bit_identical_whatever_workers_and_threads(tmp_path):
+    """Method d2i's stages (Embree visibility groups and compression blocks on thread
+    pools, PoCL kernels) at 1 worker × 1 thread, 1 × 2 and 2 workers × 1 thread (whose
+    PoCL device has one thread, not this process's two): the same bytes. Tiles and
+    gather blocks small enough that every chunked stage has several chunks."""
+    scene = load_scene(default_scene_path()).with_image_size(24, 24).with_settings(
+        {"gather.count": 1024, "transfer.tile": 8, "gbuffer.tile": 8, "bounce.block": 256})
+    digests = {}
+    for jobs, threads in ((1, 1), (1, 2), (2, 1)):
+        workdir = job.workdir_for(scene, tmp_path / f"{jobs}x{threads}")
+        report = job.bake(scene, workdir, until="d2i.truncate", quiet=True, jobs=jobs,
+                          threads=threads)
+        assert len([r for r in report if r.name == "d2i.transfer"][0].ran_chunks) == 9
+        digests[jobs, threads] = {
+            stage: (read_record(workdir.artifact(stage))["digest"],
+                    {n: a.tobytes() for n, a in
+                     open_artifact(workdir.artifact(stage)).read_all().items()})
+            for stage in D2I_STAGES}
+    assert digests[1, 1] == digests[1, 2] == digests[2, 1]
