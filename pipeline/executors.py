@@ -24,7 +24,7 @@ from typing import Any, Protocol
 
 ENV_WORKERS = "PRT_JOBS"      # overrides the automatic number of worker processes
 ENV_THREADS = "PRT_THREADS"   # overrides the automatic number of threads per task
-THREADS_PER_WORKER = 2        # threads per task of the automatic choice above 2 cores
+THREADS_PER_WORKER = 2        # threads per task of the automatic choice above 3 cores
 # PoCL's CPU device: its worker threads (compute units), read when OpenCL first starts in
 # a process. POCL_CPU_MAX_CU_COUNT since PoCL 4 (the old name still works there);
 # the PoCL 3.0 that pyopencl's wheel bundles reads only POCL_MAX_PTHREAD_COUNT.
