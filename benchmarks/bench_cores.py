@@ -25,7 +25,9 @@ recorded: they must all be equal.
 
 Run from the project root, nothing else heavy running:
   python benchmarks/bench_cores.py --workdir /tmp/bench_cores --full
-Writes benchmarks/results/cores.json (``--out``).
+Writes benchmarks/results/cores.json (``--out``); every run is also appended to
+WORKDIR/runs.jsonl as it ends, and ``--resume`` (same arguments) keeps those runs after
+an interruption.
 """
 
 from __future__ import annotations
@@ -167,8 +169,30 @@ def stage_seconds(report: dict, name: str) -> float:
     return next(s["seconds"] for s in report["stages"] if s["name"] == name)
 
 
+class Journal:
+    """Every run's record, appended to a JSON-lines file as soon as it is taken, so that
+    an interrupted benchmark resumes (``--resume``) with the runs it has."""
+
+    def __init__(self, path: Path, resume: bool) -> None:
+        self.path = path
+        if not resume:
+            path.unlink(missing_ok=True)
+        self.records = [json.loads(line) for line in path.read_text().splitlines()
+                        if line.strip()] if path.is_file() else []
+
+    def done(self, part: str, round_: int, config: str) -> dict | None:
+        return next((r for r in self.records if (r["part"], r["round"], r["config"])
+                     == (part, round_, config)), None)
+
+    def add(self, record: dict) -> None:
+        self.records.append(record)
+        with self.path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+        print(json.dumps(record), flush=True)
+
+
 def transfer_runs(scene: Path, workdir: Path, configs: list[str], runs: int,
-                  size: int) -> list[dict]:
+                  size: int, journal: Journal) -> list[dict]:
     """``runs`` rounds of a forced d2i.transfer per configuration, alternating."""
     bake = workdir / "transfer"
     prt(["run", str(scene), "--until", "d2i.transfer", "--workdir", str(bake)])
@@ -176,16 +200,19 @@ def transfer_runs(scene: Path, workdir: Path, configs: list[str], runs: int,
     for round_ in range(runs):
         order = configs if round_ % 2 == 0 else configs[::-1]
         for config in order:
+            if (old := journal.done("transfer", round_, config)) is not None:
+                records.append(old)
+                continue
             r = quiet_prt(["run", str(scene), "--until", "d2i.transfer", "--force",
-                           "d2i.transfer",
-                     "--workdir", str(bake), *cores_args(config)])
+                           "d2i.transfer", "--workdir", str(bake), *cores_args(config)])
             stage = next(s for s in r["report"]["stages"] if s["name"] == "d2i.transfer")
             seconds = stage["seconds"]
             chunks = len(stage["ran_chunks"])
             chunk_phase = last_piece_time(Workdir(bake), "d2i.transfer") - r["started"]
             each = chunk_seconds(Workdir(bake), "d2i.transfer")
             records.append({
-                "round": round_, "config": config, "transfer_s": round(seconds, 3),
+                "part": "transfer", "round": round_, "config": config,
+                "transfer_s": round(seconds, 3),
                 "chunks_s": round(chunk_phase, 3), "assemble_s": round(seconds - chunk_phase, 3),
                 "chunk_seconds_sum": round(sum(each), 2), "chunk_seconds": each,
                 "chunks": chunks, "chunks_per_s": round(chunks / chunk_phase, 4),
@@ -194,27 +221,32 @@ def transfer_runs(scene: Path, workdir: Path, configs: list[str], runs: int,
                 "other_cpu_s": None if r["other_cpu_s"] is None else round(r["other_cpu_s"], 2),
                 "noisy": r["noisy"], "attempts": r["attempt"] + 1,
                 "digest": read_record(Workdir(bake).artifact("d2i.transfer"))["digest"]})
-            print(json.dumps(records[-1]), flush=True)
+            journal.add(records[-1])
     return records
 
 
-def full_runs(scene: Path, workdir: Path, configs: list[str], runs: int) -> list[dict]:
+def full_runs(scene: Path, workdir: Path, configs: list[str], runs: int,
+              journal: Journal) -> list[dict]:
     """``runs`` rounds of a bake from scratch to d2i.truncate per configuration."""
     records = []
     for round_ in range(runs):
         order = configs if round_ % 2 == 0 else configs[::-1]
         for config in order:
+            if (old := journal.done("full", round_, config)) is not None:
+                records.append(old)
+                continue
             bake = workdir / f"full_{config}"
             r = quiet_prt(["run", str(scene), "--until", "d2i.truncate", "--workdir",
                            str(bake), *cores_args(config)], fresh=bake)
             records.append({
-                "round": round_, "config": config, "wall_s": round(r["wall_s"], 2),
+                "part": "full", "round": round_, "config": config,
+                "wall_s": round(r["wall_s"], 2),
                 "cpu_s": round(r["cpu_s"], 1),
                 "other_cpu_s": None if r["other_cpu_s"] is None else round(r["other_cpu_s"], 1),
                 "noisy": r["noisy"], "attempts": r["attempt"] + 1,
                 "stages_s": {s["name"]: round(s["seconds"], 2) for s in r["report"]["stages"]},
                 "digest": read_record(Workdir(bake).artifact("d2i.truncate"))["digest"]})
-            print(json.dumps(records[-1]), flush=True)
+            journal.add(records[-1])
             shutil.rmtree(bake, ignore_errors=True)
     return records
 
@@ -260,8 +292,11 @@ def main() -> None:
                         help="also bake the 256² scene from scratch, 1x1 against auto")
     parser.add_argument("--full-configs", default="1x1,auto")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cores.json")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the runs already in WORKDIR/runs.jsonl (same arguments)")
     args = parser.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
+    journal = Journal(args.workdir / "runs.jsonl", args.resume)
     configs, full_configs = args.configs.split(","), args.full_configs.split(",")
 
     result: dict = {
@@ -272,7 +307,7 @@ def main() -> None:
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
     }
     records = transfer_runs(scene_file(args.workdir, args.size), args.workdir, configs,
-                            args.runs, args.size)
+                            args.runs, args.size, journal)
     result["transfer"] = {
         "what": f"default scene at {args.size}x{args.size}: prt run --until d2i.transfer "
                 "--force d2i.transfer [--jobs J --threads T]; the stage's seconds",
@@ -283,7 +318,8 @@ def main() -> None:
         "pixels_per_s_median": medians(records, configs, "pixels_per_s"),
         "runs": records}
     if args.full:
-        full = full_runs(scene_file(args.workdir, 256), args.workdir, full_configs, args.runs)
+        full = full_runs(scene_file(args.workdir, 256), args.workdir, full_configs, args.runs,
+                         journal)
         result["full_bake"] = {
             "what": "default scene at 256x256 from scratch: prt run --until d2i.truncate "
                     "[--jobs J --threads T]; wall seconds of the command",
