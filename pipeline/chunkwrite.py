@@ -39,7 +39,7 @@ import numpy as np
 
 from pipeline.errors import PrtError
 from pipeline.schema import Schema
-from pipeline.store import RECORD_FORMAT, Workdir, read_record
+from pipeline.store import RECORD_FORMAT, Workdir, compressors, read_record
 
 
 @dataclass(frozen=True)
@@ -83,6 +83,7 @@ def begin(workdir: Workdir, path: Path, schema: Schema, record: dict[str, Any],
         for name in regions:
             spec = schema.arrays[name]
             group.create_array(name, shape=shapes[name], dtype=spec.dtype,
+                               compressors=compressors(),
                                chunks=_zarr_chunks(schema, name, shapes[name], sizes),
                                dimension_names=spec.dims, fill_value=0)
         for name, spec in schema.arrays.items():
@@ -122,6 +123,7 @@ def write_chunk(path: Path, schema: Schema, chunk_id: str,
 def _write_whole(group: Any, name: str, data: np.ndarray, dims: tuple[str, ...],
                  chunks: tuple[int, ...]) -> None:
     arr = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=chunks,
+                             compressors=compressors(),
                              dimension_names=dims, fill_value=0, overwrite=True)
     if data.size:
         arr[...] = data

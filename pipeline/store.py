@@ -102,6 +102,15 @@ def software_versions() -> dict[str, str]:
     return versions
 
 
+def compressors() -> list[Any]:
+    """The codecs of every stored array: zstd with its frame checksum on, so that a
+    chunk file changed on disk (a flipped byte, a truncated copy) fails to decode and
+    is reported (``Artifact.read`` names the chunk), instead of reading as numbers."""
+    from zarr.codecs import ZstdCodec
+
+    return [ZstdCodec(level=0, checksum=True)]
+
+
 def write_group(workdir: Workdir, path: Path, arrays: dict[str, np.ndarray],
                 attrs: dict[str, Any], chunks: dict[str, tuple[int, ...]],
                 dims: dict[str, tuple[str, ...]]) -> None:
@@ -118,6 +127,7 @@ def write_group(workdir: Workdir, path: Path, arrays: dict[str, np.ndarray],
     for name, data in arrays.items():
         data = np.ascontiguousarray(data)
         arr = group.create_array(name, shape=data.shape, dtype=data.dtype,
+                                 compressors=compressors(),
                                  chunks=chunks.get(name, tuple(max(1, n) for n in data.shape)
                                                    or (1,)),
                                  dimension_names=dims.get(name), fill_value=0)
