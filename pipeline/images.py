@@ -142,6 +142,25 @@ def read_image(path: str | Path) -> np.ndarray:
     return read_exr(path)
 
 
+def read_environment(path: str | Path) -> np.ndarray:
+    """An environment map: a latitude-longitude image (width = 2 × height), (height,
+    width, 3) float32 linear radiance, every texel finite and non-negative. Raise
+    PrtError naming the file and the first offending texel otherwise: a NaN, Inf or
+    negative texel would light a whole scene with garbage."""
+    rgb = read_image(path)
+    height, width = rgb.shape[:2]
+    if width != 2 * height:
+        raise PrtError(path, f"environment map is {width}x{height}: a latitude-longitude "
+                       "map is twice as wide as it is high")
+    for bad, what in ((~np.isfinite(rgb), "not finite"), (rgb < 0, "negative")):
+        if bad.any():
+            y, x, c = (int(i) for i in np.argwhere(bad)[0])
+            raise PrtError(path, f"environment map texel (x {x}, y {y}) is {what} "
+                           f"({rgb[y, x, c]} in channel {'RGB'[c]}; {int(bad.sum())} values "
+                           "in all)")
+    return rgb
+
+
 def write_heatmap(path: str | Path, values: np.ndarray, vmax: float,
                   colormap: str = "magma") -> None:
     """Write (height, width) non-negative ``values`` as a colour-mapped 8-bit PNG, 0 at

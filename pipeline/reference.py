@@ -174,9 +174,9 @@ class TransportScene:
                   if light.type != "environment"]
         self.lights = pack_lights(lights, {n: i for i, n in enumerate(object_names)}
                                   ).astype(np.float64)
-        from pipeline.images import read_image
+        from pipeline.images import read_environment
 
-        self.environments = [EnvironmentMap(read_image(light.params["file"]),
+        self.environments = [EnvironmentMap(read_environment(light.params["file"]),
                                             light.params.get("rotation", 0.0),
                                             light.params.get("scale", 1.0))
                              for light in scene.lights if light.type == "environment"]

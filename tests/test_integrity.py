@@ -5,7 +5,10 @@ happened."""
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 
+import numpy as np
 import pytest
 from helpers import small_scene_dict, write_scene
 
@@ -45,3 +48,30 @@ def test_a_flipped_byte_in_any_chunk_is_reported(baked, tmp_path, stage):
     with pytest.raises(PrtError, match="corrupt or truncated chunk") as error:
         open_artifact(artifact).read_all()
     assert str(artifact) in error.value.one_line() and "prt run --force" in error.value.one_line()
+
+
+@pytest.mark.parametrize(("texel", "problem"), [(np.nan, "not finite"), (np.inf, "not finite"),
+                                                (-1.0, "negative")])
+def test_a_bad_environment_map_is_refused(tmp_path, texel, problem):
+    """`prt reference --transport env-direct` with a map holding a NaN, Inf or negative
+    texel exits 2 with one line naming the map and the texel, not a half-NaN image."""
+    from helpers import constant_environment
+
+    from pipeline.images import write_exr
+
+    env = constant_environment(tmp_path / "env.exr", [1.0, 1.0, 1.0])
+    rgb = np.ones((8, 16, 3), np.float32)
+    rgb[3, 5, 1] = texel
+    write_exr(env, rgb)
+    doc = small_scene_dict(size=8)
+    doc["lights"] = [{"type": "environment", "file": env.name}]
+    scene = write_scene(tmp_path, doc)
+    result = subprocess.run([sys.executable, "-m", "pipeline", "reference", str(scene),
+                             "--transport", "env-direct", "--out", str(tmp_path / "r.exr"),
+                             "--workdir", str(tmp_path / "w"), "--max-spp", "4", "-q"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stderr
+    line = result.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line
+    assert str(env) in line and f"(x 5, y 3) is {problem}" in line
+    assert not (tmp_path / "r.exr").exists()
