@@ -83,8 +83,10 @@ class Method:
     ``evaluate_sweep``, ``evaluate_size``, ``evaluate_reference_spp``: what ``prt
     evaluate`` runs without options (bounded: a few minutes on two cores): the sweep, on
     the scene resized to ``evaluate_size`` pixels wide, references capped at that spp.
+    ``lights``: the light kinds (scene ``lights[].type``) the method renders; a scene
+    with another kind, or with none of these, is refused before anything is baked.
     ``check_scene``: ``"module:function"`` raising PrtError if the method cannot render
-    the scene (e.g. a material lacks a setting it needs).
+    the scene for another reason (e.g. a material lacks a setting it needs).
     ``stagefile``, ``schema_dir``, ``kernel_dir``: a plug-in's own stages, schemas and
     kernels (the built-in methods' live in the project's files).
     """
@@ -102,6 +104,7 @@ class Method:
     evaluate_sweep: dict[str, list[Any]] = field(default_factory=dict)
     evaluate_size: int | None = None
     evaluate_reference_spp: int = 1024
+    lights: tuple[str, ...] = ()
     check_scene: str | None = None
     stagefile: Path | None = None
     schema_dir: Path | None = None
@@ -184,7 +187,17 @@ def scene_methods(scene: Scene) -> list[Method]:
 
 
 def check_method_scene(method: Method, scene: Scene) -> None:
-    """Raise PrtError if ``method`` cannot render ``scene``."""
+    """Raise PrtError if ``method`` cannot render ``scene``: a light kind it does not
+    render (naming the methods that do), no light it renders, or its own check."""
+    for i, light in enumerate(scene.lights):
+        if light.type not in method.lights:
+            others = [m.name for m in registry().values() if light.type in m.lights]
+            raise PrtError(scene.path, f"lights[{i}]: method {method.name} does not render "
+                           f"{light.type} lights (methods that do: "
+                           f"{', '.join(others) or 'none yet'})")
+    if not scene.lights:
+        raise PrtError(scene.path, f"lights: the scene has no light; method {method.name} "
+                       f"renders {', '.join(method.lights)} lights")
     if method.check_scene:
         resolve(method.check_scene)(scene)
 

@@ -52,6 +52,7 @@ METHOD = Method(
     evaluate_sweep={"gather.count": [4096, 16384]},
     evaluate_size=96,
     evaluate_reference_spp=1024,
+    lights=("point", "spot", "directional", "quad"),
     check_scene="pipeline.methods.d2i:check_scene",
 )
 

@@ -17,4 +17,5 @@ METHOD = Method(
     evaluate_sweep={"size": [64, 128]},
     evaluate_size=128,
     evaluate_reference_spp=1024,
+    lights=("point", "spot", "directional", "quad"),
 )

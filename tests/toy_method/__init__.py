@@ -28,6 +28,7 @@ METHOD = Method(
     main_sequences=("gain:2",),
     evaluate_sweep={"size": [8]},
     evaluate_size=8,
+    lights=("point", "spot", "directional", "quad"),
     evaluate_reference_spp=16,
     stagefile=HERE / "stages.yaml",
     schema_dir=HERE / "schema",
