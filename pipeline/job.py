@@ -132,12 +132,22 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
         return RenderResult(out, png, None, baked)
     from pipeline.images import write_exr, write_png
 
-    frame = frame_renderer(scene, workdir, method, options)(scene)
+    frame = checked_frame(frame_renderer(scene, workdir, method, options)(scene), out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_exr(out, frame.rgb)
     write_png(png, frame.rgb)
     meta.write_text(json.dumps({"key": key, "method": method, **frame.timings}, indent=1))
     return RenderResult(out, png, frame, baked)
+
+
+def checked_frame(frame: Frame, out: Path) -> Frame:
+    """``frame``, or PrtError naming ``out`` if any pixel is NaN or Inf (never a silent
+    image)."""
+    bad = int(frame.rgb.size - np.isfinite(frame.rgb).sum())
+    if bad:
+        raise PrtError(out, f"method {frame.method} rendered {bad} NaN or Inf values; "
+                       "frame not written")
+    return frame
 
 
 def frame_renderer(scene: Scene, workdir: Workdir, method: str,
@@ -189,8 +199,8 @@ def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out:
         else renderer
     paths, timings = [], []
     for i, edited in enumerate(scenes):
-        frame = frame_of(edited)
         path = out.with_name(f"{out.stem}_{kind}_{i:04d}.exr")
+        frame = checked_frame(frame_of(edited), path)
         write_exr(path, frame.rgb)
         write_png(path.with_suffix(".png"), frame.rgb)
         paths.append(path)

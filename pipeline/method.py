@@ -17,6 +17,7 @@ stages, namespaced ``<method>.<stage>``. A scene lists the methods it is baked f
 from __future__ import annotations
 
 import importlib
+import math
 import os
 import pkgutil
 from collections.abc import Callable
@@ -45,10 +46,13 @@ class Option:
 
     def parse(self, text: str) -> Any:
         try:
-            return self.type(text)
+            value = self.type(text)
         except ValueError:
             raise PrtError("--option", f"{self.name}={text!r}: expected a value of type "
                            f"{self.type.__name__}") from None
+        if isinstance(value, float) and not math.isfinite(value):
+            raise PrtError("--option", f"{self.name}={text!r}: expected a finite number")
+        return value
 
 
 @dataclass(frozen=True)

@@ -323,6 +323,7 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
                        key=task.key, rng=np.random.default_rng(task.seed), meshes=meshes)
     try:
         arrays = load_impl(task.impl).run_chunk(ctx)
+        _check_finite(task, arrays)
     except Exception as exc:
         exc.nothing_written = True  # the artifact is as it was: see _run_stage
         raise
@@ -333,6 +334,18 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
         "stage": task.stage, "chunk": task.chunk.id, "key": task.key,
         "digest": arrays_digest(arrays), "seconds": seconds, "meta": ctx.meta})
     return task.chunk.id, seconds
+
+
+def _check_finite(task: ChunkTask, arrays: dict[str, Any]) -> None:
+    """Refuse a chunk whose floating-point output holds NaN or Inf: stored, it would
+    turn into garbage frames far from its cause."""
+    for name, value in arrays.items():
+        data = value.data if isinstance(value, Block) else np.asarray(value)
+        if data.dtype.kind in "fc" and not np.isfinite(data).all():
+            count = int(data.size - np.isfinite(data).sum())
+            raise PrtError(task.marker, f"stage {task.stage}, chunk {task.chunk.id}: array "
+                           f"{name} has {count} NaN or Inf values; nothing was stored (check "
+                           "the stage's inputs, parameters and scene)")
 
 
 def _mesh_sources(spec: StageSpec, scene: Scene, chunk: Chunk) -> dict[str, tuple[str, Any]]:
