@@ -33,6 +33,7 @@ def test_unsupported_lights_are_refused_before_baking(tmp_path, method, lights):
     assert not (tmp_path / "w").exists() and not (tmp_path / "f.exr").exists()
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered in cast:RuntimeWarning")
 def test_a_stage_writing_inf_is_an_error_and_stores_nothing(tmp_path):
     """A stage chunk whose output overflows to Inf (toy per_object at scale 1e39 in
     float32) is refused: PrtError naming the stage and chunk; nothing of it is stored."""
