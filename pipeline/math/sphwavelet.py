@@ -136,6 +136,13 @@ class WaveletBasis:
             s = children.reshape(*c.shape[:-1], -1)
         return s
 
+    def support_areas(self) -> np.ndarray:
+        """Solid angle (N,) of each basis function's support, sr: its root's for a
+        scaling function, its triangle's for a wavelet. Paper 004's "area-weighted"
+        coefficient of the unnormalised ψ is the orthonormal one × √(support area)."""
+        return np.concatenate([self.root_areas] + [np.repeat(a.sum(axis=1), 3)
+                                                   for a in self.child_areas])
+
     def leaf_areas(self) -> np.ndarray:
         """Solid angles (N,) of the leaves, sr."""
         return geodesic_levels(self.leaf_level)[self.leaf_level].areas
@@ -163,12 +170,105 @@ class WaveletBasis:
         return np.broadcast_to(total, lead)
 
 
+def depth_first_keys(leaf_level: int) -> np.ndarray:
+    """A sort key (N,) that orders the coefficients depth first: each root's scaling
+    coefficient, then its triangle's three wavelets, then the subtree of its child 0,
+    child 1, ... Sorted by it, a sparse coefficient list visits every triangle after its
+    ancestors and each subtree in one run (what :func:`sparse_triple_product` needs).
+    Key of wavelet t of triangle n of level l: ((n << 2(L − 1 − l)) << 4 | (l + 1)) << 2
+    | t + 1; of the scaling coefficient of root r: r << 2(L − 1) << 6."""
+    keys = np.empty(coefficient_count(leaf_level), np.int64)
+    shift = 2 * (leaf_level - 1)
+    keys[:ROOTS] = np.arange(ROOTS, dtype=np.int64) << shift << 6
+    for level in range(leaf_level):
+        node = np.arange(ROOTS * 4 ** level, dtype=np.int64)
+        base = ((node << (shift - 2 * level)) << 4 | (level + 1)) << 2
+        keys[level_start(level):level_start(level + 1)] = \
+            (base[:, None] | np.arange(1, 4)).reshape(-1)
+    return keys
+
+
+def sparse_triple_product(basis: WaveletBasis,
+                          lists: tuple[tuple[np.ndarray, np.ndarray], ...]) -> float:
+    """∫ f g h dω from three sparse coefficient lists (indices, values), each sorted by
+    :func:`depth_first_keys`, in time linear in their total length (times the depth).
+
+    Walks the union of the triangles the lists touch in depth-first order, keeping for
+    each function the coefficients on the current path and its coarse value f̄ on every
+    triangle of the path (module docstring); a triangle none of the lists touches has
+    no coefficients, so its f̄ follows from its parent's. The NumPy twin of the
+    per-pixel loop in kernels/triple.cl (scalar Python: for tests, not for speed)."""
+    depth = basis.leaf_level
+    keys = depth_first_keys(depth)
+    heads = [0, 0, 0]
+    path = [-1] * depth  # the triangle on the current path at each level
+    own = np.zeros((3, depth, 3))  # the path triangles' wavelet coefficients
+    coarse = np.zeros((3, depth))  # f̄ on the path triangles
+    scaling = np.zeros(3)
+    total = 0.0
+    while True:
+        pending = [(keys[ix[i]], int(ix[i])) for (ix, _), i in zip(lists, heads, strict=True)
+                   if i < len(ix)]
+        if not pending:
+            return total
+        index = min(pending)[1]
+        if index < ROOTS:  # a root's scaling coefficients: they come first in its subtree
+            root = index
+            for f in range(3):
+                scaling[f] = 0.0
+                if heads[f] < len(lists[f][0]) and lists[f][0][heads[f]] == index:
+                    scaling[f] = lists[f][1][heads[f]]
+                    heads[f] += 1
+            path = [-1] * depth
+            path[0] = root
+            own[:] = 0.0
+            coarse[:, 0] = scaling / np.sqrt(basis.root_areas[root])
+            total += basis.root_areas[root] * np.prod(coarse[:, 0])
+            continue
+        level = int(np.log2(index // ROOTS)) // 2  # index in [20·4^l, 20·4^(l+1))
+        first = level_start(level) + 3 * ((index - level_start(level)) // 3)
+        node = (first - level_start(level)) // 3
+        c = np.zeros((3, 3))
+        for f in range(3):  # this triangle's coefficients are adjacent in every list
+            while heads[f] < len(lists[f][0]) and first <= lists[f][0][heads[f]] < first + 3:
+                c[f, lists[f][0][heads[f]] - first] = lists[f][1][heads[f]]
+                heads[f] += 1
+        for k in range(level + 1):  # bring the path down to this triangle
+            ancestor = node >> 2 * (level - k)
+            if path[k] == ancestor and k < level:
+                continue
+            if k == 0 and path[0] != ancestor:  # a new root without scaling coefficients
+                coarse[:, 0] = 0.0
+            elif k > 0:
+                parent = path[k - 1]
+                coarse[:, k] = coarse[:, k - 1] + own[:, k - 1] @ \
+                    basis.wavelets[k - 1][parent, :, ancestor & 3]
+            path[k] = ancestor
+            own[:, k] = 0.0
+        own[:, level] = c
+        fb, gb, hb = coarse[:, level]
+        total += np.sum(c[0] * c[1]) * hb + np.sum(c[0] * c[2]) * gb + np.sum(c[1] * c[2]) * fb
+        total += np.einsum("abc,a,b,c->", basis.node_tensors(level)[node], *c)
+
+
 @cache
 def wavelet_basis(leaf_level: int) -> WaveletBasis:
     """The orthonormal basis of level ``leaf_level`` (cached; treat as read-only)."""
     levels = geodesic_levels(leaf_level)
     child_areas = tuple(levels[level + 1].areas.reshape(-1, 4) for level in range(leaf_level))
     return WaveletBasis(leaf_level, levels[0].areas, child_areas,
+                        tuple(nearest_orthonormal_wavelets(a) for a in child_areas))
+
+
+@cache
+def equal_area_basis(leaf_level: int) -> WaveletBasis:
+    """Paper 004's basis for comparison: the sign patterns (normalised) with every root
+    taken as 4π/20 and every child as a quarter of its parent. Its triple product is the
+    paper's tripling theorem; on the real leaves it is the equal-weight sum
+    Σ_leaf (4π/N) f g h instead of Σ_leaf Ω_leaf f g h."""
+    child_areas = tuple(np.full((ROOTS * 4 ** level, 4), 4 * np.pi / ROOTS / 4 ** (level + 1))
+                        for level in range(leaf_level))
+    return WaveletBasis(leaf_level, np.full(ROOTS, 4 * np.pi / ROOTS), child_areas,
                         tuple(nearest_orthonormal_wavelets(a) for a in child_areas))
 
 
