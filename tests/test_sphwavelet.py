@@ -14,6 +14,7 @@ from pipeline.math.sphwavelet import (
     basis_functions,
     depth_first_keys,
     equal_area_basis,
+    kernel_tables,
     leaf_means,
     sparse_triple_product,
     tripling_by_quadrature,
@@ -176,3 +177,52 @@ def test_depth_first_sparse_triple_product_equals_the_dense_one():
             lists.append((order, f[order]))
         assert sparse_triple_product(basis, tuple(lists)) == pytest.approx(
             basis.triple_product(*dense), rel=1e-9, abs=1e-9)
+
+
+def csr_table(rng: np.random.Generator, rows: int, basis, keys: np.ndarray,
+              fraction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A random sparse table: start (rows + 1,), index (ushort, depth-first sorted per
+    row), value (float32), and the dense rows (rows, N) it stands for."""
+    dense = np.zeros((rows, basis.size), np.float32)
+    start, index, value = [0], [], []
+    for r in range(rows):
+        kept = np.flatnonzero(rng.random(basis.size) < fraction)
+        kept = kept[np.argsort(keys[kept])]
+        dense[r, kept] = rng.normal(size=len(kept)).astype(np.float32)
+        index.append(kept)
+        value.append(dense[r, kept])
+        start.append(start[-1] + len(kept))
+    return (np.array(start, np.uint32), np.concatenate(index).astype(np.uint16),
+            np.concatenate(value), dense)
+
+
+def test_triple_product_kernel_matches_numpy():
+    """kernels/sphwavelet.h: triple products of weighted sums of up to 8 sparse rows per
+    function against the dense float64 tree sum. Tolerance: float32 sums of ~10³ terms
+    of order 1: ~10² ulp, relative 1e-5 of the sum of the terms' magnitudes (found 4e-7)."""
+    cl = pytest.importorskip("pipeline.cl")
+    level, n, rows_max = 3, 64, 8
+    basis = wavelet_basis(level)
+    keys = depth_first_keys(level)
+    rng = np.random.default_rng(11)
+    tables = [csr_table(rng, 12, basis, keys, fraction) for fraction in (0.6, 0.1, 0.3)]
+    rows = rng.integers(0, 12, size=(n, 3, rows_max)).astype(np.uint32)
+    weight = rng.uniform(0, 1, size=(n, 3, rows_max)).astype(np.float32)
+    count = rng.integers(1, rows_max + 1, size=(n, 3)).astype(np.int32)
+    dense = np.zeros((3, n, basis.size))
+    for f in range(3):
+        for i in range(n):
+            k = count[i, f]
+            dense[f, i] = weight[i, f, :k] @ tables[f][3][rows[i, f, :k]]
+    expected = basis.triple_product(*dense)
+    scale = basis.triple_product(*np.abs(dense))  # ≥ every partial sum's magnitude
+    tables32 = kernel_tables(basis)
+    buffers = [cl.read_only_buffer(a) for t in tables for a in t[:3]]
+    buffers += [cl.read_only_buffer(a) for a in (rows, weight, count)]
+    buffers += [cl.read_only_buffer(tables32[k]) for k in ("root_area", "wavelet", "tensor")]
+    out = np.empty(n, np.float32)
+    kernel = cl.kernel("triple_product.cl", "triple_products",
+                       {"SW_LEVELS": level, "SW_ROWS": rows_max})
+    cl.run(kernel, n, *buffers, np.int32(n), out=out)
+    assert np.all(np.abs(out - expected) <= 1e-5 * scale), np.max(np.abs(out - expected) / scale)
+    assert np.abs(expected).max() > 1e-3 * scale.max()  # the sums are not trivially zero

@@ -251,6 +251,17 @@ def sparse_triple_product(basis: WaveletBasis,
         total += np.einsum("abc,a,b,c->", basis.node_tensors(level)[node], *c)
 
 
+def kernel_tables(basis: WaveletBasis) -> dict[str, np.ndarray]:
+    """The basis as kernels/sphwavelet.h reads it (float32): ``root_area`` (20,),
+    ``wavelet`` (triangles of levels 0 .. L − 1, 12) and ``tensor`` (same, 27)."""
+    levels = range(basis.leaf_level)
+    return {"root_area": basis.root_areas.astype(np.float32),
+            "wavelet": np.concatenate([basis.wavelets[lv].reshape(-1, 12) for lv in levels]
+                                      ).astype(np.float32),
+            "tensor": np.concatenate([basis.node_tensors(lv).reshape(-1, 27) for lv in levels]
+                                     ).astype(np.float32)}
+
+
 @cache
 def wavelet_basis(leaf_level: int) -> WaveletBasis:
     """The orthonormal basis of level ``leaf_level`` (cached; treat as read-only)."""
