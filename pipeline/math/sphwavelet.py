@@ -251,6 +251,63 @@ def sparse_triple_product(basis: WaveletBasis,
         total += np.einsum("abc,a,b,c->", basis.node_tensors(level)[node], *c)
 
 
+SELECTIONS = ("top-only", "adaptive")
+
+
+def select_coefficients(coefficients: np.ndarray, basis: WaveletBasis, selection: str,
+                        budget: int, tolerance: float = 0.0) -> dict[str, np.ndarray]:
+    """Truncate rows of coefficients (R, N) to CSR rows (``pipeline.rows``: ``count``
+    (R,), ``residual`` (R,), flat ``index`` uint16 and ``value`` float32), each row's
+    entries sorted by :func:`depth_first_keys` (what the kernels merge).
+
+    ``selection`` orders each row's candidates: ``top-only`` by index (coarse levels
+    first; paper 004: the first n of the layout), ``adaptive`` by the area-weighted
+    magnitude |c|·√(support solid angle) (paper 004's "largest area-weighted"). A row
+    keeps at most ``budget`` of its non-zero coefficients, and with ``tolerance`` > 0
+    only as many as it needs for the dropped part to hold at most ``tolerance`` of its
+    L2 norm (the basis is orthonormal: ‖f − f̃‖ / ‖f‖ = √(dropped Σ c²) / √(Σ c²)).
+    ``residual`` is that relative L2 norm of what each row dropped."""
+    c = np.asarray(coefficients, np.float64)
+    rows, size = c.shape
+    if selection == "top-only":
+        order = np.broadcast_to(np.arange(size), c.shape)
+    elif selection == "adaptive":
+        order = np.argsort(-np.abs(c) * np.sqrt(basis.support_areas()), axis=1, kind="stable")
+    else:
+        raise ValueError(f"unknown selection {selection!r} (expected one of {SELECTIONS})")
+    ordered = np.take_along_axis(c, order, axis=1)
+    nonzero = ordered != 0.0
+    rank = np.cumsum(nonzero, axis=1)  # candidates so far, counting each non-zero
+    energy = np.sum(c * c, axis=1)
+    kept_energy = np.cumsum(ordered * ordered, axis=1)
+    keep = nonzero & (rank <= budget)
+    if tolerance > 0.0:  # also drop what follows the first prefix that meets the tolerance
+        enough = kept_energy >= (1.0 - tolerance ** 2) * energy[:, None]
+        first = np.where(enough.any(axis=1), np.argmax(enough, axis=1), size - 1)
+        keep &= np.arange(size) <= first[:, None]
+    kept = np.where(keep, order, -1)
+    keys = depth_first_keys(basis.leaf_level)
+    sorted_keys = np.sort(np.where(kept >= 0, keys[np.maximum(kept, 0)], np.iinfo(np.int64).max),
+                          axis=1)
+    count = keep.sum(axis=1)
+    index = _index_of_key(basis.leaf_level)[sorted_keys[np.arange(size) < count[:, None]]]
+    row_of = np.repeat(np.arange(rows), count)
+    value = c[row_of, index]
+    dropped = np.maximum(energy - np.sum(np.where(keep, ordered * ordered, 0.0), axis=1), 0.0)
+    residual = np.sqrt(np.divide(dropped, energy, out=np.zeros(rows), where=energy > 0))
+    return {"count": count.astype(np.int32), "residual": residual.astype(np.float32),
+            "index": index.astype(np.uint16), "value": value.astype(np.float32)}
+
+
+@cache
+def _index_of_key(leaf_level: int) -> np.ndarray:
+    """The inverse of :func:`depth_first_keys`: index by key (-1 where no index has it)."""
+    keys = depth_first_keys(leaf_level)
+    table = np.full(int(keys.max()) + 1, -1, np.int64)
+    table[keys] = np.arange(len(keys))
+    return table
+
+
 def kernel_tables(basis: WaveletBasis) -> dict[str, np.ndarray]:
     """The basis as kernels/sphwavelet.h reads it (float32): ``root_area`` (20,),
     ``wavelet`` (triangles of levels 0 .. L − 1, 12) and ``tensor`` (same, 27)."""
