@@ -34,6 +34,12 @@ from pipeline.searchpath import add_kernel_dir, add_schema_dir
 DEFAULT_METHODS = ("direct",)
 
 
+class NotApplicable(PrtError):
+    """Raised by a method's ``sequences`` function when the scene has nothing the
+    sequence edits (no light that can move, no glossy material): ``prt run`` skips that
+    main sequence, saying why; ``prt render --frames`` reports it as an error."""
+
+
 @dataclass(frozen=True)
 class Option:
     """A run-time option of a method's renderer (``prt render --option NAME=VALUE``):
@@ -82,7 +88,10 @@ class Method:
     ``components``: images measured separately (name -> Component).
     ``options``: the renderer's run-time options.
     ``sequences``: ``"module:function"``; ``function(scene, artifacts, spec)`` returns
-    (kind, edited scenes, labels) for a ``--frames`` spec, or raises PrtError.
+    (kind, edited scenes, labels) for a ``--frames`` spec, optionally with a fourth
+    item, a sentence describing the edit's path (printed, and kept in the sequence's
+    record); it raises PrtError for a bad spec, :class:`NotApplicable` when the scene
+    has nothing to edit.
     ``main_sequences``: the sequences ``prt run`` renders beside the frame.
     ``evaluate_sweep``, ``evaluate_size``, ``evaluate_reference_spp``: what ``prt
     evaluate`` runs without options (bounded: a few minutes on two cores): the sweep, on

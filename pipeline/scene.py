@@ -95,6 +95,7 @@ class Scene:
     settings: dict[str, Any]
     raw: dict[str, Any]
     methods: tuple[str, ...] | None = None
+    resized_from: tuple[int, int] | None = None
 
     def with_image_size(self, width: int, height: int) -> Scene:
         """The same scene rendered at ``width`` × ``height`` pixels."""
@@ -103,7 +104,19 @@ class Scene:
                            "be positive")
         camera = replace(self.camera, width=width, height=height)
         raw = {**self.raw, "camera": {**self.raw["camera"], "width": width, "height": height}}
-        return replace(self, camera=camera, raw=raw)
+        original = self.resized_from or (self.camera.width, self.camera.height)
+        return replace(self, camera=camera, raw=raw,
+                       resized_from=None if (width, height) == original else original)
+
+    @property
+    def view(self) -> str | None:
+        """``"WxH"`` when the image size differs from the scene file's (a run-time
+        ``--size``), else None. The camera-dependent artifacts of such a view are kept
+        apart from the file's own (:class:`pipeline.store.Workdir`), so that a preview
+        at another size never replaces the file's bake."""
+        if self.resized_from is None:
+            return None
+        return f"{self.camera.width}x{self.camera.height}"
 
     def with_settings(self, overrides: dict[str, Any]) -> Scene:
         """The same scene with stage-parameter ``overrides`` added to its settings."""
