@@ -12,6 +12,7 @@ import click
 
 from pipeline.errors import PrtError
 from pipeline.executors import Cores, available_cpus, use_cores
+from pipeline.scene import MAX_IMAGE_SIDE
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -52,6 +53,8 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
         width = height = 0
     if not sep or width < 1 or height < 1:
         raise PrtError("--size", f"{text!r}: expected WIDTHxHEIGHT with positive integers")
+    if max(width, height) > MAX_IMAGE_SIDE:
+        raise PrtError("--size", f"{text!r}: at most {MAX_IMAGE_SIDE} pixels per side")
     return width, height
 
 
@@ -277,13 +280,14 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
                   as_json, workdir, quiet) -> None:
     """Render a converged Monte-Carlo reference image (cached in the work directory)."""
     from pipeline import job
-    from pipeline.images import write_exr, write_png
+    from pipeline.images import check_writable, write_exr, write_png
     from pipeline.reference import ReferenceSettings
     from pipeline.scene_edits import with_material_edits
 
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
+    check_writable(out)
     settings = ReferenceSettings(transport=transport, tolerance=tolerance, max_spp=max_spp,
                                  seed=seed, pixel_filter=pixel_filter)
     result = job.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)
