@@ -82,21 +82,28 @@ def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, thre
             quiet) -> None:
     """Bake every stale stage, then render the scene's frames."""
     from pipeline import job
+    from pipeline.method import scene_methods, scene_notes
 
     cores = cores_option(jobs, threads)
     sc = job.open_scene(scene)
     wd = job.workdir_for(sc, workdir)
     frames = frames or Path("frames") / sc.name
+    notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
+    show_notes(notes, as_json)
     report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force),
                                                cores.workers, quiet, stagefile,
                                                threads=cores.threads)
+    if rendered is not None and rendered.frame is not None:
+        notes += rendered.frame.notes
+        show_notes(rendered.frame.notes, as_json)
     if as_json:
         click.echo(json.dumps({
             "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
                         "reused_chunks": r.reused_chunks, "seconds": round(r.seconds, 4),
                         "reason": r.reason} for r in report],
             "frame": None if rendered is None else str(rendered.exr),
-            "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences}}))
+            "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences},
+            "notes": notes}))
         return
     ran = [r for r in report if r.action == "ran"]
     for r in report:
@@ -114,6 +121,13 @@ def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, thre
     for q in sequences:
         click.echo(f"Sequence {q.kind}: {len(q.exr)} frames {q.exr[0].name} .. "
                    f"{q.exr[-1].name} (EXR + PNG)")
+
+
+def show_notes(notes: list[str], as_json: bool) -> None:
+    """Print ``note: ...`` lines on stderr (with ``--json`` they go into the JSON)."""
+    if not as_json:
+        for note in notes:
+            click.echo(f"note: {note}", err=True)
 
 
 @cli.command("status")
@@ -222,7 +236,7 @@ def render_cmd(scene, method, out, sequence, options, size, edits, as_json, work
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
-    from pipeline.method import get_method, scene_methods
+    from pipeline.method import get_method, scene_methods, scene_notes
     from pipeline.scene_edits import with_material_edits
 
     cores = cores_option(jobs, threads)
@@ -231,6 +245,8 @@ def render_cmd(scene, method, out, sequence, options, size, edits, as_json, work
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
+    notes = scene_notes(sc, [m])
+    show_notes(notes, as_json)
     wd = job.workdir_for(sc, workdir)
     result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
                         threads=cores.threads)
@@ -240,13 +256,13 @@ def render_cmd(scene, method, out, sequence, options, size, edits, as_json, work
         ms = sorted(t["total_ms"] for t in seq.timings)
         click.echo(f"Wrote {len(seq.exr)} {seq.kind} frames {seq.exr[0]} .. {seq.exr[-1]} "
                    f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)
+    show_notes(frame.notes, as_json)
     if as_json:
         click.echo(json.dumps({"method": m.name, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
-                               "exr": str(result.exr), "png": str(result.png)}))
+                               "exr": str(result.exr), "png": str(result.png),
+                               "notes": notes + frame.notes}))
         return
-    for note in frame.notes:
-        click.echo(f"note: {note}", err=True)
     t = frame.timings
     click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}, "
                f"{m.name}; setup {t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")

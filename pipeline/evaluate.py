@@ -59,7 +59,7 @@ from pipeline import job, metrics
 from pipeline.errors import PrtError
 from pipeline.graph import with_upstream
 from pipeline.images import write_exr, write_heatmap, write_png
-from pipeline.method import Method, get_method, scene_methods
+from pipeline.method import Method, check_method_scene, get_method, scene_methods
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene
 from pipeline.store import Workdir, read_record
@@ -254,6 +254,8 @@ def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str
     from pipeline.bandwidth import probe
 
     m = get_method(method) if method else scene_methods(scene)[0]
+    for note in check_method_scene(m, scene):
+        _step(f"note: {note}")
     names = sorted(sweep)
     default = default_budget(scene, m, sweep)
     budgets = [dict(zip(names, values, strict=True))
