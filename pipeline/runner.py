@@ -315,13 +315,14 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
 
     one_blas_thread()
     start = time.perf_counter()
-    meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
-              for name, (kind, src) in task.meshes.items()}
-    inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
-              task.inputs.items()}
-    ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs, chunk=task.chunk,
-                       key=task.key, rng=np.random.default_rng(task.seed), meshes=meshes)
     try:
+        meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
+                  for name, (kind, src) in task.meshes.items()}
+        inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
+                  task.inputs.items()}
+        ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs,
+                           chunk=task.chunk, key=task.key,
+                           rng=np.random.default_rng(task.seed), meshes=meshes)
         arrays = load_impl(task.impl).run_chunk(ctx)
         _check_finite(task, arrays)
     except Exception as exc:
