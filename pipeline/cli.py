@@ -196,11 +196,16 @@ def methods_cmd(as_json) -> None:
             "description": m.description, "reads": list(m.reads), "reference": m.reference,
             "options": {o.name: {"type": o.type.__name__, "default": o.default,
                                  "help": o.help} for o in m.options},
-            "main_sequences": list(m.main_sequences)} for name, m in methods.items()}))
+            "main_sequences": list(m.main_sequences), "lights": list(m.lights),
+            "materials": list(m.materials), "features": list(m.features)}
+            for name, m in methods.items()}))
         return
     for name, m in methods.items():
         click.echo(f"{name}: {m.description}")
         click.echo(f"  reads: {', '.join(m.reads)}; reference transport: {m.reference}")
+        click.echo(f"  renders lights: {', '.join(m.lights) or 'none'}; materials: "
+                   f"{', '.join(m.materials) or 'none'}; features: "
+                   f"{', '.join(m.features) or 'none'}")
         for o in m.options:
             click.echo(f"  --option {o.name}={o.default!r} ({o.type.__name__}): {o.help}")
         if m.main_sequences:
