@@ -49,7 +49,7 @@ def check_obj_text(path: Path, data: bytes) -> str:
 
 
 def _well_formed(text: str) -> bool:
-    """The checks of :func:`check_obj_text`, vectorised (a 100k-face OBJ in ≈ 0.2 s);
+    """The checks of :func:`check_obj_text`, vectorised (dragon_100kf.obj in ≈ 1 s);
     False where a line fails, which :func:`_first_bad_line` then finds."""
     rows = [line.split("#", 1)[0].split() if "#" in line else line.split()
             for line in text.splitlines()]
