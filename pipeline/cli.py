@@ -12,6 +12,7 @@ import click
 
 from pipeline.errors import PrtError
 from pipeline.executors import Cores, available_cpus, use_cores
+from pipeline.scene import MAX_IMAGE_SIDE
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -61,6 +62,8 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
         width = height = 0
     if not sep or width < 1 or height < 1:
         raise PrtError("--size", f"{text!r}: expected WIDTHxHEIGHT with positive integers")
+    if max(width, height) > MAX_IMAGE_SIDE:
+        raise PrtError("--size", f"{text!r}: at most {MAX_IMAGE_SIDE} pixels per side")
     return width, height
 
 
@@ -90,15 +93,21 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
     """Bake every stale stage, then bring the scene's frame and edit sequences up to
     date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
+    from pipeline.method import scene_methods, scene_notes
 
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
     sc = job.open_scene(scene, parse_size(size))
     wd = job.workdir_for(sc, workdir, stagefile)
     frames = frames or Path("frames") / sc.name
+    notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
+    show_notes(notes, as_json)
     report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force),
                                                cores.workers, quiet, stagefile,
                                                threads=cores.threads, exposure=exposure)
+    if rendered is not None and rendered.frame is not None:
+        notes += rendered.frame.notes
+        show_notes(rendered.frame.notes, as_json)
     if as_json:
         click.echo(json.dumps({
             "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
@@ -108,7 +117,8 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
             "frame_rendered": rendered is not None and rendered.frame is not None,
             "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences if q.exr},
             "sequences_rendered": [q.kind for q in sequences if q.exr and q.rendered],
-            "sequences_skipped": {q.kind: q.skipped for q in sequences if q.skipped}}))
+            "sequences_skipped": {q.kind: q.skipped for q in sequences if q.skipped},
+            "notes": notes}))
         return
     ran = [r for r in report if r.action == "ran"]
     for r in report:
@@ -138,6 +148,13 @@ def check_exposure(ev: float) -> None:
     """PrtError unless ``ev`` (stops) is finite and within ±64 stops."""
     if not -64.0 <= ev <= 64.0:
         raise PrtError("--exposure", f"{ev!r}: expected stops between -64 and 64")
+
+
+def show_notes(notes: list[str], as_json: bool) -> None:
+    """Print ``note: ...`` lines on stderr (with ``--json`` they go into the JSON)."""
+    if not as_json:
+        for note in notes:
+            click.echo(f"note: {note}", err=True)
 
 
 @cli.command("status")
@@ -219,11 +236,16 @@ def methods_cmd(as_json) -> None:
             "description": m.description, "reads": list(m.reads), "reference": m.reference,
             "options": {o.name: {"type": o.type.__name__, "default": o.default,
                                  "help": o.help} for o in m.options},
-            "main_sequences": list(m.main_sequences)} for name, m in methods.items()}))
+            "main_sequences": list(m.main_sequences), "lights": list(m.lights),
+            "materials": list(m.materials), "features": list(m.features)}
+            for name, m in methods.items()}))
         return
     for name, m in methods.items():
         click.echo(f"{name}: {m.description}")
         click.echo(f"  reads: {', '.join(m.reads)}; reference transport: {m.reference}")
+        click.echo(f"  renders lights: {', '.join(m.lights) or 'none'}; materials: "
+                   f"{', '.join(m.materials) or 'none'}; features: "
+                   f"{', '.join(m.features) or 'none'}")
         for o in m.options:
             click.echo(f"  --option {o.name}={o.default!r} ({o.type.__name__}): {o.help}")
         if m.main_sequences:
@@ -262,7 +284,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
-    from pipeline.method import check_method_scene, get_method, scene_methods
+    from pipeline.method import check_method_scene, get_method, scene_methods, scene_notes
     from pipeline.scene_edits import with_material_edits
 
     cores = cores_option(jobs, threads)
@@ -272,6 +294,8 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
+    notes = scene_notes(sc, [m])
+    show_notes(notes, as_json)
     wd = job.workdir_for(sc, workdir)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
@@ -289,13 +313,13 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_
                    f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)
         if seq.description:
             click.echo(f"  {seq.description}", err=as_json)
+    show_notes(frame.notes, as_json)
     if as_json:
         click.echo(json.dumps({"method": m.name, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
-                               "exr": str(result.exr), "png": str(result.png)}))
+                               "exr": str(result.exr), "png": str(result.png),
+                               "notes": notes + frame.notes}))
         return
-    for note in frame.notes:
-        click.echo(f"note: {note}", err=True)
     t = frame.timings
     click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}, "
                f"{m.name}; setup {t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
@@ -329,13 +353,14 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
                   as_json, workdir, quiet) -> None:
     """Render a converged Monte-Carlo reference image (cached in the work directory)."""
     from pipeline import job
-    from pipeline.images import write_exr, write_png
+    from pipeline.images import check_writable, write_exr, write_png
     from pipeline.reference import ReferenceSettings
     from pipeline.scene_edits import with_material_edits
 
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
+    check_writable(out)
     settings = ReferenceSettings(transport=transport, tolerance=tolerance, max_spp=max_spp,
                                  seed=seed, pixel_filter=pixel_filter)
     result = job.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)

@@ -129,12 +129,14 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
 
     With ``reuse``, a frame whose inputs (see :func:`frame_key`) are unchanged since it
     was written, and whose files are as written, is not rendered again."""
+    from pipeline.images import check_writable
+    from pipeline.method import check_method_scene
+
     m = get_method(method)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
-    from pipeline.method import check_method_scene
-
     check_method_scene(m, scene)
+    check_writable(out)
     options = m.option_values({}) | (options or {})
     baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
@@ -441,10 +443,10 @@ def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
 
 
 def clean(workdir: Workdir) -> int:
-    """Delete a work directory; returns the bytes freed."""
+    """Delete a work directory; returns the bytes freed. PrtError if there is none."""
     root = workdir.root
-    if not root.exists():
-        return 0
+    if not root.is_dir():
+        raise PrtError(root, "no such work directory; nothing to remove")
     if not (root / ".lock").exists() and not any(root.glob("*.zarr")):
         raise PrtError(root, "does not look like a prt work directory; not deleting it")
     freed = sum(p.stat().st_size for p in root.rglob("*") if p.is_file())

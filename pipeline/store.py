@@ -84,6 +84,14 @@ class Workdir:
             raise PrtError(self.root, f"work directory is not writable ({exc.strerror})") \
                 from None
 
+    def writable(self) -> bool:
+        """Whether this process can write here (see :meth:`ensure_writable`)."""
+        try:
+            self.ensure_writable()
+        except PrtError:
+            return False
+        return True
+
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:
         """Hold an exclusive lock for a run; fail clearly if another run holds it."""

@@ -168,7 +168,7 @@ def test_evaluate_writes_records_and_charts(baked, tmp_path):
         assert (out / f"{chart}.png").is_file()
     bad = prt("evaluate", scene, "--sweep", "nonsense.key=1", "--out", out, "--workdir",
               workdir, "-q")
-    assert bad.returncode == 2 and "unknown budget 'nonsense.key'" in bad.stderr
+    assert bad.returncode == 2 and "has no budget 'nonsense.key' (its budgets: size" in bad.stderr
 
 
 def test_evaluate_d2i_records_its_indirect_error(baked, tmp_path):

@@ -56,6 +56,7 @@ METHOD = Method(
     evaluate_size=96,
     evaluate_reference_spp=1024,
     lights=("point", "spot", "directional", "quad"),
+    features=("emitters",),
     check_scene="pipeline.methods.d2i:check_scene",
 )
 
