@@ -287,7 +287,8 @@ def test_clean_of_a_missing_work_directory(tmp_path):
 def test_a_read_only_baked_work_directory_renders(case, tmp_path):
     """With every stage fresh, rendering needs no write into the work directory (no
     lock, no marker): a read-only copy renders, and nothing in it changes. A stale stage
-    (another image size) is named instead of a permission traceback."""
+    (another image size: its own view, not built yet) is named instead of a permission
+    traceback."""
     doc, workdir = case
     scene = write_scene(tmp_path, doc)
     before = listing(workdir)
@@ -303,7 +304,7 @@ def test_a_read_only_baked_work_directory_renders(case, tmp_path):
     finally:
         subprocess.run(["chmod", "-R", "u+w", str(workdir)], check=True)
     assert message == (f"error: {workdir}: work directory is not writable and stage gbuffer "
-                       "is stale (scene section camera changed); make it writable or give "
+                       "is missing (not built yet); make it writable or give "
                        "another --workdir")
     assert listing(workdir) == before
 
