@@ -54,7 +54,7 @@ def test_status_json(baked):
     """`prt status --json` lists every stage with state and reason."""
     scene, workdir, _, _ = baked
     out = json.loads(prt("status", scene, "--workdir", workdir, "--json").stdout)
-    assert out == {"stages": [{"name": n, "state": "fresh", "reason": ""}
+    assert out == {"stages": [{"name": n, "state": "fresh", "reason": "", "partial": None}
                               for n in topological_order(load_stagefile())]}
 
 
