@@ -392,6 +392,7 @@ def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, w
                  quiet) -> None:
     """Chart a method's error against frame time, storage and bake time over budgets."""
     from pipeline import evaluate, job
+    from pipeline.charts import CHARTS
     from pipeline.method import get_method, scene_methods
 
     sc = job.open_scene(scene, parse_size(size))
@@ -401,8 +402,10 @@ def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, w
     settings = evaluate.EvaluateSettings(repeats, cap)
     records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), m.name, sweep, out,
                                 settings, quiet)
+    for line in evaluate.summary_lines(records):  # also with --quiet: it is the result
+        click.echo(line)
     click.echo(f"Wrote {out / 'results.json'} ({len(records)} budgets) and charts "
-               f"{', '.join(name for _, _, name in evaluate.CHARTS)}")
+               f"{', '.join(name for _, _, name in CHARTS)}")
 
 
 @cli.command("clean")
