@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import textwrap
 import uuid
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,8 @@ import numpy as np
 from pipeline.errors import PrtError
 
 CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
-          ("storage_bytes", "artifact bytes a frame reads", "error_vs_storage.png"),
+          ("storage_bytes", "storage of the artifacts a frame reads (MB)",
+           "error_vs_storage.png"),
           ("bake_s", "bake time (s)", "error_vs_bake_time.png"))
 
 
@@ -96,14 +98,16 @@ def _varying_budget(records: list[dict[str, Any]]) -> list[str]:
 
 def _x_values(rows: list[dict[str, Any]], key: str, label: str) -> tuple[list[float], str]:
     """The x of each record, and the axis label (bake time: see :func:`bake_costs`)."""
+    if key == "storage_bytes":
+        return [r[key] / 1e6 for r in rows], label
     if key != "bake_s" or not all("bake_stages" in r for r in rows):
         return [r[key] for r in rows], label
     xs, varying, shared = bake_costs(rows)
     if not varying:
         return xs, f"{label}: every budget shares one bake"
-    return xs, (f"bake time of {', '.join(varying)} (s, summed over chunks)\n"
-                f"shared by every budget: {', '.join(shared)}, "
-                f"{sum(shared.values()):.1f} s")
+    shared_text = textwrap.fill(f"shared by every budget: {', '.join(shared)}, "
+                                f"{sum(shared.values()):.1f} s", 80)
+    return xs, f"bake time of {', '.join(varying)} (s, summed over chunks)\n{shared_text}"
 
 
 def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
@@ -125,8 +129,12 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
         line, = ax.plot(xs, ys, "o-", label=f"{method} ({error})")
         noise = [r.get(reference_noise_key(error)) for r in rows]
         if all(n is not None and math.isfinite(n) for n in noise):
-            ax.plot(xs, noise, ":", color=line.get_color(), lw=1.5,
-                    label=f"{method}: the reference's own estimated error")
+            legend = f"{method}: the reference's own estimated error"
+            if max(noise) <= 1.01 * min(noise):  # one reference: a line across
+                ax.axhline(noise[0], ls=":", color=line.get_color(), lw=1.5, label=legend)
+            else:
+                ax.plot(xs, noise, "_:", color=line.get_color(), lw=1.5, ms=10,
+                        label=legend)
             others += list(zip(xs, noise, strict=True))
         for x, y, r in zip(xs, ys, rows, strict=True):
             points.append((x, y, ", ".join(f"{k}={r['budget'][k]}" for k in varying
@@ -173,6 +181,7 @@ def _log_axis(ax: Any, which: str, values: list[float]) -> None:
         return
     low, high = min(positive), max(positive)
     if which == "x" and high <= 10 * low:
+        ax.ticklabel_format(axis="x", style="plain", useOffset=False)
         return  # within a decade a linear axis reads best
     axis = ax.xaxis if which == "x" else ax.yaxis
     (ax.set_xscale if which == "x" else ax.set_yscale)("log")
@@ -194,18 +203,42 @@ def _plain(value: float, _: Any = None) -> str:
     return f"{value:.0f}" if value >= 100 else f"{value:.3g}"
 
 
-_OFFSETS = [(6, 6), (6, -12), (-6, 6), (-6, -12), (6, 16), (6, -22), (-6, 16), (-6, -22),
-            (14, 0), (-14, 0), (6, 28), (6, -34)]
+_MARK_RADIUS = 6.0  # points: the space a plotted marker (the default's star) takes
+# where a label may go, in points from its point (right/left, above/below), nearest first
+_OFFSETS = [(6, 6), (6, -12), (-6, 6), (-6, -12), (10, -3), (-10, -3), (6, 16), (6, -22),
+            (-6, 16), (-6, -22), (6, 28), (6, -34), (-6, 28), (-6, -34)]
 
 
 def _place_labels(fig: Any, ax: Any, points: list[tuple[float, float, str]],
                   obstacles: list[tuple[float, float]]) -> None:
-    """Annotate each point with its label at the first offset (in points) where the
-    text overlaps no label already placed, no plotted point, and stays inside the axes."""
+    """Label each point with its budget where the text overlaps no other label, no
+    plotted point, and stays inside the axes. When some label finds no such place (a
+    cluster of points), the points get numbers instead and a key beside the axes
+    lists what each number stands for."""
+    fig.canvas.draw()  # final limits and layout: where points and texts land
+    placed = _try_labels(fig, ax, points, obstacles, force=False)
+    if placed is not None:
+        return
+    labelled = [p for p in points if p[2]]
+    _try_labels(fig, ax, [(x, y, str(i + 1)) for i, (x, y, _) in enumerate(labelled)],
+                obstacles, force=True)
+    key = "\n".join(f"{i + 1}: {text}" for i, (_, _, text) in enumerate(labelled))
+    ax.text(1.03, 1.0, key, transform=ax.transAxes, va="top", ha="left", fontsize=7)
+
+
+def _try_labels(fig: Any, ax: Any, points: list[tuple[float, float, str]],
+                obstacles: list[tuple[float, float]], force: bool) -> list[Any] | None:
+    """Annotate each point at the first offset (in points) that is clear; None (and
+    nothing drawn) if one is nowhere clear, unless ``force``: then it goes at the first
+    offset on a white box."""
+    from matplotlib.transforms import Bbox
+
     renderer = fig.canvas.get_renderer()
     frame = ax.get_window_extent(renderer)
-    marks = [ax.transData.transform(p) for p in obstacles]
-    taken: list[Any] = []
+    r = _MARK_RADIUS * fig.dpi / 72.0  # pixels
+    taken: list[Any] = [Bbox([[px - r, py - r], [px + r, py + r]])
+                        for px, py in (ax.transData.transform(p) for p in obstacles)]
+    drawn: list[Any] = []
     for x, y, text in points:
         if not text:
             continue
@@ -214,15 +247,20 @@ def _place_labels(fig: Any, ax: Any, points: list[tuple[float, float, str]],
                               fontsize=7, ha="left" if dx >= 0 else "right")
             box = ann.get_window_extent(renderer).expanded(1.05, 1.15)
             if (not any(box.overlaps(t) for t in taken)
-                    and not any(box.contains(px, py) for px, py in marks)
                     and frame.contains(box.x0, box.y0) and frame.contains(box.x1, box.y1)):
                 break
             ann.remove()
-        else:  # nowhere free: the first place, on a white box over whatever is there
+        else:
+            if not force:
+                for artist in drawn:
+                    artist.remove()
+                return None
             ann = ax.annotate(text, (x, y), textcoords="offset points", xytext=_OFFSETS[0],
                               fontsize=7, bbox={"fc": "white", "ec": "none", "alpha": 0.8})
             box = ann.get_window_extent(renderer)
         taken.append(box)
+        drawn.append(ann)
+    return drawn
 
 
 def _save(plt: Any, fig: Any, path: Path) -> None:

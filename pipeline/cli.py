@@ -195,6 +195,11 @@ def _tolerance_lines(tolerances: list[dict]) -> list[str]:
     return lines
 
 
+def _size(n: int) -> str:
+    """Bytes as B, kB or MB (powers of 1000)."""
+    return f"{n} B" if n < 1e3 else f"{n / 1e3:.1f} kB" if n < 1e6 else f"{n / 1e6:.1f} MB"
+
+
 def _workdir_lines(info: dict) -> list[str]:
     """``prt inspect WORKDIR`` as text: a line per artifact, its tolerance results
     below it, then the warnings."""
@@ -202,6 +207,7 @@ def _workdir_lines(info: dict) -> list[str]:
     lines = [f"{info['path']}: {len(rows)} artifacts, "
              f"{info['stored_bytes'] / 1e6:.2f} MB stored"]
     width = max(len(r["artifact"]) for r in rows)
+    kinds = max(len(str(r.get("kind"))) for r in rows)
     for r in rows:
         if r["state"] == "unreadable":
             lines.append(f"  {r['artifact']:<{width}}  unreadable: {r['problem']}")
@@ -210,8 +216,8 @@ def _workdir_lines(info: dict) -> list[str]:
             (f"{r['chunks']} chunk{'s' if r['chunks'] != 1 else ''}"
              if r["state"] == "complete" else f"{r['chunks_done']}/{r['chunks']} chunks")
         seconds = "" if r["seconds"] is None else f"{r['seconds']:.1f} s"
-        lines.append(f"  {r['artifact']:<{width}}  {r['kind']:<10} v{r['schema_version']}  "
-                     f"{r['state']:<8} {chunks:<12} {r['stored_bytes'] / 1e3:>10.1f} kB  "
+        lines.append(f"  {r['artifact']:<{width}}  {r['kind']:<{kinds}} v{r['schema_version']}"
+                     f"  {r['state']:<8} {chunks:<12} {_size(r['stored_bytes']):>9}  "
                      f"{seconds}".rstrip())
         lines += [f"      {line}" for line in _tolerance_lines(r.get("tolerances", []))]
     lines += [f"warning: {w}" for r in rows for w in r["warnings"]]

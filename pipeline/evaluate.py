@@ -234,7 +234,7 @@ def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str
         records.append(_evaluate_budget(scene, workdir, m, budget, budget == default, out,
                                         settings, bandwidth, quiet))
         r = records[-1]
-        _step(f"  {_slug(budget):<24} rel. RMSE {r['rel_rmse']:.4f}  frame "
+        _step(f"  {_slug(budget):<24} {r['headline']} {r[r['headline']]:.4f}  frame "
               f"{r['frame_ms']:.1f} ms  path tracer at equal error "
               f"{_ms(r['pathtrace_ms_equal_error'])}")
     (out / "results.json").write_text(json.dumps(records, indent=1))

@@ -68,3 +68,38 @@ def test_summary_lines_one_per_budget():
     row = lines[2]  # the default budget
     assert row.split()[:3] == ["gather-count-4096_truncate-tolerance-0.02", "*", "0.0300"]
     assert row.split()[3] == "0.0040" and row.split()[-1] == "1.2"
+
+
+def test_point_labels_never_overlap():
+    """Budget labels overlap neither each other nor a point: three points well apart
+    get their budgets; eight in a cluster (a grid sweep whose frames cost about the
+    same) get numbers, and a key beside the axes lists the budgets."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.charts import _place_labels
+
+    labels = [f"gather.count={g}, truncate.tolerance={t}"
+              for g in (4096, 16384) for t in (0.005, 0.01, 0.02, 0.04)]
+    for n, step in ((3, 30.0), (8, 0.6)):
+        fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=120)
+        ax.set_xlim(0, 100)
+        ax.set_ylim(0, 100)
+        xs, ys = 10 + step * np.arange(n), 10 + step * np.arange(n)
+        ax.plot(xs, ys, "o")
+        points = list(zip(xs, ys, labels[:n], strict=True))
+        _place_labels(fig, ax, points, [(x, y) for x, y, _ in points])
+        renderer = fig.canvas.get_renderer()
+        marks = [ax.transData.transform((x, y)) for x, y in zip(xs, ys, strict=True)]
+        texts = [t for t in ax.texts if "\n" not in t.get_text()]
+        boxes = [t.get_window_extent(renderer) for t in texts]
+        assert len(boxes) == n
+        for i, a in enumerate(boxes):
+            assert not any(a.overlaps(b) for b in boxes[i + 1:])
+            assert not any(a.contains(px, py) for px, py in marks)
+        numbered = [t.get_text() for t in texts] == [str(i + 1) for i in range(n)]
+        keys = [t.get_text() for t in ax.texts if "\n" in t.get_text()]
+        assert numbered == (n == 8) and len(keys) == (n == 8)
+        plt.close(fig)
