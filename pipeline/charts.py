@@ -117,6 +117,8 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
     fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=120)
     points: list[tuple[float, float, str]] = []  # labelled budget points
     others: list[tuple[float, float]] = []  # other plotted points (tracers, noise)
+    lines: list[list[tuple[float, float]]] = []  # plotted lines (data coordinates)
+    levels: list[float] = []  # horizontal lines across the axes
     varying = _varying_budget(records)
     xlabel = label
     for method in sorted({r["method"] for r in records}):
@@ -127,14 +129,17 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
         xs, rows = [xs[i] for i in order], [rows[i] for i in order]
         ys = [r[error] for r in rows]
         line, = ax.plot(xs, ys, "o-", label=f"{method} ({error})")
+        lines.append(list(zip(xs, ys, strict=True)))
         noise = [r.get(reference_noise_key(error)) for r in rows]
         if all(n is not None and math.isfinite(n) for n in noise):
             legend = f"{method}: the reference's own estimated error"
             if max(noise) <= 1.01 * min(noise):  # one reference: a line across
                 ax.axhline(noise[0], ls=":", color=line.get_color(), lw=1.5, label=legend)
+                levels.append(noise[0])
             else:
                 ax.plot(xs, noise, "_:", color=line.get_color(), lw=1.5, ms=10,
                         label=legend)
+                lines.append(list(zip(xs, noise, strict=True)))
             others += list(zip(xs, noise, strict=True))
         for x, y, r in zip(xs, ys, rows, strict=True):
             points.append((x, y, ", ".join(f"{k}={r['budget'][k]}" for k in varying
@@ -149,6 +154,7 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
                 if pts:
                     ax.plot(*zip(*pts, strict=True), "s--", label=f"{tracer}, equal error")
                     others += pts
+                    lines.append(pts)
     everything = [(x, y) for x, y, _ in points] + others
     _log_axis(ax, "x", [x for x, _ in everything])
     _log_axis(ax, "y", [y for _, y in everything])
@@ -160,11 +166,15 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
     ax.grid(True, which="minor", alpha=0.15)
     handles, names = ax.get_legend_handles_labels()
     unique = dict(zip(names, handles, strict=True))  # "default budget" once
-    ax.legend(unique.values(), unique.keys(), fontsize=8, loc="upper center",
-              bbox_to_anchor=(0.5, -0.18 if "\n" not in xlabel else -0.24), ncol=2,
-              frameon=False)
     fig.tight_layout()
-    _place_labels(fig, ax, points, everything)
+    fig.canvas.draw()  # final limits and layout: where points, texts and labels land
+    below = ax.xaxis.get_tightbbox(fig.canvas.get_renderer())  # tick labels and label
+    bottom = ax.transAxes.inverted().transform((0, below.y0))[1]
+    ax.legend(unique.values(), unique.keys(), fontsize=8, loc="upper center",
+              bbox_to_anchor=(0.5, bottom - 0.02), ncol=2, frameon=False)
+    low, high = ax.get_xlim()
+    lines += [[(low, y), (high, y)] for y in levels]
+    _place_labels(fig, ax, points, everything, lines)
     _save(plt, fig, path)
     return path
 
@@ -172,9 +182,16 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
 def _log_axis(ax: Any, which: str, values: list[float]) -> None:
     """Logarithmic ``which`` axis when ``values`` span more than a decade (else linear);
     the y (error) axis is always logarithmic. Labels are plain numbers at 1 × 10^n over
-    many decades, at 1, 3 or 1, 2, 5 × 10^n over fewer, more within one decade, so
-    that an axis always has a few labelled ticks and they never crowd."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    many decades, at 1, 3 or 1, 2, 5 × 10^n over fewer, at evenly spaced round numbers
+    within less than a decade, so that an axis always has a few labelled ticks and
+    they never crowd."""
+    from matplotlib.ticker import (
+        FuncFormatter,
+        LogLocator,
+        MaxNLocator,
+        NullFormatter,
+        NullLocator,
+    )
 
     positive = [v for v in values if v is not None and v > 0 and math.isfinite(v)]
     if not positive:
@@ -186,16 +203,20 @@ def _log_axis(ax: Any, which: str, values: list[float]) -> None:
     axis = ax.xaxis if which == "x" else ax.yaxis
     (ax.set_xscale if which == "x" else ax.set_yscale)("log")
     span = math.log10(high / low)
-    # labelled ticks: fewer per decade as the axis spans more decades
-    subs = (1.0,) if span > 3 else (1.0, 3.0) if span > 1.6 else (1.0, 2.0, 5.0) \
-        if span > 0.7 else (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0) if span > 0.25 \
-        else tuple(np.arange(1.0, 10.0, 0.5))
-    axis.set_major_locator(LogLocator(base=10, subs=subs))
+    # labelled ticks: fewer per decade as the axis spans more decades; within less than
+    # a decade, evenly spaced round numbers (a log locator would label one or none)
+    if span > 0.7:
+        subs = (1.0,) if span > 3 else (1.0, 3.0) if span > 1.6 else (1.0, 2.0, 5.0)
+        axis.set_major_locator(LogLocator(base=10, subs=subs))
+        axis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
+    else:
+        axis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10]))
+        axis.set_minor_locator(NullLocator())
     axis.set_major_formatter(FuncFormatter(_plain))
-    axis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
     axis.set_minor_formatter(NullFormatter())
-    pad = 10 ** (0.08 * max(span, 0.3))
-    (ax.set_xlim if which == "x" else ax.set_ylim)(low / pad, high * pad)
+    pad = 10 ** (0.08 * max(span, 0.3))  # room for the markers and, above, a label
+    (ax.set_xlim if which == "x" else ax.set_ylim)(low / pad,
+                                                   high * pad ** (1 if which == "x" else 2))
 
 
 def _plain(value: float, _: Any = None) -> str:
@@ -210,14 +231,28 @@ _OFFSETS = [(6, 6), (6, -12), (-6, 6), (-6, -12), (10, -3), (-10, -3), (6, 16), 
 
 
 def _place_labels(fig: Any, ax: Any, points: list[tuple[float, float, str]],
-                  obstacles: list[tuple[float, float]]) -> None:
+                  marks: list[tuple[float, float]],
+                  lines: list[list[tuple[float, float]]] = ()) -> None:
     """Label each point with its budget where the text overlaps no other label, no
-    plotted point, and stays inside the axes. When some label finds no such place (a
-    cluster of points), the points get numbers instead and a key beside the axes
-    lists what each number stands for."""
+    plotted marker or line, and stays inside the axes. When some label finds no such
+    place (a cluster of points), the points get numbers instead and a key beside the
+    axes lists what each number stands for. ``marks`` and ``lines`` are in data
+    coordinates."""
+    from matplotlib.transforms import Bbox
+
     fig.canvas.draw()  # final limits and layout: where points and texts land
-    placed = _try_labels(fig, ax, points, obstacles, force=False)
-    if placed is not None:
+    to_pixels = ax.transData.transform
+    r = _MARK_RADIUS * fig.dpi / 72.0
+    obstacles = [Bbox([[px - r, py - r], [px + r, py + r]])
+                 for px, py in (to_pixels(p) for p in marks)]
+    for line in lines:
+        pixels = [to_pixels(p) for p in line]
+        for (x0, y0), (x1, y1) in zip(pixels, pixels[1:], strict=False):
+            steps = max(1, int(math.hypot(x1 - x0, y1 - y0) / 3.0))
+            obstacles += [Bbox([[x - 1.5, y - 1.5], [x + 1.5, y + 1.5]]) for x, y in
+                          zip(np.linspace(x0, x1, steps + 1), np.linspace(y0, y1, steps + 1),
+                              strict=True)]
+    if _try_labels(fig, ax, points, obstacles, force=False) is not None:
         return
     labelled = [p for p in points if p[2]]
     _try_labels(fig, ax, [(x, y, str(i + 1)) for i, (x, y, _) in enumerate(labelled)],
@@ -227,17 +262,14 @@ def _place_labels(fig: Any, ax: Any, points: list[tuple[float, float, str]],
 
 
 def _try_labels(fig: Any, ax: Any, points: list[tuple[float, float, str]],
-                obstacles: list[tuple[float, float]], force: bool) -> list[Any] | None:
-    """Annotate each point at the first offset (in points) that is clear; None (and
-    nothing drawn) if one is nowhere clear, unless ``force``: then it goes at the first
-    offset on a white box."""
-    from matplotlib.transforms import Bbox
-
+                obstacles: list[Any], force: bool) -> list[Any] | None:
+    """Annotate each point at the first offset (in points) where its text overlaps none
+    of ``obstacles`` (pixel boxes) nor a label placed before, inside the axes; None
+    (and nothing drawn) if one is nowhere clear, unless ``force``: then it goes at the
+    first offset on a white box."""
     renderer = fig.canvas.get_renderer()
     frame = ax.get_window_extent(renderer)
-    r = _MARK_RADIUS * fig.dpi / 72.0  # pixels
-    taken: list[Any] = [Bbox([[px - r, py - r], [px + r, py + r]])
-                        for px, py in (ax.transData.transform(p) for p in obstacles)]
+    taken = list(obstacles)
     drawn: list[Any] = []
     for x, y, text in points:
         if not text:

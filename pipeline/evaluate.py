@@ -13,7 +13,9 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
   chunks) and whether this budget's bake ran it; ``bake_s``: their sum;
 * ``rel_rmse`` (headline), ``psnr_db``, ``flip`` against the reference renderer's image
   of the method's transport at the same size (pipeline/reference.py, cached), and
-  ``reference_rel_rmse``, that reference's own estimated error: it is rendered at 64,
+  ``reference_rel_rmse``, that reference's own estimated error over the same pixels
+  (``reference_rel_rmse_surfaces``: over the surfaces, as ``rel_rmse_surfaces``;
+  charts draw it as a dotted line, pipeline/charts.py): the reference is rendered at 64,
   256, 1024, ... paths per pixel (up to the cap) until that error is at most a third of
   the method's, so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
@@ -307,7 +309,8 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
         "bake_s": sum(v["seconds"] for v in bake_stages.values()), "bake_stages": bake_stages,
         **errors,
         "rel_rmse_surfaces": surface_error,
-        "reference_rel_rmse": ref.estimate,
+        # over the same pixels as rel_rmse (ref.estimate covers the surfaces only)
+        "reference_rel_rmse": _noise(ref, np.ones(frame.rgb.shape[:2], bool)),
         "reference_rel_rmse_surfaces": _noise(ref, surfaces), "reference_spp": ref.spp,
         **components,
         "kernel_bytes": frame.kernel_bytes, "counted_kernel_ms": counted_ms,
