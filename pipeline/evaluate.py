@@ -171,7 +171,8 @@ def _pathtrace_equal_error(scene: Scene, geometry: dict, transport: str, target:
     1/√spp): the target is scaled by their ratio in the converged ``reference``."""
     from pipeline.reference import render
 
-    scale = 1.0 if mask is None else reference.estimate / max(_noise(reference, mask), 1e-30)
+    pixels = np.ones(reference.mean.shape[:2], bool) if mask is None else mask
+    scale = reference.estimate / max(_noise(reference, pixels), 1e-30)
     image = render(scene, geometry, ReferenceSettings(transport, tolerance=target * scale,
                                                       max_spp=max_spp, min_spp=1, seed=1))
     reached = image.estimate <= target * scale

@@ -20,7 +20,9 @@ attributes, pipeline/chunking.py); before that ``prt status`` reports it as wait
 them. An artifact is fresh when its stored key equals the planned key. Otherwise its
 chunks whose records carry the planned chunk key are kept and the rest run, each
 writing its part of the artifact in place (pipeline/chunkwrite.py); the artifact is
-complete when every chunk is recorded. Planning reads only
+complete when every chunk is recorded; the record then also keeps the results of the
+budgets ``finalize`` chose from a tolerance (pipeline/tolerance.py), which ``prt run``
+reports. Planning reads only
 ``zarr.json`` files (and, for ``materials_from``, one small label image), never the
 large arrays.
 """
