@@ -123,7 +123,7 @@ def _save(out: Path, study: str, rows: list[dict[str, Any]], x: str, series: lis
 def _gathers(out: Path, workdir: Path, size: int, spp: int) -> None:
     def glossy_small_box(doc):
         doc["materials"]["glossy_box"] = {"model": "blinn_phong",
-                                          "albedo": [0.3, 0.2, 0.6], "specular": 0.15,
+                                          "albedo": [0.3, 0.2, 0.6], "specular": 0.1,
                                           "gamma": 100, "gamma_range": [3, 300]}
         doc["objects"]["smallbox"]["material"] = "glossy_box"
 

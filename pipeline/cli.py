@@ -12,6 +12,7 @@ import click
 
 from pipeline.errors import PrtError
 from pipeline.executors import Cores, available_cpus, use_cores
+from pipeline.scene import MAX_IMAGE_SIDE
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -19,6 +20,15 @@ WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=Non
 STAGES = click.option("--stages", "stagefile", type=click.Path(path_type=Path), default=None,
                       help="Stage file [default: the project's stages.yaml].")
 QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
+SIZE = click.option("--size", metavar="WxH",
+                    help="Image size [default: the scene camera's]. The bake at another "
+                         "size than the file's keeps its camera-dependent artifacts apart "
+                         "(<workdir>/views/WxH), so it never replaces the file's bake.")
+EXPOSURE = click.option("--exposure", metavar="EV", type=float, default=0.0,
+                        show_default=True,
+                        help="Exposure of the PNG previews in stops (× 2^EV); the EXR "
+                             "frames stay linear and unscaled.")
+FRAMES_DIR = "Folder for the rendered frames [default: ./frames/<scene name>]."
 _AUTO = Cores.auto()
 JOBS = click.option(
     "--jobs", "-j", type=click.IntRange(min=1), default=None,
@@ -52,6 +62,8 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
         width = height = 0
     if not sep or width < 1 or height < 1:
         raise PrtError("--size", f"{text!r}: expected WIDTHxHEIGHT with positive integers")
+    if max(width, height) > MAX_IMAGE_SIDE:
+        raise PrtError("--size", f"{text!r}: at most {MAX_IMAGE_SIDE} pixels per side")
     return width, height
 
 
@@ -67,27 +79,36 @@ def cli() -> None:
 @SCENE
 @click.option("--until", metavar="STAGE", help="Stop after STAGE (and skip rendering).")
 @click.option("--force", metavar="STAGE", multiple=True, help="Re-run STAGE even if fresh.")
-@click.option("--frames", type=click.Path(path_type=Path), default=None,
-              help="Folder for the rendered frames [default: ./frames/<scene name>].")
+@click.option("--frames", type=click.Path(path_type=Path), default=None, help=FRAMES_DIR)
+@SIZE
+@EXPOSURE
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 @WORKDIR
 @STAGES
 @JOBS
 @THREADS
 @QUIET
-def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, threads,
-            quiet) -> None:
-    """Bake every stale stage, then render the scene's frames."""
+def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stagefile, jobs,
+            threads, quiet) -> None:
+    """Bake every stale stage, then bring the scene's frame and edit sequences up to
+    date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
+    from pipeline.method import scene_methods, scene_notes
 
     cores = cores_option(jobs, threads)
-    sc = job.open_scene(scene)
-    wd = job.workdir_for(sc, workdir)
+    check_exposure(exposure)
+    sc = job.open_scene(scene, parse_size(size))
+    wd = job.workdir_for(sc, workdir, stagefile)
     frames = frames or Path("frames") / sc.name
+    notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
+    show_notes(notes, as_json)
     report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force),
                                                cores.workers, quiet, stagefile,
-                                               threads=cores.threads)
+                                               threads=cores.threads, exposure=exposure)
     warnings = job.tolerance_warnings(report)
+    if rendered is not None and rendered.frame is not None:
+        notes += rendered.frame.notes
+        show_notes(rendered.frame.notes, as_json)
     if as_json:
         click.echo(json.dumps({
             "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
@@ -95,7 +116,11 @@ def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, thre
                         "reason": r.reason, "tolerances": r.tolerances} for r in report],
             "warnings": warnings,
             "frame": None if rendered is None else str(rendered.exr),
-            "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences}}))
+            "frame_rendered": rendered is not None and rendered.frame is not None,
+            "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences if q.exr},
+            "sequences_rendered": [q.kind for q in sequences if q.exr and q.rendered],
+            "sequences_skipped": {q.kind: q.skipped for q in sequences if q.skipped},
+            "notes": notes}))
         return
     ran = [r for r in report if r.action == "ran"]
     for r in report:
@@ -113,26 +138,54 @@ def run_cmd(scene, until, force, frames, as_json, workdir, stagefile, jobs, thre
         state = "up to date" if rendered.frame is None else "rendered"
         click.echo(f"Frame {state}: {rendered.exr} (preview {rendered.png})")
     for q in sequences:
-        click.echo(f"Sequence {q.kind}: {len(q.exr)} frames {q.exr[0].name} .. "
+        if q.skipped:
+            click.echo(f"Sequence {q.kind}: skipped ({q.skipped})")
+            continue
+        state = "" if q.rendered else "up to date, "
+        click.echo(f"Sequence {q.kind}: {state}{len(q.exr)} frames {q.exr[0].name} .. "
                    f"{q.exr[-1].name} (EXR + PNG)")
+        if q.rendered and q.description:
+            click.echo(f"  {q.description}")
+
+
+def check_exposure(ev: float) -> None:
+    """PrtError unless ``ev`` (stops) is finite and within ±64 stops."""
+    if not -64.0 <= ev <= 64.0:
+        raise PrtError("--exposure", f"{ev!r}: expected stops between -64 and 64")
+
+
+def show_notes(notes: list[str], as_json: bool) -> None:
+    """Print ``note: ...`` lines on stderr (with ``--json`` they go into the JSON)."""
+    if not as_json:
+        for note in notes:
+            click.echo(f"note: {note}", err=True)
 
 
 @cli.command("status")
 @SCENE
-@click.option("--json", "as_json", is_flag=True, help="Print {\"stages\": [...]} as JSON.")
+@click.option("--frames", type=click.Path(path_type=Path), default=None,
+              help="Folder of the frames `prt run` writes [default: ./frames/<scene name>].")
+@SIZE
+@click.option("--json", "as_json", is_flag=True,
+              help="Print {\"stages\": [...], \"frames\": [...]} as JSON.")
 @WORKDIR
 @STAGES
-def status_cmd(scene, as_json, workdir, stagefile) -> None:
-    """Show whether each stage is fresh, stale or missing, and why."""
+def status_cmd(scene, frames, size, as_json, workdir, stagefile) -> None:
+    """Show whether each stage is fresh, stale or missing, and why; then whether the
+    frame and edit sequences `prt run` writes are present, missing or stale."""
     from pipeline import job
 
-    sc = job.open_scene(scene)
-    wd = job.workdir_for(sc, workdir)
+    sc = job.open_scene(scene, parse_size(size))
+    wd = job.workdir_for(sc, workdir, stagefile)
     plans = job.status(sc, wd, stagefile)
     rows = [{"name": p.spec.name, "state": p.state, "reason": p.reason,
              **_partial(wd, p.spec.name)} for p in plans]
+    outputs = [] if stagefile else job.frame_states(
+        sc, wd, frames or Path("frames") / sc.name, plans)
+    frame_rows = [{"name": o.name, "path": str(o.path), "state": o.state,
+                   "reason": o.reason} for o in outputs]
     if as_json:
-        click.echo(json.dumps({"stages": rows}))
+        click.echo(json.dumps({"stages": rows, "frames": frame_rows}))
         return
     for row in rows:
         reason = f"  ({row['reason']})" if row["reason"] else ""
@@ -140,6 +193,9 @@ def status_cmd(scene, as_json, workdir, stagefile) -> None:
         state = row["state"] if partial is None else \
             f"partial: {partial['done']}/{partial['total']} chunks"
         click.echo(f"  {row['name']:<12} {state}{reason}")
+    for row in frame_rows:
+        reason = f"  ({row['reason']})" if row["reason"] else ""
+        click.echo(f"  {row['name']:<16} {row['state']}: {row['path']}{reason}")
 
 
 def _partial(workdir, stage: str) -> dict[str, dict[str, int] | None]:
@@ -247,11 +303,16 @@ def methods_cmd(as_json) -> None:
             "description": m.description, "reads": list(m.reads), "reference": m.reference,
             "options": {o.name: {"type": o.type.__name__, "default": o.default,
                                  "help": o.help} for o in m.options},
-            "main_sequences": list(m.main_sequences)} for name, m in methods.items()}))
+            "main_sequences": list(m.main_sequences), "lights": list(m.lights),
+            "materials": list(m.materials), "features": list(m.features)}
+            for name, m in methods.items()}))
         return
     for name, m in methods.items():
         click.echo(f"{name}: {m.description}")
         click.echo(f"  reads: {', '.join(m.reads)}; reference transport: {m.reference}")
+        click.echo(f"  renders lights: {', '.join(m.lights) or 'none'}; materials: "
+                   f"{', '.join(m.materials) or 'none'}; features: "
+                   f"{', '.join(m.features) or 'none'}")
         for o in m.options:
             click.echo(f"  --option {o.name}={o.default!r} ({o.type.__name__}): {o.help}")
         if m.main_sequences:
@@ -267,11 +328,14 @@ def methods_cmd(as_json) -> None:
               help="Output EXR (linear); an sRGB PNG preview is written beside it.")
 @click.option("--frames", "sequence", metavar="SPEC", default=None,
               help="Also render a sequence of edits beside OUT (OUT_<kind>_0000.exr, ...), "
-                   "as the method reads SPEC (d2i: light:N or gamma[:MATERIAL]:N).")
+                   "as the method reads SPEC (d2i: light[:LIGHT]:N, LIGHT an index into "
+                   "lights or a quad light's object, moved around a horizontal circle; "
+                   "or gamma[:MATERIAL]:N). The path is printed.")
 @click.option("--option", "options", metavar="NAME=VALUE", multiple=True,
               help="A run-time option of the method (repeatable; `prt methods` lists "
                    "them, e.g. d2i's max_bounces=4).")
-@click.option("--size", metavar="WxH", help="Image size [default: the scene camera's].")
+@SIZE
+@EXPOSURE
 @click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
               help="Run-time material edit (repeatable): NAME a material or object, KEY "
                    "gamma, specular or albedo, VALUE a number or r,g,b; gamma must lie in "
@@ -282,38 +346,48 @@ def methods_cmd(as_json) -> None:
 @JOBS
 @THREADS
 @QUIET
-def render_cmd(scene, method, out, sequence, options, size, edits, as_json, workdir, jobs,
-               threads, quiet) -> None:
+def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_json, workdir,
+               jobs, threads, quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
-    from pipeline.method import get_method, scene_methods
+    from pipeline.method import check_method_scene, get_method, scene_methods, scene_notes
     from pipeline.scene_edits import with_material_edits
 
     cores = cores_option(jobs, threads)
+    check_exposure(exposure)
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
     m = get_method(method) if method else scene_methods(sc)[0]
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
+    notes = scene_notes(sc, [m])
+    show_notes(notes, as_json)
     wd = job.workdir_for(sc, workdir)
+    if out.suffix.lower() != ".exr":
+        raise PrtError(out, "output must be an .exr file")
+    if sequence:  # a bad spec, or one the scene cannot show, fails before any frame
+        check_method_scene(m, sc)
+        job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m], threads=cores.threads)
+        plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
     result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
-                        threads=cores.threads)
+                        threads=cores.threads, exposure=exposure)
     frame = result.frame
     if sequence:
-        seq = job.render_sequence(sc, wd, m.name, sequence, out, values)
+        seq = job.render_sequence(sc, wd, m.name, sequence, out, values, exposure, plan=plan)
         ms = sorted(t["total_ms"] for t in seq.timings)
         click.echo(f"Wrote {len(seq.exr)} {seq.kind} frames {seq.exr[0]} .. {seq.exr[-1]} "
                    f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)
+        if seq.description:
+            click.echo(f"  {seq.description}", err=as_json)
+    show_notes(frame.notes, as_json)
     warnings = job.tolerance_warnings(result.baked)
     if as_json:
         click.echo(json.dumps({"method": m.name, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
                                "exr": str(result.exr), "png": str(result.png),
-                               "warnings": warnings}))
+                               "notes": notes + frame.notes, "warnings": warnings}))
         return
-    for note in frame.notes:
-        click.echo(f"note: {note}", err=True)
     for line in warnings:
         click.echo(f"warning: {line}", err=True)
     t = frame.timings
@@ -349,13 +423,14 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
                   as_json, workdir, quiet) -> None:
     """Render a converged Monte-Carlo reference image (cached in the work directory)."""
     from pipeline import job
-    from pipeline.images import write_exr, write_png
+    from pipeline.images import check_writable, write_exr, write_png
     from pipeline.reference import ReferenceSettings
     from pipeline.scene_edits import with_material_edits
 
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
+    check_writable(out)
     settings = ReferenceSettings(transport=transport, tolerance=tolerance, max_spp=max_spp,
                                  seed=seed, pixel_filter=pixel_filter)
     result = job.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)

@@ -22,5 +22,5 @@ class PrtError(Exception):
         text = self.problem if self.path is None else f"{self.path}: {self.problem}"
         return " ".join(text.split())
 
-    def __reduce__(self):  # keep (path, problem) when crossing process boundaries
-        return (PrtError, (self.path, self.problem))
+    def __reduce__(self):  # keep (path, problem) and attributes across processes
+        return (PrtError, (self.path, self.problem), self.__dict__)

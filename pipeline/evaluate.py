@@ -64,7 +64,7 @@ from pipeline.charts import heatmap, write_charts
 from pipeline.errors import PrtError
 from pipeline.graph import with_upstream
 from pipeline.images import write_exr, write_png
-from pipeline.method import Method, get_method, scene_methods
+from pipeline.method import Method, check_method_scene, get_method, scene_methods
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene
 from pipeline.store import Workdir, read_record
@@ -120,19 +120,60 @@ def _number(text: str) -> Any:
     return text
 
 
-def default_budget(scene: Scene, method: Method, names: list[str]) -> dict[str, Any]:
-    """The scene's own value of each budget name."""
+def sweep_names(scene: Scene, method: Method) -> dict[str, Any]:
+    """Every budget ``method`` can sweep, with the scene's value: ``size``, its run-time
+    options as ``render.OPTION``, and the parameters of the stages its frames read (with
+    their upstream stages)."""
     from pipeline.runner import stage_params
 
-    params = stage_params(job.stages(), scene)
-    render_defaults = {f"{RENDER_PREFIX}{o.name}": o.default for o in method.options}
-    unknown = [n for n in names if n != "size" and n not in params and n not in render_defaults]
-    if unknown:
-        raise PrtError("--sweep", f"unknown budget {unknown[0]!r} (budgets: size, "
-                       f"{', '.join(render_defaults)} or a stage parameter: "
-                       f"{', '.join(sorted(params))})")
-    return {n: scene.camera.width if n == "size" else {**params, **render_defaults}[n]
-            for n in names}
+    graph = job.stages()
+    params = stage_params(graph, scene)
+    used = sorted({p for s in with_upstream(graph, list(method.reads))
+                   for p in graph.stages[s].params})
+    return {"size": scene.camera.width,
+            **{f"{RENDER_PREFIX}{o.name}": o.default for o in method.options},
+            **{name: params[name] for name in used}}
+
+
+def default_budget(scene: Scene, method: Method, sweep: dict[str, list[Any]]
+                   ) -> dict[str, Any]:
+    """The scene's own value of each budget the sweep names; PrtError naming ``--sweep``
+    for a name the method cannot sweep (listing those it can) or a value of the wrong
+    kind, before anything runs."""
+    known = sweep_names(scene, method)
+    for name, values in sweep.items():
+        if name not in known:
+            raise PrtError("--sweep", f"method {method.name} has no budget {name!r} (its "
+                           f"budgets: {', '.join(known)})")
+        for value in values:
+            _check_budget_value(method, name, value, known[name])
+    return {name: known[name] for name in sorted(sweep)}
+
+
+def _check_budget_value(method: Method, name: str, value: Any, default: Any) -> None:
+    """PrtError unless ``value`` suits budget ``name`` (whose scene value is ``default``):
+    a size is a width or WxH within MAX_IMAGE_SIDE; a run-time option parses as its
+    type; a numeric stage parameter takes a finite number."""
+    from pipeline.scene import MAX_IMAGE_SIDE
+
+    if name == "size":
+        w, sep, h = str(value).lower().partition("x")
+        sides = [w, h] if sep else [w]
+        if not all(s.isdigit() and 1 <= int(s) <= MAX_IMAGE_SIDE for s in sides):
+            raise PrtError("--sweep", f"size={value}: expected a width or WIDTHxHEIGHT, "
+                           f"positive integers up to {MAX_IMAGE_SIDE}")
+        return
+    if name.startswith(RENDER_PREFIX):
+        option = next(o for o in method.options if RENDER_PREFIX + o.name == name)
+        try:
+            option.parse(str(value))
+        except PrtError as exc:
+            raise PrtError("--sweep", RENDER_PREFIX + exc.problem) from None
+        return
+    numeric = isinstance(default, int | float) and not isinstance(default, bool)
+    if numeric and not (isinstance(value, int | float) and np.isfinite(value)):
+        raise PrtError("--sweep", f"{name}={value}: expected a finite number (the scene's "
+                       f"value is {default!r})")
 
 
 def apply_budget(scene: Scene, budget: dict[str, Any]) -> Scene:
@@ -219,8 +260,10 @@ def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str
     from pipeline.bandwidth import probe
 
     m = get_method(method) if method else scene_methods(scene)[0]
+    for note in check_method_scene(m, scene):
+        _step(f"note: {note}")
     names = sorted(sweep)
-    default = default_budget(scene, m, names)
+    default = default_budget(scene, m, sweep)
     budgets = [dict(zip(names, values, strict=True))
                for values in itertools.product(*(sweep[n] for n in names))]
     if default not in budgets:

@@ -38,3 +38,16 @@ def with_upstream(stagefile: StageFile, targets: list[str]) -> set[str]:
             seen.add(name)
             stack.extend(stagefile.stages[name].inputs)
     return seen
+
+
+def camera_dependent(stagefile: StageFile) -> set[str]:
+    """The stages whose artifacts depend on the camera: those that read the scene's
+    ``camera`` section, and every stage downstream of one (their artifacts have the
+    image's size)."""
+    out: set[str] = set()
+    for name in topological_order(stagefile):
+        spec = stagefile.stages[name]
+        if any(s == "camera" or s.startswith("camera.") for s in spec.scene) or \
+                any(dep in out for dep in spec.inputs):
+            out.add(name)
+    return out

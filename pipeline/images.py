@@ -28,6 +28,20 @@ def _temporary(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp-{os.getpid()}")
 
 
+def check_writable(path: str | Path) -> None:
+    """PrtError naming ``path`` unless an image can be written there: its folder exists
+    (or is made now) and a file can be created in it. Called before any work, so that a
+    read-only output folder is reported before a bake, not after."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        probe = _temporary(path)
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        raise PrtError(path, f"cannot write an image here ({exc.strerror or exc})") from None
+
+
 def write_exr(path: str | Path, rgb: np.ndarray) -> None:
     """Write a linear float32 RGB EXR (ZIP compressed)."""
     import OpenEXR
@@ -43,6 +57,8 @@ def write_exr(path: str | Path, rgb: np.ndarray) -> None:
         os.replace(tmp, path)
     except OSError as exc:
         raise PrtError(path, f"cannot write image ({exc.strerror or exc})") from None
+    except RuntimeError as exc:  # OpenEXR's error for a file it cannot create
+        raise PrtError(path, f"cannot write image ({exc})") from None
 
 
 def write_png(path: str | Path, rgb: np.ndarray, exposure: float = 1.0) -> None:

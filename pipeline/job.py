@@ -34,9 +34,18 @@ def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> 
     return scene.with_image_size(*size) if size else scene
 
 
-def workdir_for(scene: Scene, workdir: str | Path | None) -> Workdir:
-    """``workdir`` or the default ``./.prt/<scene name>``."""
-    return Workdir(workdir or Path(".prt") / scene.name)
+def workdir_for(scene: Scene, workdir: str | Path | None,
+                stagefile: str | Path | None = None) -> Workdir:
+    """``workdir`` or the default ``./.prt/<scene name>``. A scene resized at run time
+    (``--size``, :attr:`Scene.view`) keeps its camera-dependent artifacts (those of the
+    stage graph, ``stagefile`` or the project's) under ``views/<W>x<H>/`` there, so that
+    they never replace the bake at the scene file's own size."""
+    from pipeline.graph import camera_dependent
+
+    root = workdir or Path(".prt") / scene.name
+    if scene.view is None:
+        return Workdir(root)
+    return Workdir(root, scene.view, camera_dependent(stages(stagefile)))
 
 
 def stages(stagefile: str | Path | None = None) -> StageFile:
@@ -138,33 +147,81 @@ class RenderResult:
 
 def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | None = None,
            quiet: bool = False, reuse: bool = False,
-           options: dict[str, Any] | None = None, threads: int | None = None
-           ) -> RenderResult:
+           options: dict[str, Any] | None = None, threads: int | None = None,
+           exposure: float = 0.0) -> RenderResult:
     """Bake what ``method`` needs (``jobs``, ``threads``: as for :func:`bake`), render
-    one frame, write ``out`` (EXR) and a PNG beside.
+    one frame, write ``out`` (linear EXR), a PNG preview beside it (× 2^``exposure``,
+    in stops; the EXR is never scaled) and its record ``out.json`` (see
+    :func:`output_state`).
 
     With ``reuse``, a frame whose inputs (see :func:`frame_key`) are unchanged since it
-    was written is not rendered again."""
+    was written, and whose files are as written, is not rendered again."""
+    from pipeline.images import check_writable
+    from pipeline.method import check_method_scene
+
     m = get_method(method)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
-    from pipeline.method import check_method_scene
-
     check_method_scene(m, scene)
+    check_writable(out)
     options = m.option_values({}) | (options or {})
     baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
     key = frame_key(scene, workdir, m, options)
-    if reuse and out.is_file() and png.is_file() and _stored_key(meta) == key:
+    if reuse and output_state(meta, key, exposure)[0] == "present":
         return RenderResult(out, png, None, baked)
+    frame = checked_frame(frame_renderer(scene, workdir, method, options)(scene), out)
+    write_frame(out, frame.rgb, exposure)
+    write_output_record(meta, key, [out, png], {"method": method, "exposure": exposure,
+                                                **frame.timings})
+    return RenderResult(out, png, frame, baked)
+
+
+def write_frame(out: Path, rgb: np.ndarray, exposure: float) -> None:
+    """``out`` (linear EXR) and its PNG preview × 2^``exposure`` (stops)."""
     from pipeline.images import write_exr, write_png
 
-    frame = checked_frame(frame_renderer(scene, workdir, method, options)(scene), out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_exr(out, frame.rgb)
-    write_png(png, frame.rgb)
-    meta.write_text(json.dumps({"key": key, "method": method, **frame.timings}, indent=1))
-    return RenderResult(out, png, frame, baked)
+    write_exr(out, rgb)
+    write_png(out.with_suffix(".png"), rgb, 2.0 ** exposure)
+
+
+def write_output_record(record: Path, key: str, files: list[Path],
+                        extra: dict[str, Any]) -> None:
+    """The record of written frames: their key and every file's SHA-256 (by name, files
+    beside the record), written last so that a run killed earlier leaves none."""
+    from pipeline.keys import file_hash
+
+    body = {"key": key, **extra, "files": {p.name: file_hash(p) for p in files}}
+    tmp = record.with_name(f".{record.name}.tmp")
+    tmp.write_text(json.dumps(body, indent=1))
+    tmp.replace(record)
+
+
+def output_state(record: Path, key: str, exposure: float | None = None
+                 ) -> tuple[str, str]:
+    """The state of the frames a record lists: ``("present", "")`` when the record's
+    key is ``key`` (and its previews' exposure ``exposure``, unless None) and every file
+    is there with the bytes it was written with; ``("missing", why)`` when the record or
+    a file is absent; ``("stale", why)`` when the inputs changed or a file changed on
+    disk (truncated, overwritten)."""
+    from pipeline.keys import file_hash
+
+    try:
+        body = json.loads(record.read_text())
+        files = dict(body["files"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return "missing", "not rendered yet"
+    lost = [name for name in files if not (record.parent / name).is_file()]
+    if lost:
+        return "missing", f"{len(lost)} of {len(files)} files missing ({lost[0]})"
+    if body.get("key") != key:
+        return "stale", "its inputs changed"
+    if exposure is not None and body.get("exposure") != exposure:
+        return "stale", f"preview exposure {body.get('exposure')} -> {exposure} EV"
+    changed = [n for n, d in files.items() if file_hash(record.parent / n) != d]
+    if changed:
+        return "stale", f"{len(changed)} file(s) changed on disk ({changed[0]})"
+    return "present", ""
 
 
 def checked_frame(frame: Frame, out: Path) -> Frame:
@@ -191,70 +248,166 @@ def render_frame(scene: Scene, workdir: Workdir, method: str,
     return frame_renderer(scene, workdir, method, options)(scene)
 
 
-def _stored_key(meta: Path) -> str | None:
-    try:
-        return json.loads(meta.read_text()).get("key")
-    except (OSError, ValueError):
-        return None
+@dataclass
+class SequencePlan:
+    """A sequence of edits resolved against the baked artifacts: what ``prt run`` and
+    ``prt render --frames`` write, and where its record lies."""
+
+    spec: str
+    kind: str
+    scenes: list[Scene]
+    edits: list[str]
+    description: str
+    exr: list[Path]
+    record: Path
+    key: str
 
 
 @dataclass
 class SequenceResult:
-    """A written frame sequence: its EXR files (PNG previews beside them), per-frame
-    timings and the edit each frame shows."""
+    """A sequence's frames (EXR files, PNG previews beside them), per-frame timings (none
+    when it was up to date), the edit each frame shows and the path of the edit.
+    ``skipped``: why a main sequence does not apply to the scene (no frames then)."""
 
     kind: str
     exr: list[Path]
     timings: list[dict[str, float]]
     edits: list[str]
+    description: str = ""
+    rendered: bool = True
+    skipped: str = ""
 
 
-def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
-                    options: dict[str, Any] | None = None) -> SequenceResult:
-    """Render a sequence of edits (``spec`` as the method's sequences read it) from the
-    baked artifacts; frames go to ``out`` with the suffix ``_<kind>_<i>`` (EXR + PNG).
-    A renderer with an ``edit_mode`` renders the sequence in that faster mode."""
-    from pipeline.images import write_exr, write_png
-
+def plan_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
+                  options: dict[str, Any] | None = None) -> SequencePlan:
+    """Resolve ``spec`` (as the method's sequences read it) against the baked artifacts:
+    frames ``out`` with the suffix ``_<kind>_<i>`` (EXR + PNG), record
+    ``<out>_<kind>.json``. Raises PrtError (pipeline.method.NotApplicable when the scene
+    has nothing the sequence edits) before anything is written."""
     m = get_method(method)
     if m.sequences is None:
         raise PrtError(None, f"--frames: method {method} has no edit sequences")
-    artifacts = method_artifacts(m, workdir)
-    kind, scenes, edits = resolve(m.sequences)(scene, artifacts, spec)
-    renderer = resolve(m.renderer)(scene, artifacts, **(options or {}))
-    frame_of = renderer.edit_mode(kind, scene) if hasattr(renderer, "edit_mode") \
+    options = m.option_values({}) | (options or {})
+    kind, scenes, edits, *rest = resolve(m.sequences)(scene, method_artifacts(m, workdir),
+                                                      spec)
+    exr = [out.with_name(f"{out.stem}_{kind}_{i:04d}.exr") for i in range(len(scenes))]
+    key = digest({"frame": frame_key(scene, workdir, m, options), "spec": spec,
+                  "edits": edits})
+    return SequencePlan(spec, kind, scenes, edits, rest[0] if rest else "", exr,
+                        out.with_name(f"{out.stem}_{kind}.json"), key)
+
+
+def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
+                    options: dict[str, Any] | None = None, exposure: float = 0.0,
+                    reuse: bool = False, plan: SequencePlan | None = None
+                    ) -> SequenceResult:
+    """Render a sequence of edits (see :func:`plan_sequence`; ``plan`` if already made)
+    from the baked artifacts, PNG previews × 2^``exposure``. A renderer with an
+    ``edit_mode`` renders the sequence in that faster mode. With ``reuse``, a sequence
+    whose record says its frames are present (:func:`output_state`) is not rendered
+    again."""
+    m = get_method(method)
+    options = m.option_values({}) | (options or {})
+    plan = plan or plan_sequence(scene, workdir, method, spec, out, options)
+    if reuse and output_state(plan.record, plan.key, exposure)[0] == "present":
+        return SequenceResult(plan.kind, plan.exr, [], plan.edits, plan.description, False)
+    renderer = frame_renderer(scene, workdir, method, options)
+    frame_of = renderer.edit_mode(plan.kind, scene) if hasattr(renderer, "edit_mode") \
         else renderer
-    paths, timings = [], []
-    for i, edited in enumerate(scenes):
-        path = out.with_name(f"{out.stem}_{kind}_{i:04d}.exr")
+    plan.record.unlink(missing_ok=True)
+    timings = []
+    for path, edited in zip(plan.exr, plan.scenes, strict=True):
         frame = checked_frame(frame_of(edited), path)
-        write_exr(path, frame.rgb)
-        write_png(path.with_suffix(".png"), frame.rgb)
-        paths.append(path)
+        write_frame(path, frame.rgb, exposure)
         timings.append(frame.timings)
-    return SequenceResult(kind, paths, timings, edits)
+    write_output_record(plan.record, plan.key,
+                        [p for e in plan.exr for p in (e, e.with_suffix(".png"))],
+                        {"method": method, "exposure": exposure, "spec": spec,
+                         "edits": plan.edits, "path": plan.description})
+    return SequenceResult(plan.kind, plan.exr, timings, plan.edits, plan.description)
+
+
+def main_frame_path(scene: Scene, method: Method, frames: Path) -> Path:
+    """Where ``prt run`` writes the frame of ``method``: ``<frames>/<scene>_<method>.exr``,
+    with ``_<W>x<H>`` added for a scene resized at run time (``--size``)."""
+    view = f"_{scene.view}" if scene.view else ""
+    return frames / f"{scene.name}_{method.name}{view}.exr"
 
 
 def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
              force: tuple[str, ...], jobs: int | None, quiet: bool,
-             stagefile: str | Path | None = None, threads: int | None = None
+             stagefile: str | Path | None = None, threads: int | None = None,
+             exposure: float = 0.0
              ) -> tuple[list[StageRun], RenderResult | None, list[SequenceResult]]:
     """``prt run``: bake every stale stage of the scene's methods, then (unless
     ``until``, or with a custom stage file) bring the frame of the scene's first method
-    and its edit sequences in ``frames`` up to date (the sequences are rendered again
-    whenever the frame is)."""
+    and each of its main edit sequences in ``frames`` up to date: every frame missing,
+    changed on disk or stale is rendered again. A main sequence that does not apply to
+    the scene (pipeline.method.NotApplicable: e.g. no light that can move) is skipped,
+    saying why, before any frame is written."""
+    from pipeline.method import NotApplicable
+
     report = bake(scene, workdir, until=until, force=force, jobs=jobs, quiet=quiet,
                   stagefile=stagefile, threads=threads)
     if until or stagefile:
         return report, None, []
     method = scene_methods(scene)[0]
-    result = render(scene, workdir, method.name,
-                    frames / f"{scene.name}_{method.name}.exr", jobs=jobs, quiet=quiet,
-                    reuse=True, threads=threads)
-    sequences = [] if result.frame is None else \
-        [render_sequence(scene, workdir, method.name, spec, result.exr)
-         for spec in method.main_sequences]
+    out = main_frame_path(scene, method, frames)
+    plans: list[SequencePlan | SequenceResult] = []
+    for spec in method.main_sequences:
+        try:
+            plans.append(plan_sequence(scene, workdir, method.name, spec, out))
+        except NotApplicable as exc:
+            plans.append(SequenceResult(spec.partition(":")[0], [], [], [],
+                                        skipped=exc.problem))
+    result = render(scene, workdir, method.name, out, jobs=jobs, quiet=quiet, reuse=True,
+                    threads=threads, exposure=exposure)
+    sequences = [p if isinstance(p, SequenceResult) else
+                 render_sequence(scene, workdir, method.name, p.spec, out, None, exposure,
+                                 reuse=True, plan=p) for p in plans]
     return report, result, sequences
+
+
+@dataclass
+class OutputState:
+    """One output ``prt run`` owns (its frame, or a sequence) and its state: present,
+    missing, stale, or skipped (a sequence that does not apply to the scene)."""
+
+    name: str
+    path: Path
+    state: str
+    reason: str
+
+
+def frame_states(scene: Scene, workdir: Workdir, frames: Path,
+                 plans: list[StagePlan]) -> list[OutputState]:
+    """The state of the frame and the main sequences ``prt run`` writes into ``frames``
+    (``plans``: the stages' states, see :func:`status`), without rendering anything."""
+    from pipeline.method import NotApplicable
+
+    method = scene_methods(scene)[0]
+    out = main_frame_path(scene, method, frames)
+    waiting = sorted(p.spec.name for p in plans
+                     if p.state != "fresh" and p.spec.name in method.reads)
+    names = ["frame", *(f"sequence {spec}" for spec in method.main_sequences)]
+    if waiting:
+        # without the artifacts there is no key to compare with
+        present = [out.is_file(), *(None for _ in method.main_sequences)]
+        return [OutputState(n, out, "stale" if p else "missing",
+                            f"waits for {', '.join(waiting)}")
+                for n, p in zip(names, present, strict=True)]
+    options = method.option_values({})
+    key = frame_key(scene, workdir, method, options)
+    states = [OutputState("frame", out, *output_state(out.with_suffix(".json"), key))]
+    for spec in method.main_sequences:
+        try:
+            p = plan_sequence(scene, workdir, method.name, spec, out, options)
+        except NotApplicable as exc:
+            states.append(OutputState(f"sequence {spec}", out, "skipped", exc.problem))
+            continue
+        state, reason = output_state(p.record, p.key)
+        states.append(OutputState(f"sequence {spec}", p.exr[0], state, reason))
+    return states
 
 
 def load_geometry(scene: Scene, workdir: Workdir, quiet: bool = True) -> tuple[dict, str]:
@@ -317,10 +470,10 @@ def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
 
 
 def clean(workdir: Workdir) -> int:
-    """Delete a work directory; returns the bytes freed."""
+    """Delete a work directory; returns the bytes freed. PrtError if there is none."""
     root = workdir.root
-    if not root.exists():
-        return 0
+    if not root.is_dir():
+        raise PrtError(root, "no such work directory; nothing to remove")
     if not (root / ".lock").exists() and not any(root.glob("*.zarr")):
         raise PrtError(root, "does not look like a prt work directory; not deleting it")
     freed = sum(p.stat().st_size for p in root.rglob("*") if p.is_file())

@@ -27,11 +27,25 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import PrtError
+from pipeline.math.brdf import MATERIAL_PARAMETERS, specular_albedo_bound
 from pipeline.scene import Scene
 from pipeline.searchpath import add_kernel_dir, add_schema_dir
 
 # Methods of a scene that names none (``methods:`` absent).
 DEFAULT_METHODS = ("direct",)
+# Every material model (BRDF) of the scene format: what a method renders unless it says.
+ALL_MATERIALS = tuple(MATERIAL_PARAMETERS)
+# Scene features beyond light kinds and materials that a method renders only when it
+# declares them (``Method.features``), each with what it is.
+FEATURES = {
+    "emitters": "the emitting object of a quad light (its radiance seen by the camera)",
+}
+
+
+class NotApplicable(PrtError):
+    """Raised by a method's ``sequences`` function when the scene has nothing the
+    sequence edits (no light that can move, no glossy material): ``prt run`` skips that
+    main sequence, saying why; ``prt render --frames`` reports it as an error."""
 
 
 @dataclass(frozen=True)
@@ -82,15 +96,23 @@ class Method:
     ``components``: images measured separately (name -> Component).
     ``options``: the renderer's run-time options.
     ``sequences``: ``"module:function"``; ``function(scene, artifacts, spec)`` returns
-    (kind, edited scenes, labels) for a ``--frames`` spec, or raises PrtError.
+    (kind, edited scenes, labels) for a ``--frames`` spec, optionally with a fourth
+    item, a sentence describing the edit's path (printed, and kept in the sequence's
+    record); it raises PrtError for a bad spec, :class:`NotApplicable` when the scene
+    has nothing to edit.
     ``main_sequences``: the sequences ``prt run`` renders beside the frame.
     ``evaluate_sweep``, ``evaluate_size``, ``evaluate_reference_spp``: what ``prt
     evaluate`` runs without options (bounded: a few minutes on two cores): the sweep, on
     the scene resized to ``evaluate_size`` pixels wide, references capped at that spp.
     ``lights``: the light kinds (scene ``lights[].type``) the method renders; a scene
     with another kind, or with none of these, is refused before anything is baked.
+    ``materials``: the material models (BRDFs, scene ``materials.*.model``) it renders
+    (default: every model); ``features``: the scene features of :data:`FEATURES` it
+    renders. A scene using another is refused before anything is baked, naming the
+    methods that render it.
     ``check_scene``: ``"module:function"`` raising PrtError if the method cannot render
-    the scene for another reason (e.g. a material lacks a setting it needs).
+    the scene for another reason (e.g. a material lacks a setting it needs); it may
+    return notes (a list of strings), shown before the bake and in ``--json`` output.
     ``stagefile``, ``schema_dir``, ``kernel_dir``: a plug-in's own stages, schemas and
     kernels (the built-in methods' live in the project's files).
     """
@@ -109,6 +131,8 @@ class Method:
     evaluate_size: int | None = None
     evaluate_reference_spp: int = 1024
     lights: tuple[str, ...] = ()
+    materials: tuple[str, ...] = ALL_MATERIALS
+    features: tuple[str, ...] = ()
     check_scene: str | None = None
     stagefile: Path | None = None
     schema_dir: Path | None = None
@@ -190,20 +214,61 @@ def scene_methods(scene: Scene) -> list[Method]:
     return [methods[n] for n in names]
 
 
-def check_method_scene(method: Method, scene: Scene) -> None:
-    """Raise PrtError if ``method`` cannot render ``scene``: a light kind it does not
-    render (naming the methods that do), no light it renders, or its own check."""
+def scene_features(scene: Scene) -> dict[str, str]:
+    """The features of :data:`FEATURES` that ``scene`` uses, each with the first key
+    path that uses it."""
+    used: dict[str, str] = {}
+    for i, light in enumerate(scene.lights):
+        if light.type == "quad" and light.params.get("object"):
+            used.setdefault("emitters", f"lights[{i}].object")
+    return used
+
+
+def check_method_scene(method: Method, scene: Scene) -> list[str]:
+    """Raise PrtError if ``method`` cannot render ``scene``: a light kind, material model
+    or scene feature it does not render (naming the methods that do), no light it
+    renders, or its own check. Returns the notes to show before baking: those of the
+    method's check and materials whose energy conservation cannot be checked."""
     for i, light in enumerate(scene.lights):
         if light.type not in method.lights:
-            others = [m.name for m in registry().values() if light.type in m.lights]
             raise PrtError(scene.path, f"lights[{i}]: method {method.name} does not render "
                            f"{light.type} lights (methods that do: "
-                           f"{', '.join(others) or 'none yet'})")
+                           f"{_methods_with('lights', light.type)})")
     if not scene.lights:
         raise PrtError(scene.path, f"lights: the scene has no light; method {method.name} "
                        f"renders {', '.join(method.lights)} lights")
+    for name, material in scene.materials.items():
+        if material.model not in method.materials:
+            raise PrtError(scene.path, f"materials.{name}: method {method.name} does not "
+                           f"render {material.model} materials (methods that do: "
+                           f"{_methods_with('materials', material.model)})")
+    for feature, where in scene_features(scene).items():
+        if feature not in method.features:
+            raise PrtError(scene.path, f"{where}: method {method.name} does not render "
+                           f"{FEATURES[feature]} (methods that do: "
+                           f"{_methods_with('features', feature)})")
+    notes = [f"materials.{name}: {material.model} has no bounded albedo (it grows towards "
+             "grazing angles), so whether it conserves energy is not checked"
+             for name, material in scene.materials.items()
+             if specular_albedo_bound(material.model, 1.0) is None]
     if method.check_scene:
-        resolve(method.check_scene)(scene)
+        notes += resolve(method.check_scene)(scene) or []
+    return notes
+
+
+def _methods_with(field_name: str, value: str) -> str:
+    """The registered methods whose ``field_name`` holds ``value``, listed for a message
+    (``none yet`` if none)."""
+    found = [m.name for m in registry().values() if value in getattr(m, field_name)]
+    return ", ".join(found) or "none yet"
+
+
+def scene_notes(scene: Scene, methods: list[Method]) -> list[str]:
+    """The notes of :func:`check_method_scene` for each of ``methods``, each once."""
+    notes: list[str] = []
+    for method in methods:
+        notes += [n for n in check_method_scene(method, scene) if n not in notes]
+    return notes
 
 
 def stagefile_fragments() -> tuple[Path, ...]:

@@ -320,13 +320,14 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
 
     one_blas_thread()
     start = time.perf_counter()
-    meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
-              for name, (kind, src) in task.meshes.items()}
-    inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
-              task.inputs.items()}
-    ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs, chunk=task.chunk,
-                       key=task.key, rng=np.random.default_rng(task.seed), meshes=meshes)
     try:
+        meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
+                  for name, (kind, src) in task.meshes.items()}
+        inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
+                  task.inputs.items()}
+        ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs,
+                           chunk=task.chunk, key=task.key,
+                           rng=np.random.default_rng(task.seed), meshes=meshes)
         arrays = load_impl(task.impl).run_chunk(ctx)
         _check_finite(task, arrays)
     except Exception as exc:
@@ -374,6 +375,8 @@ def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None 
     selected = with_upstream(stagefile, sorted(wanted)) if wanted is not None else None
     params_all = stage_params(stagefile, scene)
     report: list[StageRun] = []
+    if not force and workdir.root.is_dir() and not workdir.writable():
+        return _all_fresh(scene, stagefile, workdir, selected, params_all)
     with workdir.lock():
         one_blas_thread()
         for name in topological_order(stagefile):
@@ -387,6 +390,24 @@ def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None 
                 continue
             report.append(_run_stage(p, scene, stagefile, workdir, executor, progress,
                                      name in force))
+    return report
+
+
+def _all_fresh(scene: Scene, stagefile: StageFile, workdir: Workdir,
+               selected: set[str] | None, params_all: dict[str, Any]) -> list[StageRun]:
+    """The report of a run in a work directory this process cannot write (read-only
+    folder or file system, another user's bake): nothing to bake when every stage is
+    fresh, which needs no lock; else PrtError naming the first stage that is not."""
+    report = []
+    for name in topological_order(stagefile):
+        if selected is not None and name not in selected:
+            continue
+        p = plan_stage(stagefile.stages[name], scene, stagefile, workdir, params_all)
+        if p.state != "fresh":
+            raise PrtError(workdir.root, f"work directory is not writable and stage {name} "
+                           f"is {p.state} ({p.reason}); make it writable or give another "
+                           "--workdir")
+        report.append(StageRun(name, "skipped"))
     return report
 
 

@@ -14,8 +14,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from pipeline.errors import PrtError
 from pipeline.keys import file_hash
 
@@ -32,6 +30,11 @@ def shared_data_dir() -> Path | None:
             if candidate.is_dir():
                 return candidate
     return None
+
+
+# The largest image side in pixels (16K): a frame buffer of 16384² RGB float32 pixels is
+# 3 GiB, and the G-buffer several times that; a larger size is a typo, not a request.
+MAX_IMAGE_SIDE = 16384
 
 
 @dataclass(frozen=True)
@@ -95,15 +98,31 @@ class Scene:
     settings: dict[str, Any]
     raw: dict[str, Any]
     methods: tuple[str, ...] | None = None
+    resized_from: tuple[int, int] | None = None
 
     def with_image_size(self, width: int, height: int) -> Scene:
         """The same scene rendered at ``width`` × ``height`` pixels."""
         if width < 1 or height < 1:
             raise PrtError(self.path, f"image size {width}x{height}: width and height must "
                            "be positive")
+        if max(width, height) > MAX_IMAGE_SIDE:
+            raise PrtError(self.path, f"image size {width}x{height}: at most "
+                           f"{MAX_IMAGE_SIDE} pixels per side")
         camera = replace(self.camera, width=width, height=height)
         raw = {**self.raw, "camera": {**self.raw["camera"], "width": width, "height": height}}
-        return replace(self, camera=camera, raw=raw)
+        original = self.resized_from or (self.camera.width, self.camera.height)
+        return replace(self, camera=camera, raw=raw,
+                       resized_from=None if (width, height) == original else original)
+
+    @property
+    def view(self) -> str | None:
+        """``"WxH"`` when the image size differs from the scene file's (a run-time
+        ``--size``), else None. The camera-dependent artifacts of such a view are kept
+        apart from the file's own (:class:`pipeline.store.Workdir`), so that a preview
+        at another size never replaces the file's bake."""
+        if self.resized_from is None:
+            return None
+        return f"{self.camera.width}x{self.camera.height}"
 
     def with_settings(self, overrides: dict[str, Any]) -> Scene:
         """The same scene with stage-parameter ``overrides`` added to its settings."""
@@ -145,20 +164,12 @@ def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file (see :mod:`pipeline.scene_validation`); raise
     PrtError naming the file and key on problems."""
     from pipeline.scene_validation import scene_from_document
+    from pipeline.yamlfile import load_yaml
 
     path = Path(path).resolve()
     if not path.is_file():
         raise PrtError(path, "scene file not found")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise PrtError(path, f"malformed YAML: {where}{problem}") from None
-    except UnicodeDecodeError:
-        raise PrtError(path, "not a text file") from None
-    return scene_from_document(path, doc)
+    return scene_from_document(path, load_yaml(path))
 
 
 def default_scene_path() -> Path:

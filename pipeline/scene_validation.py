@@ -56,8 +56,16 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from pipeline.errors import PrtError
-from pipeline.math.brdf import MATERIAL_PARAMETERS, SceneParam
-from pipeline.scene import Camera, Light, Material, Scene, SceneObject, shared_data_dir
+from pipeline.math.brdf import MATERIAL_PARAMETERS, SceneParam, specular_albedo_bound
+from pipeline.scene import (
+    MAX_IMAGE_SIDE,
+    Camera,
+    Light,
+    Material,
+    Scene,
+    SceneObject,
+    shared_data_dir,
+)
 
 SCENE_FORMAT = "prt-scene/1"
 MATERIAL_MODELS = tuple(MATERIAL_PARAMETERS)
@@ -129,13 +137,20 @@ def _number(value: Any, lo: float = -math.inf, hi: float = math.inf, lo_open: bo
     return x
 
 
-def _integer(value: Any, lo: int) -> int:
-    """An integer >= ``lo``."""
+def _integer(value: Any, lo: int, hi: int | None = None, why: str = "") -> int:
+    """An integer >= ``lo`` (and <= ``hi``, ``why`` saying why that limit)."""
     if isinstance(value, bool) or not isinstance(value, int):
         raise _problem(f"expected an integer, found {value!r}")
     if value < lo:
         raise _problem(f"expected an integer >= {lo}, found {value}")
+    if hi is not None and value > hi:
+        raise _problem(f"expected an integer <= {hi}{why}, found {value}")
     return value
+
+
+def _image_side(value: Any) -> int:
+    """An image width or height: 1 to MAX_IMAGE_SIDE pixels."""
+    return _integer(value, 1, MAX_IMAGE_SIDE, " (the largest image side prt renders)")
 
 
 def _vector(value: Any, n: int = 3, lo: float = -math.inf, hi: float = math.inf,
@@ -336,13 +351,19 @@ class _CameraFile(_Section):
     look_at: Point
     up: Direction = (0.0, 1.0, 0.0)
     fov: Annotated[float, PlainValidator(lambda v: _number(v, 0.0, 180.0, lo_open=True))]
-    width: Annotated[int, PlainValidator(lambda v: _integer(v, 1))]
-    height: Annotated[int, PlainValidator(lambda v: _integer(v, 1))]
+    width: Annotated[int, PlainValidator(_image_side)]
+    height: Annotated[int, PlainValidator(_image_side)]
 
     @model_validator(mode="after")
     def _looks_somewhere(self) -> _CameraFile:
         if self.position == self.look_at:
             raise _problem("must differ from camera.position", ".look_at")
+        forward = np.subtract(self.look_at, self.position)
+        sine = np.linalg.norm(np.cross(forward, self.up)) / (
+            np.linalg.norm(forward) * np.linalg.norm(self.up))
+        if sine < 1e-6:  # the image's horizontal axis is forward × up
+            raise _problem(f"{list(self.up)} is parallel to the view direction "
+                           "(look_at - position): the image has no horizontal axis", ".up")
         return self
 
     def camera(self) -> Camera:
@@ -370,6 +391,30 @@ class _MaterialFile(_Section):
         problem = rule(self.given()) if rule else None
         if problem:
             raise _problem(problem)
+        return self
+
+    @model_validator(mode="after")
+    def _conserves_energy(self) -> _MaterialFile:
+        """kd + ρs · (the model's specular albedo bound at the largest γ the material can
+        be edited to) ≤ 1 in every channel (pipeline/math/brdf.py
+        ``specular_albedo_bound``; Ward-Dür has no finite bound and is not checked)."""
+        if self.model == "lambert":
+            return self
+        values = self.model_dump()
+        gamma = values["gamma_range"][1] if values.get("gamma_range") else values["gamma"]
+        bound = specular_albedo_bound(self.model, gamma)
+        if bound is None:
+            return self
+        total = np.add(values["albedo"], np.multiply(values["specular"], bound))
+        channel = int(np.argmax(total))
+        if total[channel] > 1.0 + 1e-9:
+            kd, rho = values["albedo"][channel], values["specular"][channel]
+            raise _problem(
+                f"albedo + specular x {bound:.3g} = {kd:g} + {rho:g} x {bound:.3g} = "
+                f"{total[channel]:.3g} > 1 in the {('red', 'green', 'blue')[channel]} "
+                f"channel: the material reflects more light than it receives "
+                f"({bound:.3g} is the most a {self.model} lobe of specular 1 reflects, at "
+                f"gamma {gamma:g}); lower albedo or specular")
         return self
 
     def material(self, name: str) -> tuple[Material, dict[str, Any]]:

@@ -27,10 +27,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from pipeline.errors import PrtError
 from pipeline.searchpath import schema_dirs
+from pipeline.yamlfile import load_yaml
 
 WRITES = ("whole", "region", "segments")
 _ATTR_TYPES = {"int": int, "float": (int, float), "str": str, "list": list, "dict": dict,
@@ -140,7 +140,7 @@ def _load_schema(kind: str, dirs: tuple[Path, ...]) -> Schema:
     path = next((c for c in candidates if c.is_file()), None)
     if path is None:
         raise PrtError(candidates[0], f"no schema for artifact kind {kind!r}")
-    doc = yaml.safe_load(path.read_text())
+    doc = load_yaml(path)
     try:
         arrays = {
             name: ArraySpec(name, tuple(spec["dims"]), np.dtype(spec["dtype"]),

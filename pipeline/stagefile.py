@@ -39,10 +39,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from pipeline.errors import PrtError
+from pipeline.yamlfile import load_yaml
 
 STAGEFILE_FORMAT = "prt-stages/2"
 FIXED_CHUNKINGS = ("none", "object", "material")
@@ -158,10 +158,7 @@ def _problem(exc: ValidationError) -> str:
 def _read(path: Path) -> _File:
     if not path.is_file():
         raise PrtError(path, "stage file not found")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise PrtError(path, f"malformed YAML: {str(exc).splitlines()[0]}") from None
+    doc = load_yaml(path)
     if not isinstance(doc, dict) or doc.get("format") != STAGEFILE_FORMAT:
         raise PrtError(path, f"format: expected {STAGEFILE_FORMAT!r}")
     try:

@@ -5,6 +5,10 @@ Layout of a work directory (default ``./.prt/<scene name>/``)::
     <stage>.zarr/            the stage's artifact: a zarr v3 group conforming to its schema,
                              written chunk by chunk in place (pipeline/chunkwrite.py)
     .chunks/<stage>/<chunk>.json  the record of each chunk written (key, digest, seconds)
+    views/<W>x<H>/           the camera-dependent stages' artifacts and chunk records
+                             (same layout) of the scene resized at run time to W × H
+                             (``--size``); the stages that do not read the camera
+                             (geometry, brdf_basis) are shared with the file's own size
     .tmp/                    whole writes in progress (references), renamed into place
     .lock                    held by the one run that may write here
 
@@ -23,7 +27,7 @@ import json
 import os
 import shutil
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -36,20 +40,34 @@ RECORD_FORMAT = 1
 
 
 class Workdir:
-    """A work directory holding one scene's artifacts."""
+    """A work directory holding one scene's artifacts.
 
-    def __init__(self, root: str | Path) -> None:
+    ``view`` (``"WxH"``, see :attr:`pipeline.scene.Scene.view`) with ``view_stages``
+    (the stages that depend on the camera) places those stages' artifacts and chunk
+    records under ``views/<view>/``: bakes at several image sizes coexist in one work
+    directory, sharing what does not depend on the camera, under one lock."""
+
+    def __init__(self, root: str | Path, view: str | None = None,
+                 view_stages: Iterable[str] = ()) -> None:
         self.root = Path(root).absolute()
+        self.view = view
+        self.view_stages = frozenset(view_stages) if view else frozenset()
+
+    def folder(self, stage: str) -> Path:
+        """Where ``stage``'s artifact and chunk records live."""
+        if stage in self.view_stages:
+            return self.root / "views" / str(self.view)
+        return self.root
 
     def artifact(self, name: str) -> Path:
-        return self.root / f"{name}.zarr"
+        return self.folder(name) / f"{name}.zarr"
 
     def marker(self, stage: str, chunk: str) -> Path:
         """The record of one written chunk (a ``/`` in a chunk id becomes ``~``)."""
-        return self.root / ".chunks" / stage / f"{chunk.replace('/', '~')}.json"
+        return self.markers(stage) / f"{chunk.replace('/', '~')}.json"
 
     def markers(self, stage: str) -> Path:
-        return self.root / ".chunks" / stage
+        return self.folder(stage) / ".chunks" / stage
 
     @property
     def tmp(self) -> Path:
@@ -65,6 +83,14 @@ class Workdir:
         except OSError as exc:
             raise PrtError(self.root, f"work directory is not writable ({exc.strerror})") \
                 from None
+
+    def writable(self) -> bool:
+        """Whether this process can write here (see :meth:`ensure_writable`)."""
+        try:
+            self.ensure_writable()
+        except PrtError:
+            return False
+        return True
 
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:

@@ -24,7 +24,7 @@ def small_scene_dict(size: int = 24) -> dict[str, Any]:
         "materials": {
             "grey": {"model": "lambert", "albedo": [0.6, 0.6, 0.6]},
             "red": {"model": "lambert", "albedo": [0.7, 0.1, 0.1]},
-            "shiny": {"model": "blinn_phong", "albedo": [0.2, 0.4, 0.6], "specular": 0.3,
+            "shiny": {"model": "blinn_phong", "albedo": [0.2, 0.4, 0.6], "specular": 0.1,
                       "gamma": 20, "gamma_range": [3, 300]},
         },
         "objects": {

@@ -116,7 +116,7 @@ def test_stage_keys_follow_the_edited_family(tmp_path):
     k = dict(zip(names, art.read("k").tolist(), strict=True))
     assert k["grey"] == 0 and k["red"] == 0 and k["shiny"] > 0 and k["satin"] > 0
 
-    edited = _scene(tmp_path, "e.yaml", gamma=150, specular=0.6, albedo=[0.1, 0.2, 0.3])
+    edited = _scene(tmp_path, "e.yaml", gamma=150, specular=0.15, albedo=[0.1, 0.2, 0.3])
     report = {r.name: r for r in run(edited, stages, workdir, until="brdf_basis",
                                      progress=False)}
     assert report["brdf_basis"].action == "skipped"

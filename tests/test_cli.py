@@ -51,11 +51,15 @@ def test_run_summary_then_noop(baked):
 
 
 def test_status_json(baked):
-    """`prt status --json` lists every stage with state and reason."""
-    scene, workdir, _, _ = baked
-    out = json.loads(prt("status", scene, "--workdir", workdir, "--json").stdout)
-    assert out == {"stages": [{"name": n, "state": "fresh", "reason": "", "partial": None}
-                              for n in topological_order(load_stagefile())]}
+    """`prt status --json` lists every stage with state and reason, and the frame and
+    sequences `prt run` wrote."""
+    scene, workdir, frames, _ = baked
+    out = json.loads(prt("status", scene, "--workdir", workdir, "--frames", frames,
+                         "--json").stdout)
+    assert out["stages"] == [{"name": n, "state": "fresh", "reason": "", "partial": None}
+                             for n in topological_order(load_stagefile())]
+    assert [(f["name"], f["state"]) for f in out["frames"]] == [
+        ("frame", "present"), ("sequence light:8", "present"), ("sequence gamma:8", "present")]
 
 
 def test_inspect_reports_schema_and_arrays(baked):
@@ -171,7 +175,7 @@ def test_evaluate_writes_records_and_charts(baked, tmp_path):
         assert (out / f"{chart}.png").is_file()
     bad = prt("evaluate", scene, "--sweep", "nonsense.key=1", "--out", out, "--workdir",
               workdir, "-q")
-    assert bad.returncode == 2 and "unknown budget 'nonsense.key'" in bad.stderr
+    assert bad.returncode == 2 and "has no budget 'nonsense.key' (its budgets: size" in bad.stderr
 
 
 def test_evaluate_d2i_records_its_indirect_error(baked, tmp_path):
@@ -220,4 +224,4 @@ def test_render_d2i_sequences(baked, tmp_path):
     assert bad.returncode == 2 and "method direct has no edit sequences" in bad.stderr
     bad = prt("render", scene, "--method", "d2i", "--out", out, "--workdir", workdir,
               "--frames", "spin:2")
-    assert bad.returncode == 2 and "expected light:N" in bad.stderr
+    assert bad.returncode == 2 and "expected light[:LIGHT]:N" in bad.stderr

@@ -212,3 +212,26 @@ def test_kernel_bytes_and_counted_time_cover_the_same_kernels(baked):
         moved(renderer.d) + moved(frozen)
     assert light.timings["counted_kernel_ms"] == pytest.approx(
         light.timings["bounce_kernel_ms"] + light.timings["product_kernel_ms"], rel=1e-9)
+
+
+def test_light_sequence_moves_the_luminaire(baked):
+    """In the Cornell box's light sequence the visible luminaire moves with its light
+    (issue 15, item 8): the pixels showing the light's radiance move left in the image
+    for a move along +x (the camera looks along +z), a part of the baked luminaire
+    (130 mm wide, moved by 96 mm) no longer emits, and their count stays within a
+    factor of two (perspective)."""
+    from pipeline.methods.d2i import sequence
+
+    scene, workdir, renderer = baked
+    radiance = scene.lights[0].params["radiance"][0]
+    kind, scenes, _, path = sequence(scene, d2i_artifacts(workdir), "light:luminaire:4")
+    assert kind == "light" and "its emitter 'luminaire' moves with it" in path
+    frame = renderer.light_edits(scene)
+    # an emitter pixel shows the radiance (18.4; plus its own small indirect light at
+    # rest), every other pixel less than 2
+    rest = renderer.render(scene).rgb[..., 0] > radiance / 2
+    moved = frame(scenes[0]).rgb[..., 0] > radiance / 2  # +x by 0.1 × the diagonal
+    assert rest.sum() > 0 and 0.5 < moved.sum() / rest.sum() < 2
+    assert (rest & ~moved).any() and (moved & ~rest).any()  # it left a part, took another
+    columns = np.nonzero(rest)[1].mean(), np.nonzero(moved)[1].mean()
+    assert columns[1] < columns[0] - 1

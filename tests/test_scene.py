@@ -121,7 +121,7 @@ def test_glossy_material_without_gamma_range(tmp_path):
     scene = load_scene(write_scene(tmp_path, doc))
     shiny = scene.materials["shiny"]
     assert "gamma_range" not in shiny.params and "pca_tolerance" not in shiny.params
-    assert shiny.params["gamma"] == 20.0 and shiny.params["specular"] == [0.3, 0.3, 0.3]
+    assert shiny.params["gamma"] == 20.0 and shiny.params["specular"] == [0.1, 0.1, 0.1]
     assert scene.section("materials.shiny.gamma_range") is None
     edited = with_material_edits(scene, ["shiny.gamma=1000"])
     assert edited.materials["shiny"].params["gamma"] == 1000.0

@@ -12,10 +12,13 @@ Run-time options (``prt render --option NAME=VALUE``):
 * ``bounce_tolerance`` (float, 1e-3): stop bouncing when a bounce adds less than this
   fraction (relative L2) of the gather radiance.
 
-Sequences (``--frames``): ``light:N`` moves the first light around a horizontal circle
-of radius 0.1 × the scene's diagonal (light-edit mode, rows frozen); ``gamma[:M]:N``
-sweeps material M's γ (default: the first glossy one) geometrically over its
-``gamma_range`` (BRDF-edit mode).
+Sequences (``--frames``): ``light[:LIGHT]:N`` moves light LIGHT (an index into
+``lights`` or a quad light's ``object``; default the first point, spot or quad light)
+around a horizontal circle of radius 0.1 × the scene's diagonal centred on it (light-edit
+mode, rows frozen; its emitter object moves with it, pipeline/render/emitters.py);
+``gamma[:M]:N`` sweeps material M's γ (default: the first glossy one) geometrically over
+its ``gamma_range`` (BRDF-edit mode). ``prt run`` skips a sequence the scene has nothing
+for (no light with a position, no glossy material), saying so.
 
 Scene requirements: every glossy material has a ``gamma_range`` (the range its PCA basis
 covers, γ edits stay inside it); its ``pca_tolerance`` is optional.
@@ -29,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.method import Component, Method, Option
+from pipeline.method import Component, Method, NotApplicable, Option
 from pipeline.scene import Scene
 from pipeline.scene_edits import with_light_offset, with_material_edits
 from pipeline.store import Artifact
@@ -53,10 +56,12 @@ METHOD = Method(
     evaluate_size=96,
     evaluate_reference_spp=1024,
     lights=("point", "spot", "directional", "quad"),
+    features=("emitters",),
     check_scene="pipeline.methods.d2i:check_scene",
 )
 
 SEQUENCE_KINDS = ("light", "gamma")
+MOVABLE = ("point", "spot", "quad")  # light kinds with a position a light sequence moves
 
 
 def check_scene(scene: Scene) -> None:
@@ -68,36 +73,81 @@ def check_scene(scene: Scene) -> None:
 
 
 def parse_sequence(text: str) -> tuple[str, str | None, int]:
-    """``light:N`` or ``gamma[:MATERIAL]:N`` -> (kind, material or None, N)."""
+    """``light[:LIGHT]:N`` or ``gamma[:MATERIAL]:N`` -> (kind, LIGHT or MATERIAL or None,
+    N)."""
     parts = text.split(":")
     if parts[0] not in SEQUENCE_KINDS or len(parts) not in (2, 3) or \
-            (parts[0] == "light" and len(parts) != 2) or not parts[-1].isdigit() \
-            or int(parts[-1]) < 1:
-        raise PrtError(None, f"--frames {text}: expected light:N or gamma[:MATERIAL]:N "
-                       "(N ≥ 1 frames)")
+            not parts[-1].isdigit() or int(parts[-1]) < 1 or \
+            (len(parts) == 3 and not parts[1]):
+        raise PrtError(None, f"--frames {text}: expected light[:LIGHT]:N or "
+                       "gamma[:MATERIAL]:N (N ≥ 1 frames; LIGHT an index into lights or "
+                       "a quad light's object)")
     return parts[0], parts[1] if len(parts) == 3 else None, int(parts[-1])
 
 
+def pick_light(scene: Scene, name: str | None) -> int:
+    """The index of the light a light sequence moves: ``name`` an index into ``lights``
+    or the ``object`` of a quad light; default the first light with a position."""
+    movable = [i for i, light in enumerate(scene.lights) if light.type in MOVABLE]
+    if name is None:
+        if not movable:
+            kinds = ", ".join(sorted({light.type for light in scene.lights})) or "none"
+            raise NotApplicable(scene.path, "a light sequence needs a light with a position "
+                                f"(point, spot or quad) to move; the scene's lights: {kinds}")
+        return movable[0]
+    named = [i for i, light in enumerate(scene.lights)
+             if name == str(i) or light.params.get("object") == name]
+    if not named:
+        raise PrtError(scene.path, f"--frames light:{name}: no light {name!r} (an index "
+                       f"0..{len(scene.lights) - 1} or a quad light's object)")
+    if named[0] not in movable:
+        raise PrtError(scene.path, f"--frames light:{name}: lights[{named[0]}] is a "
+                       f"{scene.lights[named[0]].type} light; it has no position to move")
+    return named[0]
+
+
 def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
-             ) -> tuple[str, list[Scene], list[str]]:
-    """The edit kind, edited scenes and a label for each frame of ``spec``."""
-    kind, material, count = parse_sequence(spec)
+             ) -> tuple[str, list[Scene], list[str], str]:
+    """The edit kind, edited scenes, a label for each frame of ``spec`` and the path of
+    the edit in words.
+
+    ``light``: the light (see :func:`pick_light`) moves around a horizontal circle (the
+    world xz plane) centred on its position (a quad: its corner), of radius 0.1 × the
+    diagonal of the scene's bounding box, frame i at angle 2πi/N from +x towards +z
+    (frame 0 is displaced by the radius along +x). A quad light's emitter object is
+    drawn where the light is (pipeline/render/emitters.py).
+    ``gamma``: material M's γ geometrically over its gamma_range (N = 1: its γ)."""
+    kind, name, count = parse_sequence(spec)
     if kind == "light":
-        if not scene.lights:
-            raise PrtError(scene.path, "a light sequence needs a light to move")
+        index = pick_light(scene, name)
+        light = scene.lights[index]
         geo = artifacts["geometry"].attrs
         radius = 0.1 * float(np.linalg.norm(np.subtract(geo["bbox_max"], geo["bbox_min"])))
         angles = 2 * np.pi * np.arange(count) / count
         offsets = [(radius * np.cos(a), 0.0, radius * np.sin(a)) for a in angles]
-        return (kind, [with_light_offset(scene, 0, o) for o in offsets],
-                [f"light 0 moved by ({o[0]:.3g}, {o[1]:.3g}, {o[2]:.3g})" for o in offsets])
+        key = "corner" if light.type == "quad" else "position"
+        centre = ", ".join(f"{v:.4g}" for v in light.params[key])
+        emitter = f"its emitter {light.params['object']!r} moves with it" \
+            if light.params.get("object") else "a light without geometry: nothing visible moves"
+        path = (f"lights[{index}] ({light.type}; {emitter}) moves around a horizontal "
+                f"circle (xz plane) of radius {radius:.4g} scene units centred on its "
+                f"{key} ({centre}): {count} frame(s) {360 / count:.4g}° apart, frame 0 at "
+                "+x, turning towards +z")
+        return (kind, [with_light_offset(scene, index, o) for o in offsets],
+                [f"light {index} moved by ({o[0]:.3g}, {o[1]:.3g}, {o[2]:.3g})"
+                 for o in offsets], path)
     glossy = [n for n, m in scene.materials.items() if m.model != "lambert"]
-    name = material or (glossy[0] if glossy else None)
-    if name not in glossy:
+    if not glossy and name is None:
+        raise NotApplicable(scene.path, "a gamma sequence needs a glossy material; the "
+                            "scene has none")
+    material = name or glossy[0]
+    if material not in glossy:
         raise PrtError(scene.path, f"a gamma sequence needs a glossy material (found "
-                       f"{name!r}; glossy: {', '.join(glossy) or 'none'})")
-    params: dict[str, Any] = scene.materials[name].params
+                       f"{material!r}; glossy: {', '.join(glossy) or 'none'})")
+    params: dict[str, Any] = scene.materials[material].params
     lo, hi = params["gamma_range"]
     gammas = np.geomspace(lo, hi, count) if count > 1 else [params["gamma"]]
-    edits = [f"{name}.gamma={g:.6g}" for g in gammas]
-    return kind, [with_material_edits(scene, [e]) for e in edits], edits
+    edits = [f"{material}.gamma={g:.6g}" for g in gammas]
+    path = (f"material {material!r}: gamma from {gammas[0]:.4g} to {gammas[-1]:.4g}, "
+            f"{count} frame(s) in geometric steps")
+    return kind, [with_material_edits(scene, [e]) for e in edits], edits, path

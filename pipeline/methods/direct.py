@@ -18,4 +18,5 @@ METHOD = Method(
     evaluate_size=128,
     evaluate_reference_spp=1024,
     lights=("point", "spot", "directional", "quad"),
+    features=("emitters",),
 )

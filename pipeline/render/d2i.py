@@ -49,7 +49,7 @@ from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
 from pipeline.math.brdf_pca import read_basis
 from pipeline.math.lights import shade_direct
 from pipeline.render import Frame
-from pipeline.render.direct import DirectShader, packed_scene_lights
+from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import light_visibility
 from pipeline.rows import Rows
 from pipeline.scene import Scene
@@ -75,7 +75,7 @@ class D2iRenderer:
         transport, gather = artifacts["d2i.truncate"], artifacts["d2i.gather"]
         self.basis = artifacts["brdf_basis"]
         self.bases: dict[str, Any] = {}  # material -> BrdfBasis (None: Lambertian)
-        self.direct = DirectShader(artifacts)
+        self.direct = DirectShader(artifacts, scene.camera)
         self.material_names = self.direct.material_names
         self.haar_length = int(transport.attrs["haar_length"])
         self.gather_position = gather.read("position").astype(np.float64)
@@ -139,7 +139,7 @@ class D2iRenderer:
     def trace_lights(self, scene: Scene) -> dict[str, float]:
         """Shadow rays of the pixels and the gather samples; irradiance E_g (G, 3)."""
         t0 = time.perf_counter()
-        packed, self.notes = packed_scene_lights(scene, self.direct.object_names)
+        packed, self.notes = self.direct.packed_lights(scene)
         _check_lights(packed)
         self.direct.trace(packed)
         ids = np.arange(len(self.gather_position)) + GATHER_ID_OFFSET
@@ -338,6 +338,7 @@ class D2iRenderer:
         coefficients = self.coefficients(scene)
         direct, direct_ms, _ = self.direct.shade(materials, np.asarray(scene.camera.position))
         rgb, combine_ms = self.combine(direct, dl, tl, materials, coefficients, frozen)
+        rgb = self.direct.emitters.draw(rgb, scene)
         t2 = time.perf_counter()
         timings = {**timings, "direct_kernel_ms": direct_ms, "combine_kernel_ms": combine_ms,
                    "pixel_ms": (t2 - t1) * 1e3, "total_ms": (t2 - t0) * 1e3,

@@ -4,7 +4,7 @@ Per frame: load the G-buffer and geometry artifacts, build the Embree scene, tra
 rays to every light sample (point, spot, directional; quad lights with stratified
 samples), then shade every pixel on the OpenCL device with its material's analytic BRDF
 (pipeline/math/brdf.py, kernels/brdf.h) at the material's γ. Emitting quads show their
-radiance. Environment lights are not part of this method.
+radiance, where they are (render/emitters.py). Environment lights are not part of this method.
 
 :class:`DirectShader` keeps the traced shadows and the uploaded G-buffer, so that a BRDF
 edit re-shades without tracing again (method d2i uses it for its direct term).
@@ -13,7 +13,7 @@ edit re-shades without tracing again (method d2i uses it for its direct term).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -22,15 +22,19 @@ from pipeline.math.brdf import pack_materials, scene_brdfs
 from pipeline.math.lights import LIGHT_FLOATS, light_defines, pack_lights, total_samples
 from pipeline.raytrace import RayTracer
 from pipeline.render import Frame
+from pipeline.render.emitters import EmitterOverlay, object_bounds, unbound_lights
 from pipeline.render.shadows import light_visibility
-from pipeline.scene import Scene
+from pipeline.scene import Camera, Scene
 from pipeline.store import Artifact
 
 
-def packed_scene_lights(scene: Scene, object_names: list[str]) -> tuple[np.ndarray, list[str]]:
+def packed_scene_lights(scene: Scene, object_names: list[str], moved: Sequence[int] = ()
+                        ) -> tuple[np.ndarray, list[str]]:
     """The scene's point, spot, directional and quad lights packed for kernels/lights.h,
+    the ``moved`` ones (indices, see render/emitters.py) without their emitter object,
     and notes on what was left out (environment lights)."""
-    lights = [(light.type, light.params) for light in scene.lights if light.type != "environment"]
+    lights = [(kind, params) for kind, params in unbound_lights(scene, list(moved))
+              if kind != "environment"]
     notes = ["environment lights are ignored by this method"] \
         if len(lights) < len(scene.lights) else []
     return pack_lights(lights, {n: i for i, n in enumerate(object_names)}), notes
@@ -40,9 +44,11 @@ class DirectShader:
     """Direct light at every G-buffer pixel from the scene's lights, with shadows.
 
     ``trace(packed_lights)`` casts the shadow rays (setup of a light edit);
-    ``shade(materials)`` runs the kernel with packed material rows (a BRDF edit)."""
+    ``shade(materials)`` runs the kernel with packed material rows (a BRDF edit);
+    ``emitters`` draws quad lights moved off their baked emitter geometry
+    (render/emitters.py) for ``camera``, the camera the G-buffer was baked for."""
 
-    def __init__(self, artifacts: Mapping[str, Artifact],
+    def __init__(self, artifacts: Mapping[str, Artifact], camera: Camera,
                  tracer: RayTracer | None = None) -> None:
         gbuf, geo = artifacts["gbuffer"], artifacts["geometry"]
         self.height, self.width = gbuf.attrs["height"], gbuf.attrs["width"]
@@ -53,7 +59,8 @@ class DirectShader:
         self.tangent = gbuf.read("tangent").reshape(-1, 3)
         self.object_id = gbuf.read("object_id").reshape(-1)
         self.material_id = gbuf.read("material_id").reshape(-1)
-        self.tracer = tracer or RayTracer(geo.read("vertices"), geo.read("faces"))
+        vertices = geo.read("vertices")
+        self.tracer = tracer or RayTracer(vertices, geo.read("faces"))
         self.diagonal = float(np.linalg.norm(np.subtract(geo.attrs["bbox_max"],
                                                          geo.attrs["bbox_min"])))
         self.gbuffer = [cl.read_only_buffer(a) for a in (self.position, self.normal, self.tangent,
@@ -63,6 +70,13 @@ class DirectShader:
         # the pixels that see a surface, and their points: the shadow rays' origins
         self.hit = np.flatnonzero(self.material_id >= 0)
         self.hit_position, self.hit_normal = self.position[self.hit], self.normal[self.hit]
+        bounds = object_bounds(self.object_names, vertices, geo.read("object_ranges"))
+        self.emitters = EmitterOverlay(camera, self.position, self.material_id, bounds)
+
+    def packed_lights(self, scene: Scene) -> tuple[np.ndarray, list[str]]:
+        """``scene``'s lights packed (see :func:`packed_scene_lights`), a light moved off
+        its baked emitter geometry unbound from it."""
+        return packed_scene_lights(scene, self.object_names, self.emitters.moved(scene))
 
     def trace(self, packed_lights: np.ndarray) -> None:
         """Shadow rays from every pixel to every light sample."""
@@ -95,16 +109,17 @@ def direct_renderer(scene: Scene, artifacts: Mapping[str, Artifact]
     """Frames of direct lighting from artifacts loaded once (``gbuffer``, ``geometry``;
     the Embree scene): each call traces the scene's lights and shades its camera view;
     its timings leave out the loading."""
-    shader = DirectShader(artifacts)
+    shader = DirectShader(artifacts, scene.camera)
 
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
-        packed, notes = packed_scene_lights(scene, shader.object_names)
+        packed, notes = shader.packed_lights(scene)
         materials = pack_materials(scene_brdfs(scene, shader.material_names))
         t1 = time.perf_counter()
         shader.trace(packed)
         t2 = time.perf_counter()
         rgb, kernel_ms, moved = shader.shade(materials, np.asarray(scene.camera.position))
+        rgb = shader.emitters.draw(rgb, scene)
         t3 = time.perf_counter()
         # one kernel: kernel_bytes are its bytes, counted_kernel_ms its time
         timings = {"setup_ms": (t1 - t0) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
