@@ -25,8 +25,8 @@ def wide_ward(tmp_path_factory):
     doc["materials"]["shiny"] = {"model": "ward", "albedo": [0.2, 0.4, 0.6],
                                  "specular": 0.3, "gamma": 0.05,
                                  "gamma_range": [0.001, 1000]}
-    doc["materials"]["grey"] = {"model": "blinn_phong", "albedo": [0.5, 0.5, 0.5],
-                                "specular": 0.2, "gamma": 20, "gamma_range": [3, 300]}
+    doc["materials"]["grey"] = {"model": "blinn_phong", "albedo": [0.2, 0.2, 0.2],
+                                "specular": 0.15, "gamma": 20, "gamma_range": [3, 300]}
     scene = write_scene(tmp, doc)
     first = prt("run", scene, "--workdir", tmp / "w", "--until", "brdf_basis", "--json", "-q")
     assert first.returncode == 0, first.stderr
