@@ -29,8 +29,9 @@ import click
 import numpy as np
 
 from pipeline import job, metrics
+from pipeline.charts import heatmap
 from pipeline.evaluate import emitter_pixels
-from pipeline.images import write_heatmap, write_png
+from pipeline.images import write_png
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.scene_edits import with_material_edits
@@ -104,8 +105,8 @@ def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, out)
     stem = out.with_suffix("")
     write_png(Path(f"{stem}_indirect.png"), indirect, 4.0)
     write_png(Path(f"{stem}_indirect_reference.png"), indirect_ref.mean, 4.0)
-    write_heatmap(Path(f"{stem}_indirect_error.png"),
-                  metrics.error_map(indirect, indirect_ref.mean), 0.5)
+    heatmap(Path(f"{stem}_indirect_error.png"), metrics.error_map(indirect, indirect_ref.mean),
+            0.5, "relative error per pixel of the indirect image, |I - R| / |R|")
     print(json.dumps(result, indent=1))
 
 

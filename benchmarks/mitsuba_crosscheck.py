@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import job, metrics, mitsuba
-from pipeline.images import write_heatmap, write_png
+from pipeline.charts import heatmap
+from pipeline.images import write_png
 from pipeline.reference import ReferenceSettings, render
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -75,7 +76,8 @@ def cross_check(scene_file: str, transport: str, exposure: float, spp: int) -> d
     write_png(RESULTS / f"mitsuba_crosscheck_{stem}_mitsuba.png", theirs, exposure)
     z = np.linalg.norm(ours_mean - theirs, axis=-1) / np.sqrt(
         np.maximum(combined_var.sum(axis=-1), 1e-30))
-    write_heatmap(RESULTS / f"mitsuba_crosscheck_{stem}_z.png", z, 4.0)  # 0..4 σ
+    heatmap(RESULTS / f"mitsuba_crosscheck_{stem}_z.png", z, 4.0,
+            "|ours - Mitsuba| per pixel in standard deviations of the difference")
     return {
         "scene": f"scenes/{scene_file}", "transport": transport, "spp": spp,
         "size": [scene.camera.width, scene.camera.height], "pixel_filter": "box",

@@ -105,6 +105,7 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
     report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force),
                                                cores.workers, quiet, stagefile,
                                                threads=cores.threads, exposure=exposure)
+    warnings = job.tolerance_warnings(report)
     if rendered is not None and rendered.frame is not None:
         notes += rendered.frame.notes
         show_notes(rendered.frame.notes, as_json)
@@ -112,7 +113,8 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
         click.echo(json.dumps({
             "stages": [{"name": r.name, "action": r.action, "ran_chunks": r.ran_chunks,
                         "reused_chunks": r.reused_chunks, "seconds": round(r.seconds, 4),
-                        "reason": r.reason} for r in report],
+                        "reason": r.reason, "tolerances": r.tolerances} for r in report],
+            "warnings": warnings,
             "frame": None if rendered is None else str(rendered.exr),
             "frame_rendered": rendered is not None and rendered.frame is not None,
             "sequences": {q.kind: [str(p) for p in q.exr] for q in sequences if q.exr},
@@ -130,6 +132,8 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
             click.echo(f"  {r.name:<12} fresh, skipped")
     if not ran:
         click.echo(f"All {len(report)} stages fresh: nothing to bake.")
+    for line in warnings:
+        click.echo(f"warning: {line}")
     if rendered is not None:
         state = "up to date" if rendered.frame is None else "rendered"
         click.echo(f"Frame {state}: {rendered.exr} (preview {rendered.png})")
@@ -174,7 +178,8 @@ def status_cmd(scene, frames, size, as_json, workdir, stagefile) -> None:
     sc = job.open_scene(scene, parse_size(size))
     wd = job.workdir_for(sc, workdir, stagefile)
     plans = job.status(sc, wd, stagefile)
-    rows = [{"name": p.spec.name, "state": p.state, "reason": p.reason} for p in plans]
+    rows = [{"name": p.spec.name, "state": p.state, "reason": p.reason,
+             **_partial(wd, p.spec.name)} for p in plans]
     outputs = [] if stagefile else job.frame_states(
         sc, wd, frames or Path("frames") / sc.name, plans)
     frame_rows = [{"name": o.name, "path": str(o.path), "state": o.state,
@@ -184,19 +189,38 @@ def status_cmd(scene, frames, size, as_json, workdir, stagefile) -> None:
         return
     for row in rows:
         reason = f"  ({row['reason']})" if row["reason"] else ""
-        click.echo(f"  {row['name']:<12} {row['state']}{reason}")
+        partial = row["partial"]
+        state = row["state"] if partial is None else \
+            f"partial: {partial['done']}/{partial['total']} chunks"
+        click.echo(f"  {row['name']:<12} {state}{reason}")
     for row in frame_rows:
         reason = f"  ({row['reason']})" if row["reason"] else ""
         click.echo(f"  {row['name']:<16} {row['state']}: {row['path']}{reason}")
+
+
+def _partial(workdir, stage: str) -> dict[str, dict[str, int] | None]:
+    """``{"partial": {"done": n, "total": m}}`` for a stage whose artifact a run left
+    incomplete, else ``{"partial": None}``."""
+    from pipeline import job
+
+    progress = job.chunk_progress(workdir, stage)
+    return {"partial": None if progress is None else
+            {"done": progress[0], "total": progress[1]}}
 
 
 @cli.command("inspect")
 @click.argument("path", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
 def inspect_cmd(path, as_json) -> None:
-    """Describe an artifact: schema, arrays, chunks, storage and statistics."""
+    """Describe an artifact (PATH a .zarr folder: schema, arrays, chunks, storage and
+    statistics) or a whole work directory (PATH a folder of artifacts: each artifact's
+    kind, stage, state, chunks, size and tolerance results)."""
     from pipeline import job
 
+    if job.is_workdir(path):
+        info = job.inspect_workdir(path)
+        click.echo(json.dumps(info) if as_json else "\n".join(_workdir_lines(info)))
+        return
     info = job.inspect_artifact(path)
     if as_json:
         click.echo(json.dumps(info))
@@ -211,6 +235,49 @@ def inspect_cmd(path, as_json) -> None:
                    f"{'' if a['pieces'] is None else ' in ' + str(a['pieces']) + ' pieces'} "
                    f"{a['stored_bytes']} B stored "
                    f"(x{a['compression_ratio']}){stats} NaN {a['nan_count']}")
+    for line in _tolerance_lines(info["tolerances"]):
+        click.echo(f"  {line}")
+
+
+def _tolerance_lines(tolerances: list[dict]) -> list[str]:
+    """One line per budget a stage chose from a tolerance (pipeline/tolerance.py)."""
+    lines = []
+    for t in tolerances:
+        budget = ", ".join(f"{k} {v}" for k, v in t["budget"].items())
+        verdict = "reached" if t["reached"] else \
+            "NOT reached" + (f" (capped at {t['limit']})" if t.get("limit") else "")
+        lines.append(f"{t['subject']}: {budget}; {t['measure']} {t['achieved']:.3g}, "
+                     f"tolerance {t['tolerance']:.3g}: {verdict}")
+    return lines
+
+
+def _size(n: int) -> str:
+    """Bytes as B, kB or MB (powers of 1000)."""
+    return f"{n} B" if n < 1e3 else f"{n / 1e3:.1f} kB" if n < 1e6 else f"{n / 1e6:.1f} MB"
+
+
+def _workdir_lines(info: dict) -> list[str]:
+    """``prt inspect WORKDIR`` as text: a line per artifact, its tolerance results
+    below it, then the warnings."""
+    rows = info["artifacts"]
+    lines = [f"{info['path']}: {len(rows)} artifacts, "
+             f"{info['stored_bytes'] / 1e6:.2f} MB stored"]
+    width = max(len(r["artifact"]) for r in rows)
+    kinds = max(len(str(r.get("kind"))) for r in rows)
+    for r in rows:
+        if r["state"] == "unreadable":
+            lines.append(f"  {r['artifact']:<{width}}  unreadable: {r['problem']}")
+            continue
+        chunks = "" if r["chunks"] is None else \
+            (f"{r['chunks']} chunk{'s' if r['chunks'] != 1 else ''}"
+             if r["state"] == "complete" else f"{r['chunks_done']}/{r['chunks']} chunks")
+        seconds = "" if r["seconds"] is None else f"{r['seconds']:.1f} s"
+        lines.append(f"  {r['artifact']:<{width}}  {r['kind']:<{kinds}} v{r['schema_version']}"
+                     f"  {r['state']:<8} {chunks:<12} {_size(r['stored_bytes']):>9}  "
+                     f"{seconds}".rstrip())
+        lines += [f"      {line}" for line in _tolerance_lines(r.get("tolerances", []))]
+    lines += [f"warning: {w}" for r in rows for w in r["warnings"]]
+    return lines
 
 
 def parse_options(items: tuple[str, ...]) -> dict[str, str]:
@@ -314,12 +381,15 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_
         if seq.description:
             click.echo(f"  {seq.description}", err=as_json)
     show_notes(frame.notes, as_json)
+    warnings = job.tolerance_warnings(result.baked)
     if as_json:
         click.echo(json.dumps({"method": m.name, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
                                "exr": str(result.exr), "png": str(result.png),
-                               "notes": notes + frame.notes}))
+                               "notes": notes + frame.notes, "warnings": warnings}))
         return
+    for line in warnings:
+        click.echo(f"warning: {line}", err=True)
     t = frame.timings
     click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}, "
                f"{m.name}; setup {t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
@@ -403,6 +473,7 @@ def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, w
                  quiet) -> None:
     """Chart a method's error against frame time, storage and bake time over budgets."""
     from pipeline import evaluate, job
+    from pipeline.charts import CHARTS
     from pipeline.method import get_method, scene_methods
 
     sc = job.open_scene(scene, parse_size(size))
@@ -412,8 +483,10 @@ def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, w
     settings = evaluate.EvaluateSettings(repeats, cap)
     records = evaluate.evaluate(sc, job.workdir_for(sc, workdir), m.name, sweep, out,
                                 settings, quiet)
+    for line in evaluate.summary_lines(records):  # also with --quiet: it is the result
+        click.echo(line)
     click.echo(f"Wrote {out / 'results.json'} ({len(records)} budgets) and charts "
-               f"{', '.join(name for _, _, name in evaluate.CHARTS)}")
+               f"{', '.join(name for _, _, name in CHARTS)}")
 
 
 @cli.command("clean")

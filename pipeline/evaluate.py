@@ -8,11 +8,14 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
 * ``frame_ms``, ``kernel_ms``, ``setup_ms``: medians over full frames of one renderer
   (artifacts loaded once, before the warm-up frame; setup = everything but the OpenCL
   kernels: shadow rays, host work, transfers);
-* ``storage_bytes``: bytes on disk of the artifacts a frame reads; ``bake_s``: the seconds
-  recorded by the stages that made them (those of the whole chain);
+* ``storage_bytes``: bytes on disk of the artifacts a frame reads; ``bake_stages``: per
+  stage of the chain that made them, its artifact key, compute seconds (summed over its
+  chunks) and whether this budget's bake ran it; ``bake_s``: their sum;
 * ``rel_rmse`` (headline), ``psnr_db``, ``flip`` against the reference renderer's image
   of the method's transport at the same size (pipeline/reference.py, cached), and
-  ``reference_rel_rmse``, that reference's own estimated error: it is rendered at 64,
+  ``reference_rel_rmse``, that reference's own estimated error over the same pixels
+  (``reference_rel_rmse_surfaces``: over the surfaces, as ``rel_rmse_surfaces``;
+  charts draw it as a dotted line, pipeline/charts.py): the reference is rendered at 64,
   256, 1024, ... paths per pixel (up to the cap) until that error is at most a third of
   the method's, so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
@@ -35,11 +38,12 @@ Budget names: ``size`` (image width; the height follows the camera's aspect rati
 scene setting, or ``render.OPTION``, a run-time option of the method. Without a sweep,
 the method's own small sweep (``Method.evaluate_sweep``) runs with its reference cap
 (``Method.evaluate_reference_spp``): a few minutes on two cores. Each step is printed
-with an estimate of the time left. Writes ``results.json`` (a list of records), ``probe.json`` (the
-bandwidth probe and settings), charts ``error_vs_frame_time.png``,
-``error_vs_storage.png``, ``error_vs_bake_time.png`` and, per budget, the frame and an
-error heat map (per-pixel relative error, metrics.error_map, colour scale 0 to
-``HEATMAP_MAX``) under ``frames/``.
+with an estimate of the time left, and :func:`summary_lines` tabulates the budgets.
+Writes ``results.json`` (a list of records), ``probe.json`` (the bandwidth probe and
+settings), charts ``error_vs_frame_time.png``, ``error_vs_storage.png``,
+``error_vs_bake_time.png`` (pipeline/charts.py) and, per budget, the frame and an error
+heat map (per-pixel relative error, metrics.error_map, colour bar 0 to ``HEATMAP_MAX``)
+under ``frames/``.
 """
 
 from __future__ import annotations
@@ -56,9 +60,10 @@ from typing import Any
 import numpy as np
 
 from pipeline import job, metrics
+from pipeline.charts import heatmap, write_charts
 from pipeline.errors import PrtError
 from pipeline.graph import with_upstream
-from pipeline.images import write_exr, write_heatmap, write_png
+from pipeline.images import write_exr, write_png
 from pipeline.method import Method, check_method_scene, get_method, scene_methods
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene
@@ -207,7 +212,8 @@ def _pathtrace_equal_error(scene: Scene, geometry: dict, transport: str, target:
     1/√spp): the target is scaled by their ratio in the converged ``reference``."""
     from pipeline.reference import render
 
-    scale = 1.0 if mask is None else reference.estimate / max(_noise(reference, mask), 1e-30)
+    pixels = np.ones(reference.mean.shape[:2], bool) if mask is None else mask
+    scale = reference.estimate / max(_noise(reference, pixels), 1e-30)
     image = render(scene, geometry, ReferenceSettings(transport, tolerance=target * scale,
                                                       max_spp=max_spp, min_spp=1, seed=1))
     reached = image.estimate <= target * scale
@@ -274,7 +280,7 @@ def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str
         records.append(_evaluate_budget(scene, workdir, m, budget, budget == default, out,
                                         settings, bandwidth, quiet))
         r = records[-1]
-        _step(f"  {_slug(budget):<24} rel. RMSE {r['rel_rmse']:.4f}  frame "
+        _step(f"  {_slug(budget):<24} {r['headline']} {r[r['headline']]:.4f}  frame "
               f"{r['frame_ms']:.1f} ms  path tracer at equal error "
               f"{_ms(r['pathtrace_ms_equal_error'])}")
     (out / "results.json").write_text(json.dumps(records, indent=1))
@@ -298,10 +304,9 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
     # one work directory for all budgets: a budget re-bakes only the stages whose keys
     # it changes (a truncate.tolerance sweep re-runs truncate, not transfer)
     wd = Workdir(workdir.root / "sweep" / method.name)
-    job.bake(sc, wd, quiet=quiet, methods=[method])
-    # bake time: every stage the method's artifacts depend on
-    chain = with_upstream(job.stages(), list(method.reads))
-    bake_s = sum((read_record(wd.artifact(name)) or {}).get("seconds", 0.0) for name in chain)
+    report = job.bake(sc, wd, quiet=quiet, methods=[method])
+    bake_stages = _bake_stages(wd, with_upstream(job.stages(), list(method.reads)),
+                               {r.name for r in report if r.action == "ran"})
     storage = sum(_bytes_on_disk(wd.artifact(name)) for name in method.reads)
     render = job.frame_renderer(sc, wd, method.name, options)  # loads the artifacts once
     render(sc)  # warm-up: kernel builds, first use of the device buffers
@@ -332,8 +337,9 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
     write_exr(out / "frames" / f"{slug}.exr", frame.rgb)
     write_png(out / "frames" / f"{slug}.png", frame.rgb)
     write_png(out / "frames" / f"{slug}_reference.png", ref.mean)
-    write_heatmap(out / "frames" / f"{slug}_error.png",
-                  metrics.error_map(frame.rgb, ref.mean), HEATMAP_MAX)
+    heatmap(out / "frames" / f"{slug}_error.png", metrics.error_map(frame.rgb, ref.mean),
+            HEATMAP_MAX, "relative error per pixel, |I - R| / |R| (RGB norms)",
+            f"{method.name} {slug} against the {transport} reference", percent=True)
     geometry, _ = job.load_geometry(sc, wd)
     kernel_gbs = frame.kernel_bytes / (counted_ms * 1e-3) / 1e9 if counted_ms > 0 else None
     _step("  path tracer to equal error")
@@ -343,10 +349,12 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
         "width": sc.camera.width, "height": sc.camera.height,
         "frame_ms": median("total_ms"), "kernel_ms": kernel_ms,
         "setup_ms": median("total_ms") - kernel_ms, "repeats": settings.repeats,
-        "storage_bytes": storage, "bake_s": bake_s,
+        "storage_bytes": storage,
+        "bake_s": sum(v["seconds"] for v in bake_stages.values()), "bake_stages": bake_stages,
         **errors,
         "rel_rmse_surfaces": surface_error,
-        "reference_rel_rmse": ref.estimate,
+        # over the same pixels as rel_rmse (ref.estimate covers the surfaces only)
+        "reference_rel_rmse": _noise(ref, np.ones(frame.rgb.shape[:2], bool)),
         "reference_rel_rmse_surfaces": _noise(ref, surfaces), "reference_spp": ref.spp,
         **components,
         "kernel_bytes": frame.kernel_bytes, "counted_kernel_ms": counted_ms,
@@ -358,6 +366,38 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
         **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
         "heatmap_max": HEATMAP_MAX,
     }
+
+
+def _bake_stages(workdir: Workdir, chain: list[str], ran: set[str]
+                 ) -> dict[str, dict[str, Any]]:
+    """Per stage of ``chain``: its artifact's key, its compute seconds (summed over its
+    chunks, whichever run computed them: a stage re-run in part still counts in full)
+    and whether this budget's bake ran it."""
+    out = {}
+    for name in chain:
+        record = read_record(workdir.artifact(name)) or {}
+        chunks = record.get("chunk_seconds")
+        out[name] = {"key": record.get("key"), "ran": name in ran,
+                     "seconds": sum(chunks.values()) if chunks
+                     else record.get("seconds", 0.0)}
+    return out
+
+
+def summary_lines(records: list[dict[str, Any]]) -> list[str]:
+    """A table with one line per budget: the headline error and the reference's own,
+    frame time, storage, and bake time (of the stages this budget ran, and in all)."""
+    lines = [f"  {'budget':<28} {'error':>8} {'ref.':>7} {'frame ms':>9} {'MB':>7} "
+             f"{'bake s':>7} {'ran':>7}"]
+    for r in records:
+        error = r.get("headline", "rel_rmse")
+        ran = sum(v["seconds"] for v in r["bake_stages"].values() if v["ran"])
+        name = _slug(r["budget"]) + (" *" if r["default"] else "")
+        lines.append(f"  {name:<28} {r[error]:>8.4f} {r.get('reference_' + error, 0):>7.4f} "
+                     f"{r['frame_ms']:>9.1f} {r['storage_bytes'] / 1e6:>7.2f} "
+                     f"{r['bake_s']:>7.1f} {ran:>7.1f}")
+    lines.append("  error: the headline relative RMSE; ref.: the reference's own estimated "
+                 "error; ran: bake seconds of the stages this budget ran; * the default")
+    return lines
 
 
 def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: np.ndarray,
@@ -420,75 +460,3 @@ def emitter_pixels(scene: Scene, workdir: Workdir) -> np.ndarray:
     emitters = [names.index(light.params["object"]) for light in scene.lights
                 if light.type == "quad" and "object" in light.params]
     return np.isin(gbuffer.read("object_id"), emitters)
-
-
-def rows_headline(records: list[dict[str, Any]], method: str) -> str:
-    """The headline error of ``method``'s records (as recorded with them)."""
-    return next(r.get("headline", "rel_rmse") for r in records if r["method"] == method)
-
-
-CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
-          ("storage_bytes", "artifact bytes a frame reads", "error_vs_storage.png"),
-          ("bake_s", "bake time (s)", "error_vs_bake_time.png"))
-
-
-def write_charts(records: list[dict[str, Any]], out: Path) -> None:
-    """Each method's headline error against frame time, storage and bake time (log-log
-    PNGs; the frame time chart also shows the path tracers' time to equal error), and,
-    per component the records have (d2i: indirect), its error
-    (``<component>_error_vs_*.png``)."""
-    components = sorted({k[len("rel_rmse_"):] for r in records for k in r
-                         if k.startswith("rel_rmse_") and k != "rel_rmse_surfaces"})
-    for key, label, name in CHARTS:
-        _chart(records, key, label, out / name, None)
-        for component in components:
-            error = f"rel_rmse_{component}"
-            _chart([r for r in records if error in r], key, label,
-                   out / f"{component}_{name}", error)
-
-
-def _chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
-           error_key: str | None) -> None:
-    """One chart of error (``error_key``, or each method's headline; log scale) vs ``key``
-    (log scale where it spans more than a decade)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter
-
-    fig, ax = plt.subplots(figsize=(5.5, 4.0), dpi=120)
-    for method in sorted({r["method"] for r in records}):
-        error = error_key or rows_headline(records, method)
-        rows = sorted((r for r in records if r["method"] == method), key=lambda r: r[key])
-        ax.plot([r[key] for r in rows], [r[error] for r in rows], "o-",
-                label=f"{method} ({error})")
-        for r in rows:
-            text = ", ".join(f"{k}={v}" for k, v in r["budget"].items())
-            ax.annotate(text, (r[key], r[error]), fontsize=7,
-                        textcoords="offset points", xytext=(4, 4))
-            if r["default"]:
-                ax.plot(r[key], r[error], "*", ms=14, color="gold", mec="k",
-                        label="default budget")
-        if key == "frame_ms" and error_key is None:
-            for tracer, field_name in (("reference path tracer", "pathtrace_ms_equal_error"),
-                                       ("Mitsuba 3", "mitsuba_ms_equal_error")):
-                pts = [(r[field_name], r[error]) for r in rows if r.get(field_name)]
-                if pts:
-                    ax.plot(*zip(*sorted(pts), strict=True), "s--",
-                            label=f"{tracer}, equal error")
-    ax.set_yscale("log")
-    low, high = ax.get_xlim()
-    if high > 10 * low:  # a log axis; its minor ticks unlabelled, the labels would overlap
-        ax.set_xscale("log")
-        ax.xaxis.set_minor_formatter(NullFormatter())
-    # within a decade a log axis has no labelled tick at all: the axis stays linear
-    ax.set_xlabel(label)
-    component = error_key[len("rel_rmse_"):] if error_key else None
-    ax.set_ylabel("relative RMSE vs reference"
-                  + (f" ({component} image)" if component else ""))
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

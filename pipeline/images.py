@@ -1,5 +1,5 @@
 """Image files: linear RGB to OpenEXR, sRGB-encoded PNG previews, EXR and Radiance HDR
-reading, colour-mapped PNG heat maps.
+reading (heat maps with a colour bar: pipeline/charts.py).
 
 Images are (height, width, 3) float32 arrays of linear radiance, row 0 at the top.
 Files are written to a temporary name and renamed, so a killed run never leaves a
@@ -175,22 +175,3 @@ def read_environment(path: str | Path) -> np.ndarray:
                            f"({rgb[y, x, c]} in channel {'RGB'[c]}; {int(bad.sum())} values "
                            "in all)")
     return rgb
-
-
-def write_heatmap(path: str | Path, values: np.ndarray, vmax: float,
-                  colormap: str = "magma") -> None:
-    """Write (height, width) non-negative ``values`` as a colour-mapped 8-bit PNG, 0 at
-    the colour map's bottom and ``vmax`` (or above) at its top."""
-    from matplotlib import colormaps
-    from PIL import Image
-
-    path = Path(path)
-    scaled = np.clip(np.nan_to_num(values / max(vmax, 1e-30)), 0.0, 1.0)
-    rgb = np.round(colormaps[colormap](scaled)[..., :3] * 255.0).astype(np.uint8)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = _temporary(path)
-        Image.fromarray(rgb, "RGB").save(tmp, format="PNG")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise PrtError(path, f"cannot write image ({exc.strerror or exc})") from None

@@ -78,6 +78,14 @@ def bake(scene: Scene, workdir: Workdir, until: str | None = None,
                    progress=not quiet, targets=targets)
 
 
+def tolerance_warnings(report: list[StageRun]) -> list[str]:
+    """One line per budget a stage of ``report`` chose from a tolerance it did not reach
+    (pipeline/tolerance.py), whether the stage ran now or was fresh."""
+    from pipeline.tolerance import unmet, warning
+
+    return [warning(r.name, t) for r in report for t in unmet({"tolerances": r.tolerances})]
+
+
 def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
            ) -> list[StagePlan]:
     """The state (fresh, stale or missing) of every stage the scene's methods need (a
@@ -87,6 +95,25 @@ def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
     graph = stages(stagefile)
     targets = None if stagefile else with_upstream(graph, sorted(baked_stages(scene)))
     return plan(scene, graph, workdir, targets)
+
+
+def chunk_progress(workdir: Workdir, stage: str) -> tuple[int, int] | None:
+    """(chunks written, chunks planned) of a stage whose artifact is incomplete (a run
+    was interrupted, or is running): the chunk markers that carry the key the record
+    planned for them (pipeline/chunkwrite.py). None when the artifact is complete or
+    absent."""
+    from pipeline.chunkwrite import read_marker
+
+    try:
+        record = read_record(workdir.artifact(stage))
+    except PrtError:
+        return None
+    if record is None or record.get("complete") is not False:
+        return None
+    keys = record.get("chunk_keys", {})
+    done = sum((read_marker(workdir.marker(stage, c)) or {}).get("key") == keys.get(c)
+               for c in record.get("chunks", []))
+    return done, len(record.get("chunks", []))
 
 
 def method_artifacts(method: Method, workdir: Workdir) -> dict[str, Artifact]:
@@ -487,5 +514,72 @@ def inspect_artifact(path: Path) -> dict[str, Any]:
     return {"path": str(path), "kind": record.get("kind"),
             "schema_version": record.get("schema_version"), "stage": record.get("stage"),
             "key": record.get("key"), "seconds": record.get("seconds"),
-            "software": record.get("software"), "arrays": arrays}
+            "software": record.get("software"), "arrays": arrays,
+            "tolerances": record.get("tolerances", [])}
+
+
+def is_workdir(path: Path) -> bool:
+    """Whether ``path`` is a work directory (a folder of artifacts), not one artifact."""
+    path = Path(path)
+    return path.is_dir() and not (path / "zarr.json").exists()
+
+
+def inspect_workdir(root: Path) -> dict[str, Any]:
+    """A summary of every artifact under ``root`` (nested work directories, such as
+    evaluate's sweeps and the reference cache, included), from the provenance records
+    and file sizes only: kind, stage, complete or partial (chunks written / planned),
+    stored bytes, seconds, the tolerance results (pipeline/tolerance.py) and a warning
+    per tolerance not reached."""
+    from pipeline.tolerance import unmet, warning
+
+    root = Path(root)
+    if not root.is_dir():
+        raise PrtError(root, "no such work directory")
+    rows = []
+    for path in _artifact_folders(root):
+        row: dict[str, Any] = {"artifact": str(path.relative_to(root)),
+                               "stored_bytes": _bytes_under(path)}
+        try:
+            record = read_record(path) or {}
+        except PrtError as exc:
+            rows.append({**row, "state": "unreadable", "problem": exc.problem,
+                         "warnings": [f"{row['artifact']}: {exc.problem}"]})
+            continue
+        stage = record.get("stage") or path.stem
+        chunks = record.get("chunks")
+        progress = chunk_progress(Workdir(path.parent), stage) \
+            if record.get("complete") is False else None
+        rows.append({**row, "kind": record.get("kind"),
+                     "schema_version": record.get("schema_version"), "stage": stage,
+                     "state": "complete" if progress is None else "partial",
+                     "chunks": None if chunks is None else len(chunks),
+                     "chunks_done": None if chunks is None else
+                     (len(chunks) if progress is None else progress[0]),
+                     "seconds": record.get("seconds"),
+                     "tolerances": record.get("tolerances", []),
+                     "warnings": [warning(stage, t) for t in unmet(record)]})
+    if not rows:
+        raise PrtError(root, "holds no prt artifacts")
+    return {"path": str(root), "stored_bytes": sum(r["stored_bytes"] for r in rows),
+            "artifacts": rows}
+
+
+def _artifact_folders(root: Path) -> list[Path]:
+    """Every ``*.zarr`` group under ``root`` (not inside another, nor in a hidden
+    folder such as ``.tmp``)."""
+    found, todo = [], [root]
+    while todo:
+        folder = todo.pop()
+        for child in sorted(folder.iterdir()):
+            if not child.is_dir() or child.name.startswith("."):  # .tmp, .chunks
+                continue
+            if child.suffix == ".zarr" and (child / "zarr.json").is_file():
+                found.append(child)
+            else:
+                todo.append(child)
+    return sorted(found, key=lambda p: (len(p.relative_to(root).parts), str(p)))
+
+
+def _bytes_under(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 

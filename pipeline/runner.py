@@ -20,7 +20,9 @@ attributes, pipeline/chunking.py); before that ``prt status`` reports it as wait
 them. An artifact is fresh when its stored key equals the planned key. Otherwise its
 chunks whose records carry the planned chunk key are kept and the rest run, each
 writing its part of the artifact in place (pipeline/chunkwrite.py); the artifact is
-complete when every chunk is recorded. Planning reads only
+complete when every chunk is recorded; the record then also keeps the results of the
+budgets ``finalize`` chose from a tolerance (pipeline/tolerance.py), which ``prt run``
+reports. Planning reads only
 ``zarr.json`` files (and, for ``materials_from``, one small label image), never the
 large arrays.
 """
@@ -85,6 +87,9 @@ class StageRun:
     reused_chunks: list[str] = field(default_factory=list)
     seconds: float = 0.0
     reason: str = ""
+    # the budgets the stage chose from a tolerance, as its record stores them (whether
+    # it ran now or was fresh): pipeline/tolerance.py
+    tolerances: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -379,7 +384,9 @@ def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None 
                 continue
             p = plan_stage(stagefile.stages[name], scene, stagefile, workdir, params_all)
             if p.state == "fresh" and name not in force:
-                report.append(StageRun(name, "skipped"))
+                record = read_record_or_none(workdir.artifact(name)) or {}
+                report.append(StageRun(name, "skipped",
+                                       tolerances=record.get("tolerances", [])))
                 continue
             report.append(_run_stage(p, scene, stagefile, workdir, executor, progress,
                                      name in force))
@@ -471,8 +478,9 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
                                                                 strict=True)])
     chunk_digests = {c: r["digest"] for c, r in zip(ids, records, strict=True)}
     seconds = time.perf_counter() - start
+    tolerances = [t.as_record() for t in output.tolerances]
     chunkwrite.finish(path, schema, ids, output.arrays, output.attrs, {
-        "chunk_digests": chunk_digests,
+        "chunk_digests": chunk_digests, "tolerances": tolerances,
         "digest": digest({"chunks": [chunk_digests[c] for c in ids],
                           "finalized": arrays_digest(output.arrays, output.attrs)}),
         "seconds": seconds, "chunk_seconds": {c: r["seconds"] for c, r in
@@ -484,7 +492,7 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
     done = {c.id for c in todo}
     return StageRun(name, "ran", [c for c in ids if c in done],
                     [c for c in ids if c not in done], seconds,
-                    "forced" if forced else p.reason)
+                    "forced" if forced else p.reason, tolerances)
 
 
 def _drop_stale_markers(workdir: Workdir, stage: str, keep: set[str]) -> None:

@@ -56,7 +56,7 @@ def test_status_json(baked):
     scene, workdir, frames, _ = baked
     out = json.loads(prt("status", scene, "--workdir", workdir, "--frames", frames,
                          "--json").stdout)
-    assert out["stages"] == [{"name": n, "state": "fresh", "reason": ""}
+    assert out["stages"] == [{"name": n, "state": "fresh", "reason": "", "partial": None}
                              for n in topological_order(load_stagefile())]
     assert [(f["name"], f["state"]) for f in out["frames"]] == [
         ("frame", "present"), ("sequence light:8", "present"), ("sequence gamma:8", "present")]
@@ -162,6 +162,13 @@ def test_evaluate_writes_records_and_charts(baked, tmp_path):
         assert 0 < r["pathtrace_estimate"] <= r["rel_rmse"]
         assert r["pathtrace_ms_equal_error"] > 0 and r["pathtrace_rel_rmse"] > 0
         assert (out / "frames" / f"size-{r['budget']['size']}_error.png").is_file()
+    # which stages each budget ran: geometry once (the sweep's own work directory),
+    # the gbuffer at every size; the summary table is printed also with -q
+    assert [r["bake_stages"]["geometry"]["ran"] for r in records] == [True, False, False]
+    assert all(r["bake_stages"]["gbuffer"]["ran"] for r in records)
+    assert len({r["bake_stages"]["geometry"]["key"] for r in records}) == 1
+    rows = [line.split()[0] for line in result.stdout.splitlines()[1:4]]
+    assert rows == ["size-8", "size-12", "size-16"] and "size-16 *" in result.stdout
     probe = json.loads((out / "probe.json").read_text())["bandwidth_probe"]
     assert probe["opencl_copy_gbs"] > 0
     for chart in ("error_vs_frame_time", "error_vs_storage", "error_vs_bake_time"):

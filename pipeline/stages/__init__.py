@@ -12,8 +12,10 @@ A stage module provides plain functions:
     stage (pipeline/schema.py); small per-chunk facts for ``finalize`` go in
     ``ctx.meta`` (JSON values). It opens no files and picks no paths;
 ``finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output``
-    once every chunk is written: the artifact's attributes, and any small ``whole``
-    arrays derived from the chunks' metadata (in chunk order).
+    once every chunk is written: the artifact's attributes, any small ``whole``
+    arrays derived from the chunks' metadata (in chunk order), and the results of the
+    budgets it chose from a tolerance (pipeline/tolerance.py), which the runner records
+    and reports.
 
 The runner owns everything else: keys, I/O (chunks are written in place into the final
 artifact, pipeline/chunkwrite.py), seeding, progress and executors.
@@ -34,9 +36,10 @@ from pipeline.chunk import ALL, Chunk
 from pipeline.chunkwrite import Block
 from pipeline.meshio import RawMesh
 from pipeline.store import Artifact
+from pipeline.tolerance import ToleranceResult
 
 __all__ = ["AssembleContext", "Block", "Chunk", "ChunkContext", "Layout", "Output",
-           "tile_blocks"]
+           "ToleranceResult", "tile_blocks"]
 
 
 @dataclass
@@ -72,10 +75,12 @@ class Layout:
 
 @dataclass
 class Output:
-    """What ``finalize`` adds: the artifact's ``attrs`` and small ``whole`` arrays."""
+    """What ``finalize`` adds: the artifact's ``attrs``, small ``whole`` arrays, and one
+    :class:`ToleranceResult` per budget the stage chose from a tolerance."""
 
     attrs: dict[str, Any]
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    tolerances: list[ToleranceResult] = field(default_factory=list)
 
 
 def tile_blocks(chunk: Chunk, arrays: dict[str, np.ndarray]) -> dict[str, Block]:

@@ -14,7 +14,15 @@ import numpy as np
 
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.brdf_pca import BASIS_FIELDS, build_basis, gamma_test_grid
-from pipeline.stages import AssembleContext, Block, Chunk, ChunkContext, Layout, Output
+from pipeline.stages import (
+    AssembleContext,
+    Block,
+    Chunk,
+    ChunkContext,
+    Layout,
+    Output,
+    ToleranceResult,
+)
 
 _FIELDS = BASIS_FIELDS
 
@@ -38,14 +46,14 @@ def layout(ctx: AssembleContext) -> Layout:
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, Block]:
-    """The material's row of every array; whether the tolerance was reached goes to
-    ``finalize`` through ``ctx.meta``."""
-    arrays, reached = _basis_arrays(ctx)
-    ctx.meta["reached"] = reached
+    """The material's row of every array; k and the worst relative RMS at that k go to
+    ``finalize`` through ``ctx.meta`` (worst None for a Lambertian material)."""
+    arrays, worst = _basis_arrays(ctx)
+    ctx.meta.update(k=int(arrays["k"]), worst_rel_rms=worst)
     return {name: Block((ctx.chunk.index,), a[None]) for name, a in arrays.items()}
 
 
-def _basis_arrays(ctx: ChunkContext) -> tuple[dict[str, np.ndarray], bool]:
+def _basis_arrays(ctx: ChunkContext) -> tuple[dict[str, np.ndarray], float | None]:
     name = ctx.chunk.material
     model = _material_section(ctx, name, "model")
     max_k = int(ctx.params["brdf_basis.max_k"])
@@ -57,15 +65,15 @@ def _basis_arrays(ctx: ChunkContext) -> tuple[dict[str, np.ndarray], bool]:
                 "basis": np.zeros((max_k, h)), "projection": np.zeros((max_k, h)),
                 "singular_values": np.zeros(n_gamma), "gamma_test": np.zeros(n_test),
                 "rms": np.zeros((max_k + 1, n_test)), "rel_rms": np.zeros((max_k + 1, n_test)),
-                "k": np.zeros((), np.int32)}, True
+                "k": np.zeros((), np.int32)}, None
     lo, hi = _material_section(ctx, name, "gamma_range")
     tolerance = _tolerance(ctx, name)
     params = BrdfParams(model, (0.0, 0.0, 0.0), gamma=lo,
                         alpha_ratio=_material_section(ctx, name, "alpha_ratio") or 1.0)
     basis = build_basis(params, (lo, hi), tolerance, max_k, n_gamma, h)
     arrays = {f: getattr(basis, f) for f in _FIELDS}
-    reached = bool(basis.rel_rms[basis.k].max() <= tolerance)
-    return {**arrays, "k": np.array(basis.k, np.int32)}, reached
+    worst = float(basis.rel_rms[basis.k].max())
+    return {**arrays, "k": np.array(basis.k, np.int32)}, worst
 
 
 def _tolerance(ctx: AssembleContext, name: str) -> float:
@@ -74,14 +82,29 @@ def _tolerance(ctx: AssembleContext, name: str) -> float:
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    """Attributes per material, and per glossy material whether its k met the
+    tolerance (pipeline/tolerance.py)."""
     names = [chunk.material for chunk, _ in metas]
     models = [_material_section(ctx, n, "model") for n in names]
+    max_k = int(ctx.params["brdf_basis.max_k"])
+    results = []
+    for chunk, meta in metas:
+        worst = meta["worst_rel_rms"]
+        if worst is None:
+            continue
+        tolerance = _tolerance(ctx, chunk.material)
+        short = worst > tolerance
+        results.append(ToleranceResult(
+            f"material {chunk.material}", "worst relative RMS of the PCA fit", tolerance,
+            worst, {"k": meta["k"]}, f"max_k {max_k}" if short else "",
+            "narrow its gamma_range, or raise brdf_basis.max_k" if short else ""))
     return Output({
         "material_names": names,
         "models": models,
         "gamma_ranges": [_material_section(ctx, n, "gamma_range") for n in names],
         "tolerances": [None if m == "lambert" else _tolerance(ctx, n)
                        for n, m in zip(names, models, strict=True)],
-        "reached": [bool(m["reached"]) for _, m in metas],
-        "max_k": int(ctx.params["brdf_basis.max_k"]),
-    })
+        "reached": [m["worst_rel_rms"] is None
+                    or m["worst_rel_rms"] <= _tolerance(ctx, c.material) for c, m in metas],
+        "max_k": max_k,
+    }, tolerances=results)
