@@ -4,9 +4,11 @@
  *
  * Each of the three functions is a weighted sum of up to SW_ROWS rows of a sparse
  * table (CSR: row r holds entries start[r] .. start[r + 1] - 1, each a coefficient
- * index (ushort, sorted depth first) and a value): bilinear or trilinear interpolation
- * between stored functions is that weighted sum, formed on the fly while the rows are
- * merged. The walk visits each triangle any row touches once, in depth-first order,
+ * index (ushort, sorted depth first) and a value of 1 or 3 channels): bilinear or
+ * trilinear interpolation between stored functions is that weighted sum, formed on the
+ * fly while the rows are merged. Weights are RGB (float3), values grey (1 channel,
+ * the same in R, G and B) or RGB, so a function may also be a per-channel mix of rows
+ * (kd · diffuse row + ρs · glossy rows), and the triple product is taken per channel. The walk visits each triangle any row touches once, in depth-first order,
  * and keeps per function the path's coarse values f̄ and coefficients (depth ≤
  * SW_LEVELS): time linear in the entries read.
  *
@@ -53,18 +55,21 @@ typedef struct {
     __global const float* value;
     uint head[SW_ROWS];
     uint end[SW_ROWS];
-    float weight[SW_ROWS];
+    float3 weight[SW_ROWS];
     int count;
+    int channels;  /* values per entry: 1 (grey) or 3 (RGB) */
 } sw_source;
 
-/* A source over rows[0 .. count-1] of the table (start, index, value) with weights. */
+/* A source over rows[0 .. count-1] of the table (start, index, value with `channels`
+ * values per entry) with RGB weights. */
 inline sw_source sw_open(__global const uint* start, __global const ushort* index,
-                         __global const float* value, const uint* rows, const float* weight,
-                         int count) {
+                         __global const float* value, int channels, const uint* rows,
+                         const float3* weight, int count) {
     sw_source s;
     s.index = index;
     s.value = value;
     s.count = count;
+    s.channels = channels;
     for (int r = 0; r < count; ++r) {
         s.head[r] = start[rows[r]];
         s.end[r] = start[rows[r] + 1];
@@ -88,25 +93,27 @@ inline void sw_peek(const sw_source* s, uint* key, uint* index) {
 
 /* Takes the entries with indices in [first, first + n) from every row, summing
  * weight × value into c[index − first]. */
-inline void sw_take(sw_source* s, uint first, uint n, float* c) {
-    for (uint k = 0; k < n; ++k) c[k] = 0.0f;
+inline void sw_take(sw_source* s, uint first, uint n, float3* c) {
+    for (uint k = 0; k < n; ++k) c[k] = (float3)(0.0f);
     for (int r = 0; r < s->count; ++r) {
         while (s->head[r] < s->end[r]) {
-            uint i = s->index[s->head[r]];
+            uint e = s->head[r];
+            uint i = s->index[e];
             if (i < first || i >= first + n) break;
-            c[i - first] += s->weight[r] * s->value[s->head[r]];
+            float3 v = s->channels == 3 ? vload3(e, s->value) : (float3)(s->value[e]);
+            c[i - first] += s->weight[r] * v;
             ++s->head[r];
         }
     }
 }
 
-/* ∫ f g h dω for the three sources (see the header comment). */
-inline float sw_triple(sw_source* src, __global const float* root_area,
-                       __global const float* wavelet, __global const float* tensor) {
+/* ∫ f g h dω per channel for the three sources (see the header comment). */
+inline float3 sw_triple(sw_source* src, __global const float* root_area,
+                        __global const float* wavelet, __global const float* tensor) {
     int path[SW_LEVELS];
-    float own[3][SW_LEVELS][3];
-    float coarse[3][SW_LEVELS];
-    float total = 0.0f;
+    float3 own[3][SW_LEVELS][3];
+    float3 coarse[3][SW_LEVELS];
+    float3 total = (float3)(0.0f);
     for (int k = 0; k < SW_LEVELS; ++k) path[k] = -1;
     for (;;) {
         uint key = SW_END, index = 0;
@@ -114,13 +121,13 @@ inline float sw_triple(sw_source* src, __global const float* root_area,
         if (key == SW_END) return total;
         if (index < SW_ROOTS) {  /* a root's scaling coefficients open its subtree */
             float inv = rsqrt(root_area[index]);
-            float prod = root_area[index];
+            float3 prod = (float3)(root_area[index]);
             for (int f = 0; f < 3; ++f) {
-                float s;
+                float3 s;
                 sw_take(&src[f], index, 1u, &s);
                 coarse[f][0] = s * inv;
                 prod *= coarse[f][0];
-                for (int t = 0; t < 3; ++t) own[f][0][t] = 0.0f;
+                for (int t = 0; t < 3; ++t) own[f][0][t] = (float3)(0.0f);
             }
             path[0] = (int)index;
             for (int k = 1; k < SW_LEVELS; ++k) path[k] = -1;
@@ -130,13 +137,13 @@ inline float sw_triple(sw_source* src, __global const float* root_area,
         uint level = sw_level(index);
         uint first = index - (index - sw_level_start(level)) % 3u;
         int node = (int)((first - sw_level_start(level)) / 3u);
-        float c[3][3];
+        float3 c[3][3];
         for (int f = 0; f < 3; ++f) sw_take(&src[f], first, 3u, c[f]);
         for (uint k = 0; k <= level; ++k) {  /* bring the path down to this triangle */
             int ancestor = node >> (2 * (level - k));
             if (path[k] == ancestor && k < level) continue;
             if (k == 0 && path[0] != ancestor) {
-                for (int f = 0; f < 3; ++f) coarse[f][0] = 0.0f;
+                for (int f = 0; f < 3; ++f) coarse[f][0] = (float3)(0.0f);
             } else if (k > 0) {
                 __global const float* w = wavelet + 12 * (sw_node_base(k - 1) + path[k - 1]);
                 int slot = ancestor & 3;
@@ -146,11 +153,11 @@ inline float sw_triple(sw_source* src, __global const float* root_area,
             }
             path[k] = ancestor;
             for (int f = 0; f < 3; ++f)
-                for (int t = 0; t < 3; ++t) own[f][k][t] = 0.0f;
+                for (int t = 0; t < 3; ++t) own[f][k][t] = (float3)(0.0f);
         }
         for (int f = 0; f < 3; ++f)
             for (int t = 0; t < 3; ++t) own[f][level][t] = c[f][t];
-        float fg = 0.0f, fh = 0.0f, gh = 0.0f;
+        float3 fg = (float3)(0.0f), fh = (float3)(0.0f), gh = (float3)(0.0f);
         for (int t = 0; t < 3; ++t) {
             fg += c[0][t] * c[1][t];
             fh += c[0][t] * c[2][t];
@@ -160,7 +167,7 @@ inline float sw_triple(sw_source* src, __global const float* root_area,
         __global const float* T = tensor + 27 * (sw_node_base(level) + node);
         for (int a = 0; a < 3; ++a)
             for (int b = 0; b < 3; ++b) {
-                float ab = c[0][a] * c[1][b];
+                float3 ab = c[0][a] * c[1][b];
                 total += ab * (T[9 * a + 3 * b] * c[2][0] + T[9 * a + 3 * b + 1] * c[2][1]
                                + T[9 * a + 3 * b + 2] * c[2][2]);
             }

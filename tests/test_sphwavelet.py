@@ -182,47 +182,54 @@ def test_depth_first_sparse_triple_product_equals_the_dense_one():
 
 
 def csr_table(rng: np.random.Generator, rows: int, basis, keys: np.ndarray,
-              fraction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+              fraction: float, channels: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A random sparse table: start (rows + 1,), index (ushort, depth-first sorted per
-    row), value (float32), and the dense rows (rows, N) it stands for."""
-    dense = np.zeros((rows, basis.size), np.float32)
+    row), value (entries, channels) float32, and the dense rows (rows, N, 3) it stands
+    for (a grey table's value in all three channels)."""
+    dense = np.zeros((rows, basis.size, 3), np.float32)
     start, index, value = [0], [], []
     for r in range(rows):
         kept = np.flatnonzero(rng.random(basis.size) < fraction)
         kept = kept[np.argsort(keys[kept])]
-        dense[r, kept] = rng.normal(size=len(kept)).astype(np.float32)
+        v = rng.normal(size=(len(kept), channels)).astype(np.float32)
+        dense[r, kept] = v
         index.append(kept)
-        value.append(dense[r, kept])
+        value.append(v)
         start.append(start[-1] + len(kept))
     return (np.array(start, np.uint32), np.concatenate(index).astype(np.uint16),
             np.concatenate(value), dense)
 
 
 def test_triple_product_kernel_matches_numpy():
-    """kernels/sphwavelet.h: triple products of weighted sums of up to 8 sparse rows per
-    function against the dense float64 tree sum. Tolerance: float32 sums of ~10³ terms
-    of order 1: ~10² ulp, relative 1e-5 of the sum of the terms' magnitudes (found 4e-7)."""
+    """kernels/sphwavelet.h: RGB triple products of RGB-weighted sums of up to 8 sparse
+    rows per function (tables of RGB, grey and RGB values) against the dense float64
+    tree sum per channel. Tolerance: float32 sums of ~10³ terms of order 1: ~10² ulp,
+    relative 1e-5 of the sum of the terms' magnitudes (found 4e-7)."""
     cl = pytest.importorskip("pipeline.cl")
     level, n, rows_max = 3, 64, 8
     basis = wavelet_basis(level)
     keys = depth_first_keys(level)
     rng = np.random.default_rng(11)
-    tables = [csr_table(rng, 12, basis, keys, fraction) for fraction in (0.6, 0.1, 0.3)]
+    channels = (3, 1, 3)
+    tables = [csr_table(rng, 12, basis, keys, fraction, ch)
+              for fraction, ch in zip((0.6, 0.1, 0.3), channels, strict=True)]
     rows = rng.integers(0, 12, size=(n, 3, rows_max)).astype(np.uint32)
-    weight = rng.uniform(0, 1, size=(n, 3, rows_max)).astype(np.float32)
+    weight = rng.uniform(0, 1, size=(n, 3, rows_max, 3)).astype(np.float32)
     count = rng.integers(1, rows_max + 1, size=(n, 3)).astype(np.int32)
-    dense = np.zeros((3, n, basis.size))
+    dense = np.zeros((3, n, 3, basis.size))  # function, item, channel, coefficient
     for f in range(3):
         for i in range(n):
             k = count[i, f]
-            dense[f, i] = weight[i, f, :k] @ tables[f][3][rows[i, f, :k]]
+            dense[f, i] = np.einsum("rc,rnc->cn", weight[i, f, :k], tables[f][3][rows[i, f, :k]])
     expected = basis.triple_product(*dense)
     scale = basis.triple_product(*np.abs(dense))  # ≥ every partial sum's magnitude
     tables32 = kernel_tables(basis)
     buffers = [cl.read_only_buffer(a) for t in tables for a in t[:3]]
+    buffers.append(np.array([*channels, 0], np.int32))
     buffers += [cl.read_only_buffer(a) for a in (rows, weight, count)]
     buffers += [cl.read_only_buffer(tables32[k]) for k in ("root_area", "wavelet", "tensor")]
-    out = np.empty(n, np.float32)
+    out = np.empty((n, 3), np.float32)
     kernel = cl.kernel("triple_product.cl", "triple_products",
                        {"SW_LEVELS": level, "SW_ROWS": rows_max})
     cl.run(kernel, n, *buffers, np.int32(n), out=out)
