@@ -70,3 +70,23 @@ def test_view_grid_interpolation():
     assert np.abs(d[best] - d).max() < 1e-9
     below = grid.weights(np.array([0.6, 0.0, -0.8]))  # clamped to grazing
     assert np.allclose(d[below[0][np.argmax(below[1])]], [1.0, 0.0, 0.0], atol=1e-9)
+
+
+def test_a_turn_about_the_pole_shifts_phi():
+    """R_y(−α) F(φ, θ, ψ) = F(φ − α, θ, ψ): turning the lookup by a whole grid step moves
+    every frame's entries one φ column."""
+    grid = FrameGrid(16, 9, 16)
+    frames = euler_frame(*random_angles(200, 5))
+    step = 2 * np.pi / grid.n_phi
+    e0, w0 = grid.weights(frames[..., 2], frames[..., 0])
+    e1, w1 = grid.weights(frames[..., 2], frames[..., 0], turn=3 * step)
+    shifted = ((e0 // (grid.n_theta * grid.n_psi) - 3) % grid.n_phi) * grid.n_theta * grid.n_psi \
+        + e0 % (grid.n_theta * grid.n_psi)
+    order0, order1 = np.argsort(shifted, axis=1), np.argsort(e1, axis=1)
+    assert np.array_equal(np.take_along_axis(shifted, order0, 1), np.take_along_axis(e1, order1, 1))
+    assert np.allclose(np.take_along_axis(w0, order0, 1), np.take_along_axis(w1, order1, 1))
+    # and the rotation identity itself
+    a = 0.7
+    ry = np.array([[np.cos(-a), 0, np.sin(-a)], [0, 1, 0], [-np.sin(-a), 0, np.cos(-a)]])
+    phi, theta, psi = random_angles(50, 6)
+    assert np.allclose(ry @ euler_frame(phi, theta, psi), euler_frame(phi - a, theta, psi))

@@ -108,9 +108,16 @@ class FrameGrid:
         """Frames (size, 3, 3) of every entry."""
         return euler_frame(*self.angles())
 
-    def weights(self, normal: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The 8 entries (..., 8) around each frame and their trilinear weights (..., 8)."""
+    def weights(self, normal: np.ndarray, tangent: np.ndarray, turn: float = 0.0
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The 8 entries (..., 8) around each frame and their trilinear weights (..., 8).
+
+        ``turn`` (radians) looks the frames up as if the world were turned by −turn
+        about the +y pole: a function baked per frame, L_F(ω) = L(F ω), then gives
+        L(R_y(−turn) F ω) — the environment map turned by +turn — because
+        R_y(−turn) · F(φ, θ, ψ) = F(φ − turn, θ, ψ)."""
         phi, theta, psi = euler_angles(normal, tangent)
+        phi = phi - turn
         j0, j1, wj = _linear(phi * self.n_phi / (2 * np.pi), self.n_phi, wrap=True)
         i0, i1, wi = _linear(theta * (self.n_theta - 1) / np.pi, self.n_theta, wrap=False)
         k0, k1, wk = _linear(psi * self.n_psi / (2 * np.pi), self.n_psi, wrap=True)
