@@ -64,6 +64,7 @@ class Problem:
     chunk: str | None
     problem: str
     stage: str | None  # the stage that writes the artifact (None: not a stage artifact)
+    resumes: bool = False  # an interrupted write: a plain `prt run` finishes it
 
     def where(self) -> str:
         """``ARTIFACT[: array A][, chunk C]`` in words."""
@@ -178,8 +179,9 @@ def _open(path: Path, report: VerifyReport) -> _Opened | None:
     read (the problem is in ``report``)."""
     import zarr
 
-    def bad(problem: str, stage: str | None = None, array: str | None = None) -> None:
-        report.problems.append(Problem(path, array, None, problem, stage))
+    def bad(problem: str, stage: str | None = None, array: str | None = None,
+            resumes: bool = False) -> None:
+        report.problems.append(Problem(path, array, None, problem, stage, resumes))
 
     try:
         record = read_record(path)
@@ -193,7 +195,7 @@ def _open(path: Path, report: VerifyReport) -> _Opened | None:
     stage = record.get("stage") if isinstance(record.get("stage"), str) and \
         record.get("stage") != "reference" else None
     if record.get("complete") is False:
-        bad("incomplete: a run was interrupted while writing it", stage)
+        bad("incomplete: a run was interrupted while writing it", stage, resumes=True)
         return None
     missing = [k for k in (STAGE_RECORD if is_stage else WHOLE_RECORD) if k not in record]
     if missing:
@@ -324,6 +326,8 @@ def _one_line(exc: Exception) -> str:
 
 def rebake_command(problem: Problem) -> str:
     """The command that writes the damaged part again."""
+    if problem.resumes:
+        return "prt run"
     if problem.stage is not None:
         return f"prt run --force {problem.stage}"
     return f"delete {problem.artifact} (the next command that needs it renders it again)"

@@ -112,7 +112,8 @@ def test_verify_passes_a_clean_bake(baked):
 def test_verify_reports_markers_records_and_nan(baked, tmp_path):
     """Beyond checksums: a deleted chunk marker, an artifact left incomplete by an
     interrupted run, and a chunk holding NaN written with a valid checksum (so only the
-    finiteness check can see it) are each one problem with the stage to re-bake."""
+    finiteness check can see it) are each one problem with the command that re-bakes (or, for the
+    interrupted run, resumes) it."""
     import zarr
 
     from pipeline import chunkwrite
@@ -134,7 +135,7 @@ def test_verify_reports_markers_records_and_nan(baked, tmp_path):
         ("gbuffer.zarr", None, record["chunks"][0], "marker missing or unreadable"):
             "prt run --force gbuffer",
         ("d2i.bounce.zarr", None, None, "incomplete: a run was interrupted while writing it"):
-            "prt run --force d2i.bounce",
+            "prt run",
         ("gbuffer.zarr", "depth", "0,0", "1 NaN or Inf values"): "prt run --force gbuffer"}
 
 
