@@ -188,3 +188,19 @@ def test_a_bad_environment_map_is_refused(tmp_path, texel, problem):
     assert "\n" not in line and "Traceback" not in line
     assert str(env) in line and f"(x 5, y 3) is {problem}" in line
     assert not (tmp_path / "r.exr").exists()
+
+
+def test_the_printed_command_repairs_the_damage(baked, tmp_path):
+    """Running the command `prt verify` prints for a damaged chunk re-bakes the stage,
+    after which the work directory verifies clean (exit 0)."""
+    root, _ = damaged_copy(baked, tmp_path, "d2i.truncate")
+    first = prt("verify", baked[0], "--workdir", root, "-q")
+    assert first.returncode == 2, first.stderr
+    [line] = [line for line in first.stdout.splitlines() if line.startswith("BAD ")]
+    command = line.rpartition("; re-bake: ")[2].split()
+    assert command == ["prt", "run", str(baked[0]), "--workdir", str(root), "--force",
+                       "d2i.truncate"]
+    rebake = prt(*command[1:], "--frames", tmp_path / "frames", "-q", "--jobs", "1")
+    assert rebake.returncode == 0, rebake.stderr
+    again = prt("verify", baked[0], "--workdir", root, "-q")
+    assert again.returncode == 0 and "all good" in again.stdout, again.stdout + again.stderr
