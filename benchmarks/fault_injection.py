@@ -15,11 +15,13 @@ Run from the project root:  python benchmarks/fault_injection.py [--size 96] [--
    effect* (the same frame: the byte is in an artifact or part the frame does not
    read). The file is restored (bytes and mtime) after each trial.
 3. Read cost of the checksums: every array of every artifact is copied into a second
-   tree re-encoded with zstd's checksum off (same level, same chunks), and every chunk
-   of both trees is read (``array[...]``, as renderers read), in interleaved repeats
-   (ABAB.. with the order swapped each repeat). Reported: median times and the median
-   of the per-repeat ratios, plus the same for zstd decoding alone (numcodecs, the
-   stored chunk bytes in memory: no file system, no zarr).
+   tree re-encoded with zstd's checksum off (same level, same chunks), and a third with
+   the checksum off and zarr's crc32c codec after zstd instead (a CRC of the compressed
+   bytes, the other option the issue names); every chunk of each tree is read
+   (``array[...]``, as renderers read), in interleaved repeats (the order rotated each
+   repeat). Reported, in wall and in CPU seconds: median times and the median of the
+   per-repeat ratios to the tree without checksums, plus the same for decoding alone
+   (the chunk bytes in memory: no file system, no zarr).
 
 Writes benchmarks/results/fault_injection.json. The machine may be shared with other
 work: timings are medians of interleaved repeats and the load average is recorded.
@@ -106,8 +108,22 @@ def zarr_arrays(root: Path) -> list[Any]:
     return out
 
 
-def copy_without_checksum(src: Path, dst: Path) -> None:
-    """Re-encode every artifact under ``src`` into ``dst`` with zstd's checksum off."""
+VARIANTS = ("zstd checksum", "none", "crc32c codec")  # as stored by prt, and two copies
+
+
+def compressors_for(variant: str, level: int) -> list[Any]:
+    """The codecs of a variant: zstd with its frame checksum (what prt stores), zstd
+    without, or zstd without followed by zarr's crc32c codec (a CRC of the compressed
+    bytes, appended)."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return {"zstd checksum": [ZstdCodec(level=level, checksum=True)],
+            "none": [ZstdCodec(level=level, checksum=False)],
+            "crc32c codec": [ZstdCodec(level=level, checksum=False), Crc32cCodec()]}[variant]
+
+
+def copy_encoded(src: Path, dst: Path, variant: str) -> None:
+    """Re-encode every artifact under ``src`` into ``dst`` with the variant's codecs."""
     import zarr
     from zarr.codecs import ZstdCodec
 
@@ -122,67 +138,81 @@ def copy_without_checksum(src: Path, dst: Path) -> None:
             codec = next(c for c in node.metadata.codecs if isinstance(c, ZstdCodec))
             copy = target.create_array(name, shape=node.shape, dtype=node.dtype,
                                        chunks=node.chunks, fill_value=node.fill_value,
-                                       compressors=[ZstdCodec(level=codec.level,
-                                                              checksum=False)],
+                                       compressors=compressors_for(variant, codec.level),
                                        dimension_names=node.metadata.dimension_names)
             if node.size:
                 copy[...] = node[...]
 
 
-def read_everything(arrays: list[Any]) -> float:
-    """Seconds to read every chunk of every array (whole-array reads)."""
-    start = time.perf_counter()
+def read_everything(arrays: list[Any]) -> tuple[float, float]:
+    """Wall and CPU seconds (all threads) to read every chunk of every array."""
+    wall, cpu = time.perf_counter(), time.process_time()
     for arr in arrays:
         arr[...]
-    return time.perf_counter() - start
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def decode_everything(frames: list[bytes]) -> float:
-    """Seconds to zstd-decode the given chunk files in memory."""
+def decode_everything(frames: list[bytes], crc: bool) -> tuple[float, float]:
+    """Wall and CPU seconds to decode chunk files in memory: zstd (which checks its
+    frame checksum when the frame has one), after checking the trailing CRC32C first
+    when ``crc``."""
+    import google_crc32c
     from numcodecs import Zstd
 
     codec = Zstd()
-    start = time.perf_counter()
+    wall, cpu = time.perf_counter(), time.process_time()
     for frame in frames:
+        if crc:
+            assert google_crc32c.value(frame[:-4]).to_bytes(4, "little") == frame[-4:]
+            frame = frame[:-4]
         codec.decode(frame)
-    return time.perf_counter() - start
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def interleaved(a: Any, b: Any, repeats: int) -> dict[str, Any]:
-    """Time ``a()`` and ``b()`` alternately (order swapped each repeat): medians and the
-    median of the per-repeat ratios a/b."""
-    ta, tb = [], []
-    a(), b()  # warm-up: page cache, imports, thread pools
+def interleaved(runs: dict[str, Any], repeats: int, baseline: str) -> dict[str, Any]:
+    """Time each of ``runs`` (name -> function giving (wall, CPU) seconds) once per
+    repeat, the order rotated each repeat: per clock, each one's median and the median
+    (and quartiles) of its per-repeat ratio to ``baseline``. CPU time (this process's
+    threads) is less disturbed by other jobs on a shared machine than wall time."""
+    names = list(runs)
+    times: dict[str, list[tuple[float, float]]] = {n: [] for n in names}
+    for n in names:
+        runs[n]()  # warm-up: page cache, imports, thread pools
     for r in range(repeats):
-        if r % 2:
-            tb.append(b())
-            ta.append(a())
-        else:
-            ta.append(a())
-            tb.append(b())
-    ratios = [x / y for x, y in zip(ta, tb, strict=True)]
-    return {"with_checksum_s_median": round(statistics.median(ta), 4),
-            "without_checksum_s_median": round(statistics.median(tb), 4),
-            "ratio_median": round(statistics.median(ratios), 4),
-            "ratio_min": round(min(ratios), 4), "ratio_max": round(max(ratios), 4),
-            "repeats": repeats}
+        for n in names[r % len(names):] + names[:r % len(names)]:
+            times[n].append(runs[n]())
+    out: dict[str, Any] = {"repeats": repeats, "baseline": baseline}
+    for clock, i in (("wall", 0), ("cpu", 1)):
+        out[clock] = {}
+        for n in names:
+            entry = {"s_median": round(statistics.median(t[i] for t in times[n]), 4)}
+            if n != baseline:
+                ratios = [t[i] / b[i] for t, b in zip(times[n], times[baseline], strict=True)]
+                entry |= {"ratio_median": round(statistics.median(ratios), 4),
+                          "ratio_quartiles": [round(q, 4) for q in
+                                              statistics.quantiles(ratios, n=4)[::2]]}
+            out[clock][n] = entry
+    return out
 
 
 def checksum_cost(root: Path, repeats: int) -> dict[str, Any]:
+    """Read and decode cost of the stored checksums against copies without (and with
+    zarr's crc32c codec instead)."""
     with tempfile.TemporaryDirectory(dir=root.parent) as tmp:
-        plain = Path(tmp) / "plain"
-        copy_without_checksum(root, plain)
-        checked, unchecked = zarr_arrays(root), zarr_arrays(plain)
-        sizes = [sum(p.stat().st_size for p in chunk_files(r)) for r in (root, plain)]
-        files = [chunk_files(r) for r in (root, plain)]
-        assert len(files[0]) == len(files[1]), "the re-encoded copy stores other chunks"
-        frames = [[p.read_bytes() for p in f] for f in files]
-        read = interleaved(lambda: read_everything(checked),
-                           lambda: read_everything(unchecked), repeats)
-        decode = interleaved(lambda: decode_everything(frames[0]),
-                             lambda: decode_everything(frames[1]), repeats)
-    return {"chunk_files": len(files[0]), "stored_bytes_with_checksum": sizes[0],
-            "stored_bytes_without_checksum": sizes[1],
+        roots = {"zstd checksum": root}
+        for variant in VARIANTS[1:]:
+            roots[variant] = Path(tmp) / variant.replace(" ", "_")
+            copy_encoded(root, roots[variant], variant)
+        arrays = {v: zarr_arrays(r) for v, r in roots.items()}
+        files = {v: chunk_files(r) for v, r in roots.items()}
+        assert len({len(f) for f in files.values()}) == 1, "a copy stores other chunks"
+        frames = {v: [p.read_bytes() for p in f] for v, f in files.items()}
+        read = interleaved({v: (lambda a=a: read_everything(a)) for v, a in arrays.items()},
+                           repeats, "none")
+        decode = interleaved({v: (lambda f=f, v=v: decode_everything(f, v == "crc32c codec"))
+                              for v, f in frames.items()}, repeats, "none")
+    return {"chunk_files": len(files["none"]),
+            "stored_bytes": {v: sum(map(len, f)) for v, f in frames.items()},
             "read_every_chunk_via_zarr": read, "zstd_decode_only": decode}
 
 
@@ -194,7 +224,7 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=96, help="image width = height")
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--seed", type=int, default=15)
-    parser.add_argument("--repeats", type=int, default=15, help="timing repeats")
+    parser.add_argument("--repeats", type=int, default=31, help="timing repeats")
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir())
                         / "prt-fault-injection", help="where the bake is kept")
     parser.add_argument("--out", type=Path,
