@@ -136,7 +136,8 @@ def _shared_locks(root: Path) -> Iterator[None]:
 
 def verify(workdir: Workdir, progress: bool = True) -> VerifyReport:
     """Check every artifact under ``workdir`` (see the module docstring). Raises PrtError
-    only when there is nothing to verify; everything found is in the report."""
+    only when there is nothing to verify or a run is writing there; everything found is
+    in the report."""
     root = workdir.root
     if not root.is_dir():
         raise PrtError(root, "no such work directory")
