@@ -280,6 +280,52 @@ def _workdir_lines(info: dict) -> list[str]:
     return lines
 
 
+@cli.command("verify")
+@SCENE
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the report as JSON (problems, counts, what cannot be checked).")
+@WORKDIR
+@QUIET
+def verify_cmd(scene, as_json, workdir, quiet) -> None:
+    """Read every chunk of every artifact in the work directory and check it: chunk
+    checksums, shapes, NaN/Inf, provenance records and chunk markers. Prints one line
+    per problem with the command that re-bakes it; exit status 2 if any."""
+    from pipeline import job
+    from pipeline.verify import rebake_command, verify
+
+    sc = job.open_scene(scene)
+    wd = job.workdir_for(sc, workdir)
+    report = verify(wd, progress=not quiet)
+    args = "".join(f" {a}" for a in ([str(scene)] if scene else [])
+                   + (["--workdir", str(workdir)] if workdir else []))
+
+    def command(p) -> str:
+        return rebake_command(p).replace("prt run", f"prt run{args}", 1)
+
+    if as_json:
+        click.echo(json.dumps({
+            "workdir": str(report.root), "ok": report.ok, "artifacts": report.artifacts,
+            "arrays": report.arrays, "chunks": report.chunks, "stored_chunks": report.stored,
+            "markers": report.markers, "bytes_read": report.bytes_read,
+            "problems": [{"artifact": str(p.artifact), "array": p.array, "chunk": p.chunk,
+                          "problem": p.problem, "stage": p.stage, "fix": command(p)}
+                         for p in report.problems],
+            "unchecked": report.unchecked}))
+    else:
+        for p in report.problems:
+            click.echo(f"BAD {p.where()}: {p.problem}; re-bake: {command(p)}")
+        for note in report.unchecked:
+            click.echo(f"note: {note}")
+        click.echo(f"Verified {report.artifacts} artifacts, {report.arrays} arrays, "
+                   f"{report.stored} stored chunks ({report.bytes_read / 1e6:.1f} MB) and "
+                   f"{report.markers} chunk markers in {report.root}: "
+                   + ("all good." if report.ok else f"{len(report.problems)} problem(s) in "
+                      f"{len(report.bad_artifacts)} artifact(s)."))
+    if not report.ok:
+        raise PrtError(report.root, f"{len(report.problems)} problem(s) found by prt verify "
+                       f"in {', '.join(p.name for p in report.bad_artifacts)}")
+
+
 def parse_options(items: tuple[str, ...]) -> dict[str, str]:
     """``("NAME=VALUE", ...)`` -> {NAME: VALUE} (the method parses the values)."""
     out = {}

@@ -89,7 +89,7 @@ def test_render_json_and_size(baked, tmp_path):
 
 
 @pytest.mark.parametrize("command", ["", "run", "status", "inspect", "render", "reference",
-                                     "evaluate", "clean", "methods"])
+                                     "evaluate", "clean", "methods", "verify"])
 def test_help_everywhere(command):
     """Every command has help text."""
     result = prt(*([command] if command else []), "--help")
