@@ -300,7 +300,7 @@ def verify_cmd(scene, as_json, workdir, quiet) -> None:
                    + (["--workdir", str(workdir)] if workdir else []))
 
     def command(p) -> str:
-        return rebake_command(p).replace("prt run", f"prt run{args}", 1)
+        return rebake_command(p, report.root).replace("prt run", f"prt run{args}", 1)
 
     if as_json:
         click.echo(json.dumps({

@@ -325,10 +325,14 @@ def _one_line(exc: Exception) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def rebake_command(problem: Problem) -> str:
-    """The command that writes the damaged part again."""
+def rebake_command(problem: Problem, root: Path) -> str:
+    """The command that writes the damaged part again; an artifact of a view baked at
+    another image size (``root/views/WxH/``) needs that ``--size``."""
+    relative = problem.artifact.relative_to(root).parts if \
+        problem.artifact.is_relative_to(root) else ()
+    size = f" --size {relative[1]}" if len(relative) > 2 and relative[0] == "views" else ""
     if problem.resumes:
-        return "prt run"
+        return f"prt run{size}"
     if problem.stage is not None:
-        return f"prt run --force {problem.stage}"
+        return f"prt run{size} --force {problem.stage}"
     return f"delete {problem.artifact} (the next command that needs it renders it again)"

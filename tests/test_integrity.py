@@ -129,7 +129,7 @@ def test_verify_reports_markers_records_and_nan(baked, tmp_path):
     depth = zarr.open_group(str(wd.artifact("gbuffer")), mode="r+")["depth"]
     depth[0, 0] = np.nan
     report = verify(wd, progress=False)
-    found = {(p.artifact.name, p.array, p.chunk, p.problem.split(" (")[0]): rebake_command(p)
+    found = {(p.artifact.name, p.array, p.chunk, p.problem.split(" (")[0]): rebake_command(p, root)
              for p in report.problems}
     assert found == {
         ("gbuffer.zarr", None, record["chunks"][0], "marker missing or unreadable"):
@@ -204,3 +204,15 @@ def test_the_printed_command_repairs_the_damage(baked, tmp_path):
     assert rebake.returncode == 0, rebake.stderr
     again = prt("verify", baked[0], "--workdir", root, "-q")
     assert again.returncode == 0 and "all good" in again.stdout, again.stdout + again.stderr
+
+
+def test_rebake_command_of_a_view_names_its_size(tmp_path):
+    """An artifact baked for another image size (WORKDIR/views/WxH/) is re-baked with
+    that --size; one of the file's own size without it."""
+    from pipeline.verify import Problem, rebake_command
+
+    view = Problem(tmp_path / "views" / "32x16" / "gbuffer.zarr", "depth", "0,0", "bad",
+                   "gbuffer")
+    assert rebake_command(view, tmp_path) == "prt run --size 32x16 --force gbuffer"
+    own = Problem(tmp_path / "gbuffer.zarr", "depth", "0,0", "bad", "gbuffer")
+    assert rebake_command(own, tmp_path) == "prt run --force gbuffer"
