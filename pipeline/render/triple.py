@@ -1,0 +1,230 @@
+"""Method ``triple`` (paper 004): per-pixel triple products of lighting, visibility and
+BRDF in the pixel's local frame (kernels/triple.cl, kernels/sphwavelet.h).
+
+For a pixel that sees the surface point x with shading frame F = (t, n × t, n) and view
+direction ω_o (local), the reflected radiance of the environment map L is
+
+    B = ∫ L(F ω) V_x(ω) ρ̃(ω, ω_o) dω,   ρ̃ = kd cos θ/π + ρs f_g(ω, ω_o) cos θ,
+
+with every factor a spherical Haar wavelet expansion over local directions ω
+(pipeline/math/sphwavelet.py):
+
+* L(F ·) interpolated trilinearly between the nearest frames of the rotation grid
+  (pipeline/math/frame_grids.py ``FrameGrid``); an environment rotation α about +y at
+  run time is a shift of the lookup's φ (``FrameGrid.weights``' ``turn``), its ``scale``
+  a factor on the result;
+* V_x interpolated bilinearly between the nearest texels of the object's visibility
+  texture (texels that hold nothing are left out and the weights renormalised);
+* ρ̃ the material's diffuse row weighted by kd and its glossy rows at the nearest
+  local views (``ViewGrid``) weighted by ρs × the bilinear weights: kd and ρs edits cost
+  nothing, a γ edit re-bakes one table.
+
+Camera rays are traced per frame (any camera; pipeline/raytrace.py): pixels that miss
+see the environment map itself. This module keeps the tables as :class:`WaveletRows`
+and computes per-pixel rows and weights on the host (:class:`PixelLookups`); the kernel
+sums the triple products; :func:`shade_numpy` is its NumPy twin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.math.frame_grids import FrameGrid, ViewGrid
+from pipeline.math.sphwavelet import (
+    WaveletBasis,
+    depth_first_keys,
+    kernel_tables,
+    sparse_triple_product,
+)
+
+LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 5  # as kernels/triple.cl
+
+
+@dataclass(frozen=True)
+class WaveletRows:
+    """CSR rows of wavelet coefficients: row r holds entries ``start[r]`` ..
+    ``start[r + 1] − 1``; ``index`` (E,) uint16 coefficient indices sorted depth first
+    within each row, ``value`` (E,) or (E, 3) float32 (grey or RGB)."""
+
+    start: np.ndarray
+    index: np.ndarray
+    value: np.ndarray
+
+    @classmethod
+    def from_counts(cls, count: np.ndarray, index: np.ndarray, value: np.ndarray
+                    ) -> WaveletRows:
+        """From per-row entry counts and the flat entries."""
+        start = np.concatenate([[0], np.cumsum(count, dtype=np.int64)]).astype(np.uint32)
+        return cls(start, np.ascontiguousarray(index, np.uint16),
+                   np.ascontiguousarray(value, np.float32))
+
+    @property
+    def rows(self) -> int:
+        return len(self.start) - 1
+
+    @property
+    def channels(self) -> int:
+        return 1 if self.value.ndim == 1 else self.value.shape[1]
+
+    @property
+    def nbytes(self) -> int:
+        return self.start.nbytes + self.index.nbytes + self.value.nbytes
+
+    def truncated(self, basis: WaveletBasis, selection: str, budget: int) -> WaveletRows:
+        """Each row cut to ``budget`` entries: ``top-only`` keeps those with index <
+        budget (the first ``budget`` of the layout), ``adaptive`` the ``budget`` largest
+        by area-weighted magnitude (|c|·√support, channels summed in quadrature); the
+        kept entries stay sorted depth first."""
+        count = np.diff(self.start.astype(np.int64))
+        row = np.repeat(np.arange(self.rows), count)
+        if selection == "top-only":
+            keep = self.index < budget
+        else:
+            magnitude = self.value if self.value.ndim == 1 else \
+                np.linalg.norm(self.value, axis=1)
+            weight = np.abs(magnitude) * np.sqrt(basis.support_areas())[self.index]
+            order = np.lexsort((-weight, row))  # by row, largest first
+            rank = np.empty(len(order), np.int64)
+            rank[order] = np.arange(len(order)) - np.repeat(self.start[:-1].astype(np.int64),
+                                                            count)
+            keep = rank < budget
+        kept_count = np.bincount(row[keep], minlength=self.rows)
+        return WaveletRows.from_counts(kept_count, self.index[keep], self.value[keep])
+
+    def dense(self, row: int, size: int) -> np.ndarray:
+        """Row ``row`` as dense coefficients (size, channels) float64."""
+        out = np.zeros((size, self.channels))
+        s, e = int(self.start[row]), int(self.start[row + 1])
+        out[self.index[s:e]] = self.value[s:e].reshape(e - s, -1)
+        return out
+
+
+@dataclass
+class TripleTables:
+    """What a frame reads: ``light`` rows (one per ``frames`` grid entry, RGB),
+    ``visibility`` rows (one per texel, grey), ``brdf`` rows (grey; per material
+    ``glossy_base[m]`` + view-grid entry for its glossy rows, ``diffuse_row[m]`` its
+    diffuse row; −1 where a Lambertian material has no glossy rows), the grids and the
+    basis."""
+
+    basis: WaveletBasis
+    frames: FrameGrid
+    views: ViewGrid
+    light: WaveletRows
+    visibility: WaveletRows
+    brdf: WaveletRows
+    glossy_base: np.ndarray
+    diffuse_row: np.ndarray
+
+    def truncated(self, selection: str, budget: int) -> TripleTables:
+        """The tables with every row cut to the run-time budget."""
+        cut = [t.truncated(self.basis, selection, budget)
+               for t in (self.light, self.visibility, self.brdf)]
+        return TripleTables(self.basis, self.frames, self.views, *cut, self.glossy_base,
+                            self.diffuse_row)
+
+
+@dataclass
+class PixelLookups:
+    """Per shaded pixel (P of them): the rows and weights of its three functions, as
+    kernels/triple.cl reads them: ``light_rows``/``light_weight`` (P, 8),
+    ``vis_rows``/``vis_weight`` (P, 4), ``brdf_rows`` (P, 5) and ``brdf_weight``
+    (P, 5, 3) (row 0: the diffuse row × kd; rows 1–4: glossy rows × ρs × bilinear)."""
+
+    light_rows: np.ndarray
+    light_weight: np.ndarray
+    vis_rows: np.ndarray
+    vis_weight: np.ndarray
+    brdf_rows: np.ndarray
+    brdf_weight: np.ndarray
+
+    def arrays(self) -> list[np.ndarray]:
+        return [np.ascontiguousarray(a, dt) for a, dt in (
+            (self.light_rows, np.uint32), (self.light_weight, np.float32),
+            (self.vis_rows, np.uint32), (self.vis_weight, np.float32),
+            (self.brdf_rows, np.uint32), (self.brdf_weight, np.float32))]
+
+
+def texel_lookups(texel_xy: np.ndarray, size: np.ndarray, offset: np.ndarray,
+                  filled: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear texel rows and weights (P, 4) at continuous texel coordinates
+    ``texel_xy`` (P, 2) (x right, y down, texel (i, j) centred at (j + ½, i + ½)) in
+    textures of ``size`` (P, 2) = (height, width) whose texel (i, j) is row
+    ``offset`` + i·width + j; texels not ``filled`` (a flag per row) get weight 0 and
+    the others are renormalised."""
+    x = np.clip(texel_xy[:, 0] - 0.5, 0.0, size[:, 1] - 1.0)
+    y = np.clip(texel_xy[:, 1] - 0.5, 0.0, size[:, 0] - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), np.maximum(size[:, 1] - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), np.maximum(size[:, 0] - 2, 0))
+    fx, fy = x - x0, y - y0
+    x1 = np.minimum(x0 + 1, size[:, 1] - 1)
+    y1 = np.minimum(y0 + 1, size[:, 0] - 1)
+    rows = np.stack([offset + yy * size[:, 1] + xx
+                     for yy, xx in ((y0, x0), (y0, x1), (y1, x0), (y1, x1))], 1)
+    weight = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], 1)
+    weight = weight * filled[rows]
+    total = weight.sum(1, keepdims=True)
+    return rows, np.divide(weight, total, out=np.zeros_like(weight), where=total > 0)
+
+
+def brdf_lookups(tables: TripleTables, material: np.ndarray, wo_local: np.ndarray,
+                 kd: np.ndarray, rho_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """BRDF rows (P, 5) and RGB weights (P, 5, 3) for materials ``material`` (P,) seen
+    from local ``wo_local`` (P, 3), with per-material diffuse albedo ``kd`` and ``rho_s``
+    (materials, 3)."""
+    entries, weights = tables.views.weights(wo_local)
+    base = tables.glossy_base[material]
+    glossy = base >= 0
+    rows = np.concatenate([tables.diffuse_row[material][:, None],
+                           np.where(glossy[:, None], base[:, None] + entries, 0)], 1)
+    weight = np.concatenate([kd[material][:, None, :],
+                             (weights * glossy[:, None])[:, :, None]
+                             * rho_s[material][:, None, :]], 1)
+    return rows, weight
+
+
+def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, float, int]:
+    """Radiance (P, 3) float32 of the pixels' triple products on the OpenCL device, the
+    kernel's milliseconds and the bytes it read and wrote (tables once, lookups)."""
+    n = len(lookups.light_rows)
+    out = np.empty((max(n, 1), 3), np.float32)
+    basis = kernel_tables(tables.basis)
+    table_arrays = [a for t in (tables.light, tables.visibility, tables.brdf)
+                    for a in (t.start, t.index, t.value)]
+    args = [cl.read_only_buffer(a) for a in (*table_arrays, *lookups.arrays(),
+                                             basis["root_area"], basis["wavelet"],
+                                             basis["tensor"])]
+    kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level})
+    ms = cl.run(kernel, max(n, 1), *args, np.int32(n), out=out)
+    moved = sum(a.nbytes for a in (*table_arrays, *lookups.arrays(), out))
+    return out[:n], ms, moved
+
+
+def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
+                ) -> np.ndarray:
+    """The kernel's sums for the lookups' rows ``pixels`` (K,), in float64 with
+    :func:`~pipeline.math.sphwavelet.sparse_triple_product` on the interpolated rows
+    (slow: for tests)."""
+    size = tables.basis.size
+    keys = depth_first_keys(tables.basis.leaf_level)
+    out = np.zeros((len(pixels), 3))
+    for k, p in enumerate(pixels):
+        light = sum(w * tables.light.dense(r, size) for r, w in
+                    zip(lookups.light_rows[p], lookups.light_weight[p], strict=True) if w)
+        vis = sum(w * tables.visibility.dense(r, size) for r, w in
+                  zip(lookups.vis_rows[p], lookups.vis_weight[p], strict=True) if w)
+        brdf = sum(w * tables.brdf.dense(r, size) for r, w in
+                   zip(lookups.brdf_rows[p], lookups.brdf_weight[p], strict=True) if np.any(w))
+        functions = [np.broadcast_to(np.asarray(f, float) + np.zeros((size, 3)), (size, 3))
+                     for f in (light, vis, brdf)]
+        for c in range(3):
+            lists = []
+            for f in functions:
+                nonzero = np.flatnonzero(f[:, c])
+                nonzero = nonzero[np.argsort(keys[nonzero])]
+                lists.append((nonzero, f[nonzero, c]))
+            out[k, c] = sparse_triple_product(tables.basis, tuple(lists))
+    return out
