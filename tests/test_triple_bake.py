@@ -331,3 +331,25 @@ def test_visibility_chunks_resume_after_a_crash(baked, tmp_path, monkeypatch):
     reference = open_artifact(workdir.artifact("triple.visibility")).read_all()
     assert done.keys() == reference.keys()
     assert all(done[n].tobytes() == reference[n].tobytes() for n in done)
+
+
+def test_texture_side_follows_the_size_on_screen_within_its_bounds():
+    """An object's texture side grows with the pixels it covers: its target is
+    texels_per_pixel · √(pixels / 0.7) for a closed mesh, clamped to [texture_min,
+    texture_max], and the packed side lands within the rule's 20 % of the target (the
+    packing is retried until it does); an object off screen gets about texture_min."""
+    import trimesh
+
+    from pipeline.stages.atlas import packed_atlas
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+    params = {"triple.texels_per_pixel": 1.0, "triple.texture_min": 16,
+              "triple.texture_max": 64}
+    sides = []
+    for pixels in (0, 1200, 20000):
+        _, height, width = packed_atlas(np.asarray(sphere.vertices, np.float32),
+                                        np.asarray(sphere.faces), pixels, params)
+        sides.append(max(height, width))
+    targets = [16, np.sqrt(1200 / 0.7), 64]
+    assert sides == sorted(sides) and sides[0] < sides[-1]
+    assert all(abs(s - t) <= 0.2 * t for s, t in zip(sides, targets, strict=True)), sides

@@ -10,11 +10,12 @@ them changes nothing here); its surface area is A (scene units²). Its texel den
 
 so the whole surface gets about texels_per_pixel² texels per pixel it covers on screen
 (a closed object shows about half of its surface: there a texel is ≈ 1/√2 pixel wide at
-texels_per_pixel = 1). xatlas packs the charts at that density; the side of the packed
-texture is clamped to [texture_min, texture_max] by scaling ρ (predicted from the
-packing efficiency 0.7 before packing, corrected by one more packing if the result
-still breaks a bound by more than 5 %). A small or far object gets a small texture, an
-object off screen texture_min.
+texels_per_pixel = 1). The texture's side is then about ρ √(A / 0.7) (xatlas fills
+≈ 70 % of a large texture); that target side is clamped to [texture_min, texture_max],
+ρ set from it, and the charts packed at ρ; where padding makes the packed side miss the
+target by more than 20 % (small textures: each chart adds its padding), ρ is scaled by
+target / side and the charts packed again, at most three times. A small or far object
+gets a small texture, an object off screen one of about texture_min.
 
 **Atlas.** xatlas's charts (its default chart options) packed with ``padding`` = 2
 texels between charts and bilinear mode, so the footprints of two charts (the texels a
@@ -43,7 +44,8 @@ from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 PADDING = 2               # texels between charts: footprints reach < 1 texel past a chart
 PACKING_EFFICIENCY = 0.7  # charts' share of the packed texture, to predict its side
-CLAMP_SLACK = 0.05        # a packed side this far past a bound is packed again
+SIDE_TOLERANCE = 0.2      # a packed side this far from its target is packed again,
+REPACKS = 3               # at most this many times
 
 
 def object_piece(artifact, name: str, obj: str) -> np.ndarray:
@@ -85,13 +87,16 @@ def packed_atlas(vertices: np.ndarray, faces: np.ndarray, pixels: int, params: d
     v = vertices.astype(np.float64)
     area = 0.5 * float(np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]],
                                                v[faces[:, 2]] - v[faces[:, 0]]), axis=1).sum())
-    density = float(params["triple.texels_per_pixel"]) * np.sqrt(pixels / area)
-    predicted = density * np.sqrt(area / PACKING_EFFICIENCY)
-    density *= np.clip(predicted, lo, hi) / max(predicted, 1e-30)
-    face_uv, height, width = _pack(vertices, faces, density)
-    side = max(height, width)
-    if side > hi * (1 + CLAMP_SLACK) or side < lo * (1 - CLAMP_SLACK):
-        face_uv, height, width = _pack(vertices, faces, density * np.clip(side, lo, hi) / side)
+    unit_side = np.sqrt(area / PACKING_EFFICIENCY)  # predicted side at density 1
+    wanted = float(params["triple.texels_per_pixel"]) * np.sqrt(pixels / area) * unit_side
+    target = float(np.clip(wanted, lo, hi))
+    density = target / unit_side
+    for _ in range(1 + REPACKS):
+        face_uv, height, width = _pack(vertices, faces, density)
+        side = max(height, width)
+        if abs(side - target) <= SIDE_TOLERANCE * target:
+            break
+        density *= target / side
     return face_uv, height, width
 
 
