@@ -31,14 +31,18 @@ first entry in ``index`` / ``value``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from pipeline.chunkwrite import segment_name
+from pipeline.executors import map_slices
 from pipeline.math.geodesic import geodesic_levels
 from pipeline.math.sphwavelet import select_coefficients, wavelet_basis
 from pipeline.math.texels import EMPTY
 from pipeline.raytrace import Mesh, RayTracer
-from pipeline.rows import ROW_CHUNKS
+from pipeline.rows import ROW_CHUNKS, join_arrays
 from pipeline.stages import (
     AssembleContext,
     Chunk,
@@ -50,7 +54,7 @@ from pipeline.stages import (
 
 RAY_EPSILON = 1e-4   # ray origin offset along the face normal, relative to the scene diagonal
 KEEP_FIRST = 320     # coefficients always stored when non-zero: levels 0 and 1
-TEXEL_BATCH = 32     # texels whose rays are cast together (× 20·4^(L+r) directions)
+TEXEL_BATCH = 64     # texels whose rays are cast together (× 10·4^(L+r) directions)
 
 _SCENES: dict[str, tuple[RayTracer, np.ndarray, float]] = {}
 
@@ -77,33 +81,53 @@ def fine_directions(leaf_level: int, refine: int) -> tuple[np.ndarray, np.ndarra
     return fine.centroids, fine.areas
 
 
+def visibility_batches(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
+                       tangent: np.ndarray, geometric_normal: np.ndarray, epsilon: float,
+                       leaf_level: int, refine: int, then: Callable[[np.ndarray], Any]
+                       ) -> tuple[list[Any], int]:
+    """``then`` applied to the leaf means (B, 20·4^L) of V (module docstring) of each
+    batch of TEXEL_BATCH of the T texels (all (T, 3), world, float64), in texel order,
+    and the number of rays cast. The batches run on this task's threads, each tracing
+    on its own thread, so that one batch's NumPy work (and ``then``) overlaps another's
+    rays. Only the fine directions above the shading horizon (z > 0 in the local frame)
+    are taken to the world, in float32."""
+    local, areas = fine_directions(leaf_level, refine)
+    group = 4 ** refine
+    weights = areas.reshape(-1, group)
+    upper = np.flatnonzero(local[:, 2] > 0)
+    local_up = local[upper].astype(np.float32)
+    frames = np.stack([tangent, np.cross(normal, tangent), normal], axis=1).astype(np.float32)
+    g = geometric_normal.astype(np.float32)
+    origins = (position + epsilon * geometric_normal).astype(np.float32)
+
+    def batch(b: slice) -> tuple[np.ndarray, int]:
+        world = np.matmul(local_up, frames[b])                      # (T, M_up, 3)
+        above = np.matmul(world, g[b, :, None])[..., 0] > 0         # the face's horizon
+        counts = above.sum(axis=1)
+        blocked = tracer.occluded(np.repeat(origins[b], counts, axis=0), world[above],
+                                  np.full(int(counts.sum()), np.inf, np.float32), threads=1)
+        visible = np.zeros((len(world), len(local)), np.float32)
+        seen = np.zeros(above.shape, np.float32)
+        seen[above] = ~blocked
+        visible[:, upper] = seen
+        means = np.einsum("tnk,nk->tn", visible.reshape(len(world), -1, group),
+                          weights) / weights.sum(axis=1)
+        return then(means), len(blocked)
+
+    parts = map_slices(batch, len(position), TEXEL_BATCH)
+    return [p for p, _ in parts], sum(n for _, n in parts)
+
+
 def visibility_leaf_means(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
                           tangent: np.ndarray, geometric_normal: np.ndarray,
                           epsilon: float, leaf_level: int, refine: int
                           ) -> tuple[np.ndarray, int]:
-    """Leaf means (T, 20·4^L) of V (module docstring) at T texels (all (T, 3), world,
-    float64 normals), and the number of rays cast."""
-    local, areas = fine_directions(leaf_level, refine)
-    group = 4 ** refine
-    weights = areas.reshape(-1, group)
-    out = np.empty((len(position), len(local) // group))
-    bitangent = np.cross(normal, tangent)
-    rays = 0
-    for s in range(0, len(position), TEXEL_BATCH):
-        b = slice(s, s + TEXEL_BATCH)
-        world = (local[None, :, 0, None] * tangent[b, None] + local[None, :, 1, None]
-                 * bitangent[b, None] + local[None, :, 2, None] * normal[b, None])
-        above = (local[None, :, 2] > 0) & (np.einsum("tmc,tc->tm", world, geometric_normal[b]) > 0)
-        texel, direction = np.nonzero(above)
-        origin = position[b][texel] + epsilon * geometric_normal[b][texel]
-        blocked = tracer.occluded(origin, world[texel, direction],
-                                  np.full(len(texel), np.inf, np.float32))
-        visible = np.zeros(above.shape)
-        visible[texel[~blocked], direction[~blocked]] = 1.0
-        rays += len(texel)
-        grouped = visible.reshape(len(visible), -1, group)
-        out[b] = np.einsum("tnk,nk->tn", grouped, weights) / weights.sum(axis=1)
-    return out, rays
+    """Leaf means (T, 20·4^L) of V at T texels (:func:`visibility_batches`), and the
+    number of rays cast."""
+    parts, rays = visibility_batches(tracer, position, normal, tangent, geometric_normal,
+                                     epsilon, leaf_level, refine, lambda means: means)
+    empty = np.zeros((0, wavelet_basis(leaf_level).size))
+    return np.concatenate([empty, *parts]), rays
 
 
 def _tile_texels(atlas, obj: str, region: tuple[int, int, int, int]) -> dict[str, np.ndarray]:
@@ -129,16 +153,22 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     texel = _tile_texels(atlas, obj, region)
     filled = texel["texel_state"] != EMPTY
     first_face = geometry.read("object_ranges")[geometry.attrs["object_names"].index(obj), 2]
-    leaf, rays = visibility_leaf_means(
+    basis = wavelet_basis(level)
+
+    def rows(means: np.ndarray) -> dict[str, np.ndarray]:
+        return select_coefficients(basis.forward(means), basis, "adaptive",
+                                   int(ctx.params["triple.store_budget"]),
+                                   float(ctx.params["triple.store_tolerance"]),
+                                   keep_first=min(KEEP_FIRST, basis.size))
+
+    parts, rays = visibility_batches(
         tracer, texel["texel_position"][filled].astype(np.float64),
         texel["texel_normal"][filled].astype(np.float64),
         texel["texel_tangent"][filled].astype(np.float64),
-        face_normal[first_face + texel["texel_face"][filled]], epsilon, level, refine)
-    basis = wavelet_basis(level)
-    stored = select_coefficients(basis.forward(leaf), basis, "adaptive",
-                                 int(ctx.params["triple.store_budget"]),
-                                 float(ctx.params["triple.store_tolerance"]),
-                                 keep_first=min(KEEP_FIRST, basis.size))
+        face_normal[first_face + texel["texel_face"][filled]], epsilon, level, refine, rows)
+    stored = {name: join_arrays([p[name] for p in parts], dtype)
+              for name, dtype in (("count", np.int32), ("residual", np.float32),
+                                  ("index", np.uint16), ("value", np.float32))}
     count = np.zeros(len(filled), np.int32)
     residual = np.zeros(len(filled), np.float32)
     count[filled], residual[filled] = stored["count"], stored["residual"]
