@@ -103,16 +103,16 @@ def visibility_batches(tracer: RayTracer, position: np.ndarray, normal: np.ndarr
     def batch(b: slice) -> tuple[np.ndarray, int]:
         world = np.matmul(local_up, frames[b])                      # (T, M_up, 3)
         above = np.matmul(world, g[b, :, None])[..., 0] > 0         # the face's horizon
-        counts = above.sum(axis=1)
-        blocked = tracer.occluded(np.repeat(origins[b], counts, axis=0), world[above],
-                                  np.full(int(counts.sum()), np.inf, np.float32), threads=1)
+        # Rays below the face's horizon get a negative length: Embree skips them
+        # (cheaper than compacting the others).
+        length = np.where(above, np.float32(np.inf), np.float32(-1.0)).reshape(-1)
+        blocked = tracer.occluded(np.repeat(origins[b], world.shape[1], axis=0),
+                                  world.reshape(-1, 3), length, threads=1)
         visible = np.zeros((len(world), len(local)), np.float32)
-        seen = np.zeros(above.shape, np.float32)
-        seen[above] = ~blocked
-        visible[:, upper] = seen
+        visible[:, upper] = above & ~blocked.reshape(above.shape)
         means = np.einsum("tnk,nk->tn", visible.reshape(len(world), -1, group),
                           weights) / weights.sum(axis=1)
-        return then(means), len(blocked)
+        return then(means), int(above.sum())
 
     parts = map_slices(batch, len(position), TEXEL_BATCH)
     return [p for p, _ in parts], sum(n for _, n in parts)
