@@ -15,7 +15,7 @@ import pytest
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.graph import camera_dependent
+from pipeline.graph import camera_dependent, with_upstream
 from pipeline.images import read_exr
 from pipeline.render.emitters import EmitterOverlay, moved_quads
 from pipeline.scene import Camera, load_scene
@@ -60,9 +60,12 @@ def _records(workdir) -> dict[str, tuple[str, int]]:
 
 def test_camera_dependent_stages():
     """The stages kept per image size are those reading the camera and their
-    downstream; geometry and the BRDF bases are shared."""
+    downstream; geometry and the BRDF bases are shared. triple.atlas sizes textures by
+    the objects' size on screen, so it and the visibility read from it are kept per
+    size too."""
     assert camera_dependent(load_stagefile()) == {
-        "gbuffer", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate"}
+        "gbuffer", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
+        "triple.atlas", "triple.visibility"}
 
 
 def test_workdir_places_a_resized_scenes_camera_artifacts_apart(tmp_path):
@@ -90,8 +93,10 @@ def test_size_preview_keeps_the_files_bake(baked, tmp_path):
     assert out.returncode == 0, out.stderr
     assert read_exr(tmp_path / "p.exr").shape == (8, 8, 3)
     view = workdir / "views" / "8x8"
+    graph = load_stagefile()
+    baked_here = with_upstream(graph, sorted(job.baked_stages(load_scene(scene))))
     assert sorted(p.name for p in view.glob("*.zarr")) == sorted(
-        f"{s}.zarr" for s in camera_dependent(load_stagefile()))
+        f"{s}.zarr" for s in camera_dependent(graph) & baked_here)
     assert _records(workdir) == before  # same keys, not rewritten
     status = _status(scene, workdir, frames)
     assert {s["state"] for s in status["stages"]} == {"fresh"}

@@ -261,3 +261,31 @@ def test_selected_rows_are_sorted_depth_first_and_report_their_residual(selectio
                 assert relative <= tolerance + 1e-6
             if selection == "top-only" and r:
                 assert np.array_equal(np.sort(index), np.arange(len(index)))
+
+
+def test_keep_first_keeps_every_coarse_coefficient_and_chooses_the_rest_adaptively():
+    """keep_first = 80 at level 3: every non-zero coefficient of indices < 80 is stored
+    even where the tolerance or a budget below 80 would drop it (so a top-only cut to
+    ≤ 80 of the stored row is exact); the rest follow the adaptive order, and without
+    keep_first the selection is unchanged."""
+    basis = wavelet_basis(3)
+    rng = np.random.default_rng(9)
+    c = basis.forward(rng.normal(size=(5, basis.size)) ** 3)
+    c[:, 7] = 0.0  # a zero coefficient among the forced ones is not stored
+    plain = select_coefficients(c, basis, "adaptive", 200, 0.3)
+    assert all(np.array_equal(plain[k], v) for k, v in
+               select_coefficients(c, basis, "adaptive", 200, 0.3, keep_first=0).items())
+    for budget, tolerance in ((200, 0.3), (30, 0.0), (200, 0.9)):
+        rows = select_coefficients(c, basis, "adaptive", budget, tolerance, keep_first=80)
+        start = np.concatenate([[0], np.cumsum(rows["count"])])
+        for r in range(len(c)):
+            index = rows["index"][start[r]:start[r + 1]].astype(np.int64)
+            coarse = set(np.flatnonzero(c[r, :80]).tolist())
+            assert coarse <= set(index.tolist()) and 7 not in index
+            finer = index[index >= 80]
+            if len(finer):  # the finer ones kept are the largest area-weighted ones
+                weight = np.abs(c[r]) * np.sqrt(basis.support_areas())
+                dropped = np.setdiff1d(np.arange(80, basis.size), finer)
+                assert weight[finer].min() >= weight[dropped].max()
+        if budget < 80:
+            assert np.all(rows["count"] == 79)  # the budget does not cut the forced ones

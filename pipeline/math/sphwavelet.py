@@ -255,7 +255,8 @@ SELECTIONS = ("top-only", "adaptive")
 
 
 def select_coefficients(coefficients: np.ndarray, basis: WaveletBasis, selection: str,
-                        budget: int, tolerance: float = 0.0) -> dict[str, np.ndarray]:
+                        budget: int, tolerance: float = 0.0, keep_first: int = 0
+                        ) -> dict[str, np.ndarray]:
     """Truncate rows of coefficients (R, N) to CSR rows (``pipeline.rows``: ``count``
     (R,), ``residual`` (R,), flat ``index`` uint16 and ``value`` float32), each row's
     entries sorted by :func:`depth_first_keys` (what the kernels merge).
@@ -266,7 +267,12 @@ def select_coefficients(coefficients: np.ndarray, basis: WaveletBasis, selection
     keeps at most ``budget`` of its non-zero coefficients, and with ``tolerance`` > 0
     only as many as it needs for the dropped part to hold at most ``tolerance`` of its
     L2 norm (the basis is orthonormal: ‖f − f̃‖ / ‖f‖ = √(dropped Σ c²) / √(Σ c²)).
-    ``residual`` is that relative L2 norm of what each row dropped."""
+    ``residual`` is that relative L2 norm of what each row dropped.
+
+    ``keep_first`` > 0 keeps every non-zero coefficient of indices [0, keep_first)
+    whatever the budget and tolerance (they come first in the selection order and
+    count towards both): with ``keep_first`` = 320 a stored row serves any run-time
+    top-only budget ≤ 320 exactly, while the rest of it is chosen by ``selection``."""
     c = np.asarray(coefficients, np.float64)
     rows, size = c.shape
     if selection == "top-only":
@@ -275,8 +281,12 @@ def select_coefficients(coefficients: np.ndarray, basis: WaveletBasis, selection
         order = np.argsort(-np.abs(c) * np.sqrt(basis.support_areas()), axis=1, kind="stable")
     else:
         raise ValueError(f"unknown selection {selection!r} (expected one of {SELECTIONS})")
+    if keep_first > 0:  # the forced indices first, in their own order (a stable sort)
+        order = np.take_along_axis(order, np.argsort(order >= keep_first, axis=1,
+                                                     kind="stable"), axis=1)
     ordered = np.take_along_axis(c, order, axis=1)
     nonzero = ordered != 0.0
+    forced = nonzero & (order < keep_first)
     rank = np.cumsum(nonzero, axis=1)  # candidates so far, counting each non-zero
     energy = np.sum(c * c, axis=1)
     kept_energy = np.cumsum(ordered * ordered, axis=1)
@@ -285,6 +295,7 @@ def select_coefficients(coefficients: np.ndarray, basis: WaveletBasis, selection
         enough = kept_energy >= (1.0 - tolerance ** 2) * energy[:, None]
         first = np.where(enough.any(axis=1), np.argmax(enough, axis=1), size - 1)
         keep &= np.arange(size) <= first[:, None]
+    keep |= forced
     kept = np.where(keep, order, -1)
     keys = depth_first_keys(basis.leaf_level)
     sorted_keys = np.sort(np.where(kept >= 0, keys[np.maximum(kept, 0)], np.iinfo(np.int64).max),
