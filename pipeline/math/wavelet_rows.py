@@ -1,0 +1,104 @@
+"""Functions on the sphere stored as truncated wavelet rows at bake time (method
+triple): the leaf samples their leaf means are taken from, and the selection of the
+coefficients each stored row keeps.
+
+**Leaf samples.** A leaf mean of level L with refinement r is the solid-angle-weighted
+mean of the function at the centroids of the 4^r leaves of level L + r inside the leaf
+(:func:`pipeline.math.sphwavelet.leaf_means`); :func:`leaf_samples` gives those
+centroids and their weights, normalised per leaf, for the OpenCL kernels.
+
+**Selection.** A stored row holds the coefficients of C channels (RGB lighting: C = 3;
+a BRDF table: C = 1) on one index set. With channel weights w_c (luminance for RGB)
+a coefficient's energy is e_i = Σ_c w_c c_ic², and the row's energy E = Σ_i e_i: for
+the orthonormal basis, E is the weighted squared L2 norm of the function, and dropping a
+set D of coefficients leaves the relative error √(Σ_D e_i / E) (``residual``). A row
+keeps
+
+1. every coefficient i < ``keep_first`` with e_i > 0, so that run-time top-only budgets
+   up to ``keep_first`` read exactly what the full row holds (320 = levels 0 and 1);
+2. of the others, the largest e_i first, as few as leave a residual ≤ ``tolerance``,
+   and at most ``budget`` − (the count of step 1) of them.
+
+Ordering by e_i is the L2-optimal choice for the orthonormal basis (it keeps the
+fewest coefficients for a tolerance); ties at the threshold are all kept. Entries are
+sorted by :func:`pipeline.math.sphwavelet.depth_first_keys`, what the triple-product
+kernels merge.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+
+from pipeline.math.geodesic import geodesic_levels
+from pipeline.math.sphwavelet import depth_first_keys
+
+
+@cache
+def leaf_samples(leaf_level: int, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit sample directions (N · 4^r, 3) and weights (N · 4^r,) of the leaves of level
+    ``leaf_level``: the centroids of the level ``leaf_level + refine`` leaves, leaf n's
+    at [n · 4^r, (n + 1) · 4^r), weighted by solid angle and normalised to sum to 1 per
+    leaf (cached; treat as read-only)."""
+    fine = geodesic_levels(leaf_level + refine)[-1]
+    areas = fine.areas.reshape(-1, 4 ** refine)
+    weights = (areas / areas.sum(axis=1, keepdims=True)).reshape(-1)
+    return fine.centroids, weights
+
+
+@cache
+def _depth_first_order(leaf_level: int) -> np.ndarray:
+    return np.argsort(depth_first_keys(leaf_level), kind="stable")
+
+
+def select_rows(coefficients: np.ndarray, leaf_level: int, budget: int, tolerance: float,
+                keep_first: int, channel_weights: np.ndarray | None = None
+                ) -> dict[str, np.ndarray]:
+    """Stored rows of ``coefficients`` (R, C, N) (module docstring): ``count`` (R,)
+    int32, ``residual`` (R,) float32 (relative weighted L2 error of what was dropped),
+    flat ``index`` uint16 (depth-first order within each row) and ``value`` (nnz, C)
+    float32. ``channel_weights`` (C,) default to 1."""
+    c = np.asarray(coefficients)
+    rows, channels, size = c.shape
+    w = np.ones(channels) if channel_weights is None else np.asarray(channel_weights)
+    energy = np.einsum("c,rcn->rn", w, np.square(c, dtype=np.float64))
+    total = energy.sum(axis=1)
+    head = energy[:, :keep_first]
+    kept = head > 0.0
+    head_count = kept.sum(axis=1)
+    tail = energy[:, keep_first:]
+    ordered = -np.sort(-tail, axis=1)  # each row's tail energies, largest first
+    # dropped[m] = energy left out when the tail keeps its m largest, m = 0 .. tail size
+    dropped = np.concatenate([tail.sum(axis=1, keepdims=True),
+                              tail.sum(axis=1, keepdims=True) - np.cumsum(ordered, axis=1)],
+                             axis=1)
+    allowed = (tolerance ** 2 * total)[:, None]
+    enough = dropped <= allowed * (1.0 + 1e-12)
+    enough[:, -1] = True  # keeping the whole tail drops nothing (up to rounding)
+    need = np.argmax(enough, axis=1)
+    need = np.minimum(need, np.maximum(budget - head_count, 0))
+    need = np.minimum(need, (ordered > 0.0).sum(axis=1))
+    threshold = np.where(need > 0, ordered[np.arange(rows), np.maximum(need - 1, 0)], np.inf)
+    keep = np.concatenate([kept, tail >= threshold[:, None]], axis=1)
+    order = _depth_first_order(leaf_level)
+    row_of, position = np.nonzero(keep[:, order])
+    index = order[position]
+    lost = total - np.where(keep, energy, 0.0).sum(axis=1)
+    residual = np.sqrt(np.divide(np.maximum(lost, 0.0), total, out=np.zeros(rows),
+                                 where=total > 0))
+    return {"count": keep.sum(axis=1).astype(np.int32),
+            "residual": residual.astype(np.float32),
+            "index": index.astype(np.uint16),
+            "value": np.ascontiguousarray(c[row_of, :, index], np.float32)}
+
+
+def rows_to_dense(count: np.ndarray, index: np.ndarray, value: np.ndarray,
+                  size: int) -> np.ndarray:
+    """The coefficient rows (R, C, N) that stored rows ``count`` (R,), ``index``
+    (nnz,), ``value`` (nnz, C) hold (zeros elsewhere)."""
+    value = np.asarray(value).reshape(len(index), -1)
+    out = np.zeros((len(count), value.shape[1], size))
+    row_of = np.repeat(np.arange(len(count)), count)
+    out[row_of, :, index.astype(np.int64)] = value
+    return out
