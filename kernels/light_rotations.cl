@@ -11,13 +11,25 @@
  * Work-item (n, b): leaf n, frame b of the frames at phi = 0 (rows of R, R's columns
  * the frame's tangent, bitangent and normal in world coordinates). Output for the
  * phi_count phi values from phi_first: out[((j * n_frames + b) * 3 + c) * n_leaves + n]
- * = sum over the leaf's samples of weight * radiance (weights normalised per leaf). */
+ * = sum over the leaf's samples of weight * radiance (weights normalised per leaf).
+ * The map comes as float4 texels (RGB and an unused fourth) so that a texel is one
+ * aligned load; the lookup is kernels/envmap.h's (texel coordinates, bilinear). */
 #include "envmap.h"
+
+/* envmap_bilinear on float4 texels (H * W, the fourth unused): columns x0 in [-W, W)
+ * (wrapping) and x0 + 1, rows starting at texels row0 and row1 (the clamped y0 + 1). */
+inline float4 texel_bilinear(__global const float4* map, int width, int x0, int row0,
+                             int row1, float fx, float fy) {
+    if (x0 < 0) x0 += width;
+    int x1 = x0 + 1 == width ? 0 : x0 + 1;
+    return (1.0f - fy) * ((1.0f - fx) * map[row0 + x0] + fx * map[row0 + x1])
+           + fy * ((1.0f - fx) * map[row1 + x0] + fx * map[row1 + x1]);
+}
 
 __kernel void light_leaf_means(__global const float* frames,  /* n_frames * 9, R row-major */
                                __global const float* fine,    /* n_leaves * SAMPLES * 3 */
                                __global const float* weight,  /* n_leaves * SAMPLES */
-                               __global const float* rgb,     /* height * width * 3 */
+                               __global const float4* map,    /* height * width, RGB_ */
                                const int width, const int height, const int n_frames,
                                const int n_leaves, const int phi_first, const int phi_count,
                                const int phi_shift,
@@ -28,25 +40,27 @@ __kernel void light_leaf_means(__global const float* frames,  /* n_frames * 9, R
     __global const float* r = frames + 9 * b;
     float3 r0 = (float3)(r[0], r[1], r[2]), r1 = (float3)(r[3], r[4], r[5]),
            r2 = (float3)(r[6], r[7], r[8]);
-    int tx[SAMPLES], ty[SAMPLES];
+    int tx[SAMPLES], row0[SAMPLES], row1[SAMPLES];
     float fx[SAMPLES], fy[SAMPLES], w[SAMPLES];
     for (int s = 0; s < SAMPLES; ++s) {
         float3 omega = vload3(n * SAMPLES + s, fine);
         float3 d = (float3)(dot(r0, omega), dot(r1, omega), dot(r2, omega));
         float2 xy = envmap_texel_coords(d, width, height);
         float xf = floor(xy.x), yf = floor(xy.y);
-        tx[s] = (int)xf;
-        ty[s] = (int)yf;
+        int y = (int)yf;
+        tx[s] = (int)xf;  /* in [-1, W - 1] */
+        row0[s] = y * width;
+        row1[s] = min(y + 1, height - 1) * width;
         fx[s] = xy.x - xf;
         fy[s] = xy.y - yf;
         w[s] = weight[n * SAMPLES + s];
     }
     for (int j = 0; j < phi_count; ++j) {
-        int shift = (phi_first + j) * phi_shift;
-        float3 acc = (float3)(0.0f);
+        int shift = ((phi_first + j) * phi_shift) % width;  /* tx - shift >= -W */
+        float4 acc = (float4)(0.0f);
         for (int s = 0; s < SAMPLES; ++s)
-            acc += w[s] * envmap_bilinear(rgb, width, height, tx[s] - shift, ty[s], fx[s],
-                                          fy[s]);
+            acc += w[s] * texel_bilinear(map, width, tx[s] - shift, row0[s], row1[s],
+                                         fx[s], fy[s]);
         size_t base = ((size_t)(j * n_frames + b) * 3) * n_leaves + n;
         out[base] = acc.x;
         out[base + n_leaves] = acc.y;

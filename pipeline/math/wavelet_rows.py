@@ -20,7 +20,9 @@ keeps
    and at most ``budget`` − (the count of step 1) of them.
 
 Ordering by e_i is the L2-optimal choice for the orthonormal basis (it keeps the
-fewest coefficients for a tolerance); ties at the threshold are all kept. Entries are
+fewest coefficients for a tolerance); ties at the threshold are all kept. Energies are
+float32 (the stored precision), sorted per row, and the dropped energy is summed from
+the smallest entry up, so that rounding stays small against the tolerance. Entries are
 sorted by :func:`pipeline.math.sphwavelet.depth_first_keys`, what the triple-product
 kernels merge.
 """
@@ -59,38 +61,33 @@ def select_rows(coefficients: np.ndarray, leaf_level: int, budget: int, toleranc
     int32, ``residual`` (R,) float32 (relative weighted L2 error of what was dropped),
     flat ``index`` uint16 (depth-first order within each row) and ``value`` (nnz, C)
     float32. ``channel_weights`` (C,) default to 1."""
-    c = np.asarray(coefficients)
+    c = np.asarray(coefficients, np.float32)
     rows, channels, size = c.shape
     w = np.ones(channels) if channel_weights is None else np.asarray(channel_weights)
-    energy = np.einsum("c,rcn->rn", w, np.square(c, dtype=np.float64))
-    total = energy.sum(axis=1)
-    head = energy[:, :keep_first]
-    kept = head > 0.0
-    head_count = kept.sum(axis=1)
+    energy = np.zeros((rows, size), np.float32)
+    for channel in range(channels):
+        energy += np.float32(w[channel]) * np.square(c[:, channel])
+    total = energy.sum(axis=1, dtype=np.float64)
+    head = energy[:, :keep_first] > 0.0
     tail = energy[:, keep_first:]
-    ordered = -np.sort(-tail, axis=1)  # each row's tail energies, largest first
-    # dropped[m] = energy left out when the tail keeps its m largest, m = 0 .. tail size
-    dropped = np.concatenate([tail.sum(axis=1, keepdims=True),
-                              tail.sum(axis=1, keepdims=True) - np.cumsum(ordered, axis=1)],
-                             axis=1)
-    allowed = (tolerance ** 2 * total)[:, None]
-    enough = dropped <= allowed * (1.0 + 1e-12)
-    enough[:, -1] = True  # keeping the whole tail drops nothing (up to rounding)
-    need = np.argmax(enough, axis=1)
-    need = np.minimum(need, np.maximum(budget - head_count, 0))
-    need = np.minimum(need, (ordered > 0.0).sum(axis=1))
-    threshold = np.where(need > 0, ordered[np.arange(rows), np.maximum(need - 1, 0)], np.inf)
-    keep = np.concatenate([kept, tail >= threshold[:, None]], axis=1)
+    ascending = np.sort(tail, axis=1)
+    # small[k - 1]: what dropping the k smallest tail entries loses (summed from the
+    # smallest up, so float32 keeps its digits where the tolerance is decided)
+    small = np.cumsum(ascending, axis=1)
+    droppable = np.sum(small <= (tolerance ** 2 * total)[:, None], axis=1)
+    need = np.minimum(tail.shape[1] - droppable, np.maximum(budget - head.sum(axis=1), 0))
+    at = np.clip(tail.shape[1] - need, 0, tail.shape[1] - 1)
+    threshold = np.where(need > 0, ascending[np.arange(rows), at], np.inf)
+    keep = np.concatenate([head, (tail >= threshold[:, None]) & (tail > 0.0)], axis=1)
     order = _depth_first_order(leaf_level)
     row_of, position = np.nonzero(keep[:, order])
     index = order[position]
-    lost = total - np.where(keep, energy, 0.0).sum(axis=1)
-    residual = np.sqrt(np.divide(np.maximum(lost, 0.0), total, out=np.zeros(rows),
-                                 where=total > 0))
+    lost = np.where(keep, 0.0, energy).sum(axis=1, dtype=np.float64)
+    residual = np.sqrt(np.divide(lost, total, out=np.zeros(rows), where=total > 0))
     return {"count": keep.sum(axis=1).astype(np.int32),
             "residual": residual.astype(np.float32),
             "index": index.astype(np.uint16),
-            "value": np.ascontiguousarray(c[row_of, :, index], np.float32)}
+            "value": np.ascontiguousarray(c[row_of, :, index])}
 
 
 def rows_to_dense(count: np.ndarray, index: np.ndarray, value: np.ndarray,

@@ -35,6 +35,13 @@ def frame_grid(params: dict[str, Any]) -> FrameGrid:
     return FrameGrid(*(int(n) for n in params["triple.frame_grid"]))
 
 
+def _rgbx(rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) as (H, W, 4) float32 (the kernel's aligned texels; the 4th unused)."""
+    out = np.zeros((*rgb.shape[:2], 4), np.float32)
+    out[..., :3] = rgb
+    return out
+
+
 def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_count: int,
                       leaf_level: int, refine: int) -> Any:
     """A device buffer of the leaf means (phi_count, n_theta · n_psi, 3, N) float32 of
@@ -53,7 +60,7 @@ def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_coun
     leaves = len(fine) // 4 ** refine
     kernel = cl.kernel("light_rotations.cl", "light_leaf_means", {"SAMPLES": 4 ** refine})
     buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
-               (frames.reshape(-1, 9), fine, weights, rgb)]
+               (frames.reshape(-1, 9), fine, weights, _rgbx(rgb))]
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
                         phi_count * len(frames) * 3 * leaves * 4)
     kernel(cl.queue(), (leaves, len(frames)), None, *buffers, np.int32(width),
@@ -99,7 +106,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     rows = select_rows(coefficients, level, int(ctx.params["triple.store_budget"]),
                        float(ctx.params["triple.store_tolerance"]),
                        int(ctx.params["triple.store_top"]), LUMINANCE)
-    ctx.meta.update(worst_residual=float(rows["residual"].max()),
+    ctx.meta.update(map_width=int(ctx.environment.shape[1]),
+                    worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
     return rows
 
@@ -117,7 +125,7 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     short = worst > tolerance
     grid = frame_grid(ctx.params)
     level, refine = int(ctx.params["triple.leaf_level"]), int(ctx.params["triple.light_refine"])
-    width = prefiltered_width(sample_spacing(level, refine), grid.n_phi)
+    width = prefiltered_width(metas[0][1]["map_width"], grid.n_phi)
     return Output({
         "frame_grid": [grid.n_phi, grid.n_theta, grid.n_psi],
         "leaf_level": level,
