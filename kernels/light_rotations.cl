@@ -8,10 +8,18 @@
  * each work-item maps its leaf's SAMPLES directions (level L + r centroids, local) to
  * texel coordinates once, in its frame at phi = 0, and reuses them for every phi.
  *
- * Work-item (n, b): leaf n, frame b of the frames at phi = 0 (rows of R, R's columns
- * the frame's tangent, bitangent and normal in world coordinates). Output for the
- * phi_count phi values from phi_first: out[((j * n_frames + b) * 3 + c) * n_leaves + n]
- * = sum over the leaf's samples of weight * radiance (weights normalised per leaf).
+ * Turning psi by pi is the half turn diag(-1, -1, 1) in local coordinates, which maps
+ * leaf n onto leaf partner[n] (pipeline/math/wavelet_rows.py leaf_permutation): the
+ * leaf means of (phi, theta, psi + pi) are those of (phi, theta, psi) permuted. So for
+ * an even n_psi the frames given are those with psi < pi (psi_given = n_psi / 2 per
+ * theta), and each work-item writes its leaf of both frames.
+ *
+ * Work-item (n, b): leaf n, frame b = i * psi_given + k of the frames at phi = 0
+ * (rows of R, R's columns the frame's tangent, bitangent and normal in world
+ * coordinates) for theta_i, psi_k. Output for the phi_count phi values from phi_first,
+ * rows f = i * n_psi + k (and f + psi_given when psi_given < n_psi) of each phi:
+ * out[((j * n_theta * n_psi + f) * 3 + c) * n_leaves + n] = sum over the leaf's
+ * samples of weight * radiance (weights normalised per leaf).
  * The map comes as float4 texels (RGB and an unused fourth) so that a texel is one
  * aligned load; the lookup is kernels/envmap.h's (texel coordinates, bilinear). */
 #include "envmap.h"
@@ -32,7 +40,8 @@ __kernel void light_leaf_means(__global const float* frames,  /* n_frames * 9, R
                                __global const float4* map,    /* height * width, RGB_ */
                                const int width, const int height, const int n_frames,
                                const int n_leaves, const int phi_first, const int phi_count,
-                               const int phi_shift,
+                               const int phi_shift, const int psi_given, const int n_psi,
+                               __global const int* partner,  /* n_leaves */
                                __global float* out)
 {
     int n = get_global_id(0), b = get_global_id(1);
@@ -61,9 +70,17 @@ __kernel void light_leaf_means(__global const float* frames,  /* n_frames * 9, R
         for (int s = 0; s < SAMPLES; ++s)
             acc += w[s] * texel_bilinear(map, width, tx[s] - shift, row0[s], row1[s],
                                          fx[s], fy[s]);
-        size_t base = ((size_t)(j * n_frames + b) * 3) * n_leaves + n;
+        int rows = n_frames / psi_given * n_psi;  /* n_theta * n_psi */
+        int f = b / psi_given * n_psi + b % psi_given;
+        size_t base = ((size_t)(j * rows + f) * 3) * n_leaves + n;
         out[base] = acc.x;
         out[base + n_leaves] = acc.y;
         out[base + 2 * n_leaves] = acc.z;
+        if (psi_given < n_psi) {
+            base = ((size_t)(j * rows + f + psi_given) * 3) * n_leaves + partner[n];
+            out[base] = acc.x;
+            out[base + n_leaves] = acc.y;
+            out[base + 2 * n_leaves] = acc.z;
+        }
     }
 }

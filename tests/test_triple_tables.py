@@ -63,16 +63,18 @@ def test_envmap_kernel_matches_environment_map():
     np.testing.assert_allclose(out, expected, atol=1e-4 * rgb.max())
 
 
-def test_light_kernel_matches_numpy_twin():
-    """kernels/light_rotations.cl (φ steps as column shifts) against the twin's leaf
-    means in the grid's own frames (full rotations), for φ indices 2..4. Tolerance
-    1e-5 of the largest texel: float32 lookups (see above) and a 4-sample weighted sum."""
+@pytest.mark.parametrize("n_psi", [4, 3])
+def test_light_kernel_matches_numpy_twin(n_psi):
+    """kernels/light_rotations.cl (φ steps as column shifts; for an even n_ψ, ψ + π as
+    a leaf permutation) against the twin's leaf means in the grid's own frames (full
+    rotations), for φ indices 2..4. Tolerance 1e-5 of the largest texel: float32
+    lookups (see above) and a 4-sample weighted sum."""
     from pipeline.stages.light_rotations import kernel_leaf_means
 
     rgb = _random_map(32, 64)
-    grid = FrameGrid(8, 5, 4)
+    grid = FrameGrid(8, 5, n_psi)
     got = kernel_leaf_means(rgb, grid, 2, 3, LEVEL, 1)
-    frames = grid.frames().reshape(8, 20, 3, 3)[2:5].reshape(-1, 3, 3)
+    frames = grid.frames().reshape(8, 5 * n_psi, 3, 3)[2:5].reshape(-1, 3, 3)
     expected = frame_leaf_means(rgb, frames, LEVEL, 1).reshape(got.shape)
     np.testing.assert_allclose(got, expected, atol=1e-5 * rgb.max())
 
@@ -109,6 +111,20 @@ def test_brdf_kernel_matches_numpy_twin(params):
     expected = glossy_leaf_means(params, views, LEVEL, 1)
     scale = np.abs(expected).max(axis=1, keepdims=True)
     assert np.all(np.abs(got - expected) <= 2e-4 * scale + 1e-30)
+
+
+@pytest.mark.parametrize("params", BRDFS[2:5], ids=[p.model for p in BRDFS[2:5]])
+def test_brdf_views_mirrored_from_a_quarter_match_direct_evaluation(params):
+    """view_leaf_means (a quarter of the φ_o evaluated, the rest mirrored by leaf
+    permutations) equals the kernel run on every view: the same float32 sums on
+    permuted samples, so to 1e-6 of each view's largest leaf mean."""
+    from pipeline.stages.brdf_tables import kernel_leaf_means, view_leaf_means
+
+    grid = ViewGrid(8, 3)
+    got = view_leaf_means(params, grid, LEVEL, 1)
+    expected = kernel_leaf_means(params, grid.directions(), LEVEL, 1)
+    scale = np.abs(expected).max(axis=1, keepdims=True)
+    assert np.all(np.abs(got - expected) <= 1e-6 * scale + 1e-30)
 
 
 # ------------------------------------------------------------------- rotation property

@@ -33,7 +33,7 @@ from functools import cache
 
 import numpy as np
 
-from pipeline.math.geodesic import geodesic_levels
+from pipeline.math.geodesic import geodesic_levels, locate
 from pipeline.math.sphwavelet import depth_first_keys
 
 
@@ -47,6 +47,21 @@ def leaf_samples(leaf_level: int, refine: int) -> tuple[np.ndarray, np.ndarray]:
     areas = fine.areas.reshape(-1, 4 ** refine)
     weights = (areas / areas.sum(axis=1, keepdims=True)).reshape(-1)
     return fine.centroids, weights
+
+
+@cache
+def leaf_permutation(leaf_level: int, signs: tuple[int, int, int]) -> np.ndarray:
+    """The leaf (N,) that the reflection diag(``signs``) maps each leaf of level
+    ``leaf_level`` to. Every sign change of the coordinates maps the icosahedron's
+    vertices (±1, ±t, 0), (0, ±1, ±t), (±t, 0, ±1) onto themselves, and midpoints pushed
+    onto the sphere onto midpoints, so it permutes the leaves of every level (and their
+    centroids, exactly): a function's leaf means under the reflection are its leaf
+    means permuted, f∘M at leaf n = f at leaf perm[n]."""
+    centroids = geodesic_levels(leaf_level)[leaf_level].centroids
+    perm = locate(centroids * np.asarray(signs, np.float64), leaf_level)
+    if not np.array_equal(np.sort(perm), np.arange(len(perm))):
+        raise AssertionError(f"reflection {signs} does not permute the leaves")
+    return perm
 
 
 @cache

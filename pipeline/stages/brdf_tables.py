@@ -7,7 +7,8 @@ A material's rows, in order: row 0 the diffuse row ρ̃_d(ω_i) = max(cos θ_i, 
 1 + ViewGrid entry index) holding ρ̃_g(ω_i; ω_o) = f_g(ω_i, ω_o) max(cos θ_i, 0) without
 ρs (pipeline/math/brdf_tables.py). Each is a function of ω_i in the local frame, as leaf
 means of level ``triple.leaf_level`` from 4^r samples per leaf (``triple.brdf_refine``),
-f_g evaluated in OpenCL (kernels/brdf_tables.cl through kernels/brdf.h), transformed
+f_g evaluated in OpenCL (kernels/brdf_tables.cl through kernels/brdf.h) for a quarter
+of the views and mirrored to the others (:func:`view_leaf_means`), transformed
 (kernels/wavelet_forward.cl) and truncated (pipeline/math/wavelet_rows.py). A chunk's
 key holds only what shapes f_g (model, γ, alpha_ratio, cxy, cz, f0 or ior): editing the
 albedo or ρs re-bakes nothing, editing γ re-bakes that material's table only.
@@ -24,9 +25,9 @@ from pipeline.math.brdf import BrdfParams, pack_materials
 from pipeline.math.brdf_tables import diffuse_leaf_means
 from pipeline.math.frame_grids import ViewGrid
 from pipeline.math.sphwavelet import wavelet_basis
-from pipeline.math.wavelet_rows import leaf_samples, select_rows
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
 from pipeline.rows import ROW_CHUNKS
-from pipeline.sphwavelet_cl import forward_buffer
+from pipeline.sphwavelet_cl import forward
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
 
 SHAPE_KEYS = ("gamma", "alpha_ratio", "cxy", "cz", "f0", "ior")  # what shapes f_g
@@ -71,6 +72,37 @@ def kernel_leaf_means(params: BrdfParams, views: np.ndarray, leaf_level: int,
     return out
 
 
+def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
+                    refine: int) -> np.ndarray:
+    """Leaf means (grid.size, N) float32 of ρ̃_g for every view of ``grid``, evaluating
+    only the views with φ_o ∈ [0, π/2] when n_φ is a multiple of 4.
+
+    Every model here is unchanged when ω_i and ω_o are reflected together in the
+    planes x = 0 or y = 0 (it reads them through n·ω, ω_i·ω_o and s_x², s_y² of
+    s = ω_i + ω_o). So with g_φ(ω_i) = ρ̃_g(ω_i; ω_o(θ_o, φ)): g_{π−φ}(ω) = g_φ(M_x ω),
+    g_{−φ}(ω) = g_φ(M_y ω) and g_{φ+π}(ω) = g_φ(M_x M_y ω), and their leaf means are
+    g_φ's permuted (:func:`pipeline.math.wavelet_rows.leaf_permutation`)."""
+    if grid.n_phi % 4:
+        return kernel_leaf_means(params, grid.directions(), leaf_level, refine)
+    quarter = grid.n_phi // 4
+    views = grid.directions().reshape(grid.n_phi, grid.n_theta, 3)
+    base = kernel_leaf_means(params, views[:quarter + 1].reshape(-1, 3), leaf_level, refine)
+    base = base.reshape(quarter + 1, grid.n_theta, -1)
+    out = np.empty((grid.n_phi, *base.shape[1:]), np.float32)
+    out[:quarter + 1] = base
+    mirror_x = leaf_permutation(leaf_level, (-1, 1, 1))
+    mirror_y = leaf_permutation(leaf_level, (1, -1, 1))
+    half_turn = leaf_permutation(leaf_level, (-1, -1, 1))
+    for j in range(quarter + 1, grid.n_phi):
+        if j <= 2 * quarter:
+            out[j] = base[2 * quarter - j][:, mirror_x]
+        elif j <= 3 * quarter:
+            out[j] = base[j - 2 * quarter][:, half_turn]
+        else:
+            out[j] = base[4 * quarter - j][:, mirror_y]
+    return out.reshape(grid.size, -1)
+
+
 def _section(ctx: AssembleContext, name: str, key: str) -> Any:
     return ctx.scene.get(f"materials.{name}.{key}")
 
@@ -85,9 +117,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         coefficients = diffuse
     else:
         params = glossy_params(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS})
-        views = view_grid(ctx.params).directions()
-        glossy = forward_buffer(leaf_means_buffer(params, views, level, refine),
-                                len(views), level)
+        glossy = forward(view_leaf_means(params, view_grid(ctx.params), level, refine),
+                         level)
         coefficients = np.concatenate([diffuse.astype(np.float32), glossy])
     rows = select_rows(coefficients[:, None, :], level, int(ctx.params["triple.store_budget"]),
                        float(ctx.params["triple.store_tolerance"]),

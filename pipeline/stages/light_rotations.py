@@ -24,7 +24,7 @@ from pipeline.errors import PrtError
 from pipeline.math.envmap import LUMINANCE
 from pipeline.math.frame_grids import FrameGrid, euler_frame
 from pipeline.math.light_grid import prefilter, prefiltered_width, sample_spacing
-from pipeline.math.wavelet_rows import leaf_samples, select_rows
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
 from pipeline.rows import ROW_CHUNKS
 from pipeline.sphwavelet_cl import forward_buffer
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
@@ -52,20 +52,23 @@ def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_coun
     height, width = rgb.shape[:2]
     if width % grid.n_phi:
         raise ValueError(f"map width {width} is not a multiple of n_phi {grid.n_phi}")
-    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)
-    psi = 2 * np.pi * np.arange(grid.n_psi) / grid.n_psi
+    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi  # the kernel's
+    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)        # half turns
+    psi = 2 * np.pi * np.arange(psi_given) / grid.n_psi
     t, p = (g.reshape(-1) for g in np.meshgrid(theta, psi, indexing="ij"))
-    frames = euler_frame(np.zeros_like(t), t, p)  # (P, 3, 3), entry order within a φ slice
+    frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
     fine, weights = leaf_samples(leaf_level, refine)
     leaves = len(fine) // 4 ** refine
     kernel = cl.kernel("light_rotations.cl", "light_leaf_means", {"SAMPLES": 4 ** refine})
     buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
                (frames.reshape(-1, 9), fine, weights, _rgbx(rgb))]
+    partner = cl.read_only_buffer(leaf_permutation(leaf_level, (-1, -1, 1)).astype(np.int32))
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
-                        phi_count * len(frames) * 3 * leaves * 4)
+                        phi_count * grid.n_theta * grid.n_psi * 3 * leaves * 4)
     kernel(cl.queue(), (leaves, len(frames)), None, *buffers, np.int32(width),
            np.int32(height), np.int32(len(frames)), np.int32(leaves), np.int32(phi_first),
-           np.int32(phi_count), np.int32(width // grid.n_phi), result)
+           np.int32(phi_count), np.int32(width // grid.n_phi), np.int32(psi_given),
+           np.int32(grid.n_psi), partner, result)
     return result
 
 
