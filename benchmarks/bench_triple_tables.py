@@ -14,7 +14,9 @@ defaults of stages.yaml unless a sweep says otherwise; times are medians over re
   samples per leaf on the unfiltered map (NumPy), with and without the prefilter, per r:
   luminance-weighted relative L2 over the leaves, and the worst leaf's error relative
   to the brightest leaf.
-* ``brdf``: one material's table (what a γ edit re-bakes) per r, split the same way;
+* ``brdf``: one material's table (what a γ edit re-bakes) per r: the stage's
+  run_chunk (total) and its steps timed apart (leaf means of a quarter of the views
+  mirrored to all, forward transform, selection);
   aim ≤ 0.5 s (paper 004: 2–3 s); accuracy against 4^4 samples per leaf.
 * ``storage``: bytes of the stored rows at top-only 80 / 320 (each stored entry: uint16
   index + float32 value per channel) and as stored at the tolerance, against paper 004
@@ -44,7 +46,7 @@ from pipeline.math.geodesic import geodesic_levels
 from pipeline.math.light_grid import frame_leaf_means
 from pipeline.math.wavelet_rows import select_rows
 from pipeline.scene import load_scene
-from pipeline.sphwavelet_cl import forward_buffer
+from pipeline.sphwavelet_cl import forward, forward_buffer
 from pipeline.stages import ChunkContext
 from pipeline.stages import brdf_tables as brdf_stage
 from pipeline.stages import light_rotations as light_stage
@@ -142,9 +144,9 @@ def brdf_table(scene: Any, name: str, params: dict[str, Any]) -> tuple[dict[str,
     level, refine = params["triple.leaf_level"], params["triple.brdf_refine"]
     material = brdf_stage.glossy_params(scene.materials[name].model, {
         k: ctx.scene[f"materials.{name}.{k}"] for k in brdf_stage.SHAPE_KEYS})
-    views = brdf_stage.view_grid(params).directions()
-    means, t_means = _timed(brdf_stage.leaf_means_buffer, material, views, level, refine)
-    coefficients, t_forward = _timed(forward_buffer, means, len(views), level)
+    grid = brdf_stage.view_grid(params)
+    means, t_means = _timed(brdf_stage.view_leaf_means, material, grid, level, refine)
+    coefficients, t_forward = _timed(forward, means, level)
     _, t_select = _timed(select_rows, coefficients[:, None], level,
                          params["triple.store_budget"], params["triple.store_tolerance"],
                          params["triple.store_top"])

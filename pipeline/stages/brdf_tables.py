@@ -2,7 +2,8 @@
 wavelet rows (method triple, paper 004 §3.2 and §5). Schema ``triple_brdf``; one chunk
 per material.
 
-A material's rows, in order: row 0 the diffuse row ρ̃_d(ω_i) = max(cos θ_i, 0)/π, then
+A material's rows, in order: row 0 the diffuse row ρ̃_d(ω_i) = max(cos θ_i, 0)/π (kept
+to ``triple.store_tolerance`` whatever ``triple.store_budget``: one row), then
 (glossy models only) one row per view of the view grid (``triple.view_grid``, row
 1 + ViewGrid entry index) holding ρ̃_g(ω_i; ω_o) = f_g(ω_i, ω_o) max(cos θ_i, 0) without
 ρs (pipeline/math/brdf_tables.py). Each is a function of ω_i in the local frame, as leaf
@@ -112,17 +113,19 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     name = ctx.chunk.material
     model = _section(ctx, name, "model")
     level, refine = int(ctx.params["triple.leaf_level"]), int(ctx.params["triple.brdf_refine"])
-    diffuse = wavelet_basis(level).forward(diffuse_leaf_means(level, refine))[None]
-    if model == "lambert":
-        coefficients = diffuse
-    else:
+    tolerance = float(ctx.params["triple.store_tolerance"])
+    top = int(ctx.params["triple.store_top"])
+    diffuse = wavelet_basis(level).forward(diffuse_leaf_means(level, refine))
+    # the clamped cosine's kink at the horizon needs ~1.5k coefficients for 1 %: one row
+    # per material, so it is kept to the tolerance whatever the budget
+    parts = [select_rows(diffuse[None, None], level, diffuse.size, tolerance, top)]
+    if model != "lambert":
         params = glossy_params(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS})
         glossy = forward(view_leaf_means(params, view_grid(ctx.params), level, refine),
                          level)
-        coefficients = np.concatenate([diffuse.astype(np.float32), glossy])
-    rows = select_rows(coefficients[:, None, :], level, int(ctx.params["triple.store_budget"]),
-                       float(ctx.params["triple.store_tolerance"]),
-                       int(ctx.params["triple.store_top"]))
+        parts.append(select_rows(glossy[:, None], level,
+                                 int(ctx.params["triple.store_budget"]), tolerance, top))
+    rows = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     ctx.meta.update(rows=len(rows["count"]), worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
     return {**rows, "value": rows["value"][:, 0]}
