@@ -20,6 +20,8 @@ tile            pixel tiles of ``size`` (a param)      ``region`` (y0, y1, x0, x
                                                        ``materials_from`` names a stage
                                                        with a ``material_id`` image
 block           [0, ``of``) in blocks of ``size``      ``span`` (start, end)
+                (``of``: a count, or a grid's shape
+                whose product is the count)
 texel_tile      per object, tiles of its texture      ``object``, ``region`` in texels
                 (``of``'s attr ``texture_sizes``:
                 {object: [height, width]})
@@ -31,7 +33,9 @@ vertex_batch    per object, runs of ``size`` vertices  ``object``, ``span`` (sta
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable, Mapping
+from functools import reduce
 from typing import Any
 
 import numpy as np
@@ -74,7 +78,10 @@ def _pixel_tiles(spec: StageSpec, scene: Scene, params: dict[str, Any],
 def _blocks(spec: StageSpec, scene: Scene, params: dict[str, Any],
             upstream: Mapping[str, Any]) -> list[Chunk]:
     size = _positive(scene, spec.chunks.size, params[spec.chunks.size])
-    count = _positive(scene, spec.chunks.count, params[spec.chunks.count])
+    of = params[spec.chunks.count]
+    if isinstance(of, list):  # a grid's shape: its entries in index order
+        of = reduce(operator.mul, (_positive(scene, spec.chunks.count, n) for n in of), 1)
+    count = _positive(scene, spec.chunks.count, of)
     return [make_chunk(f"b{s:08d}", "block", span=(s, min(s + size, count)))
             for s in range(0, count, size)]
 

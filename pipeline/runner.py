@@ -50,7 +50,7 @@ from pipeline.errors import PrtError
 from pipeline.executors import Executor, InProcessExecutor, one_blas_thread
 from pipeline.graph import topological_order, with_upstream
 from pipeline.keys import digest, seed_from_key
-from pipeline.scene import Scene
+from pipeline.scene import ENVIRONMENT_FILE, Scene
 from pipeline.schema import load_schema
 from pipeline.stagefile import StageFile, StageSpec
 from pipeline.stages import AssembleContext, ChunkContext, Layout
@@ -105,6 +105,7 @@ class ChunkTask:
     scene: dict[str, Any]
     inputs: dict[str, tuple[str, str]]  # input name -> (artifact path, schema kind)
     meshes: dict[str, tuple[str, Any]]  # object -> ("file", path) | ("primitive", spec)
+    environment: str | None  # the environment map's path, if the stage declares its file
     output: tuple[str, str]  # (artifact path, schema kind) of the stage's own artifact
     marker: str  # where the chunk is recorded once written
     sizes: dict[str, int]  # symbolic zarr chunk sizes of the stage's layout
@@ -316,6 +317,7 @@ def arrays_digest(arrays: dict[str, Any], attrs: dict[str, Any] | None = None) -
 
 def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     """Run one chunk, write its arrays into the artifact in place and record it."""
+    from pipeline.images import read_environment
     from pipeline.meshio import primitive_mesh, read_mesh
 
     one_blas_thread()
@@ -325,9 +327,11 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
                   for name, (kind, src) in task.meshes.items()}
         inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
                   task.inputs.items()}
+        environment = read_environment(task.environment) if task.environment else None
         ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs,
                            chunk=task.chunk, key=task.key,
-                           rng=np.random.default_rng(task.seed), meshes=meshes)
+                           rng=np.random.default_rng(task.seed), meshes=meshes,
+                           environment=environment)
         arrays = load_impl(task.impl).run_chunk(ctx)
         _check_finite(task, arrays)
     except Exception as exc:
@@ -360,6 +364,13 @@ def _mesh_sources(spec: StageSpec, scene: Scene, chunk: Chunk) -> dict[str, tupl
     names = [chunk.object] if chunk.object else list(scene.objects)
     return {n: ("file", str(scene.objects[n].mesh)) if scene.objects[n].mesh is not None
             else ("primitive", scene.objects[n].primitive) for n in names}
+
+
+def _environment_source(spec: StageSpec, scene: Scene) -> str | None:
+    if ENVIRONMENT_FILE not in spec.scene:
+        return None
+    path = scene.environment_file()
+    return None if path is None else str(path)
 
 
 def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None = None,
@@ -450,7 +461,8 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
                        p.sections[c.id], {dep: (str(workdir.artifact(dep)),
                                                 stagefile.stages[dep].output)
                                           for dep in spec.inputs},
-                       _mesh_sources(spec, scene, c), (str(path), spec.output),
+                       _mesh_sources(spec, scene, c), _environment_source(spec, scene),
+                       (str(path), spec.output),
                        str(workdir.marker(name, c.id)), layout.sizes) for c in todo]
     bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
                file=sys.stderr, leave=False)

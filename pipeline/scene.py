@@ -129,11 +129,23 @@ class Scene:
         settings = {**self.settings, **overrides}
         return replace(self, settings=settings, raw={**self.raw, "settings": settings})
 
+    def environment_file(self) -> Path | None:
+        """The file of the scene's first environment light, None without one."""
+        for light in self.lights:
+            if light.type == "environment":
+                return Path(light.params["file"])
+        return None
+
     def section(self, dotted: str) -> Any:
         """The canonical value at a dotted path (``camera``, ``objects.floor.material``,
         ``materials.white``). File paths (``mesh``, ``file``) are replaced by the SHA-256
         of the file's content: editing the file changes the value, moving the scene and
-        its files elsewhere does not. Missing paths give ``None``."""
+        its files elsewhere does not. Missing paths give ``None``. ``environment.file`` is
+        the SHA-256 of the scene's environment map (its first environment light's
+        ``file``; None without one): the map's content without its rotation and scale."""
+        if dotted == ENVIRONMENT_FILE:
+            path = self.environment_file()
+            return None if path is None else {"sha256": file_hash(path)}
         node: Any = self.raw
         parts = dotted.split(".")
         for part in parts:
@@ -143,6 +155,9 @@ class Scene:
         if parts[-1] in ("mesh", "file") and isinstance(node, str):
             return {"sha256": file_hash(Path(node))}
         return _with_file_hashes(node)
+
+
+ENVIRONMENT_FILE = "environment.file"  # the scene section of the environment map's bytes
 
 
 def _with_file_hashes(node: Any) -> Any:

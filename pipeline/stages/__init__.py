@@ -54,13 +54,17 @@ class AssembleContext:
 @dataclass
 class ChunkContext(AssembleContext):
     """What a stage sees for one chunk; ``rng`` is seeded from the data part of the
-    chunk's key (params, scene sections, input digests, chunk id; not the code), and
-    ``meshes`` holds raw meshes of the objects whose ``mesh`` section it declares."""
+    chunk's key (params, scene sections, input digests, chunk id; not the code),
+    ``meshes`` holds raw meshes of the objects whose ``mesh`` section it declares, and
+    ``environment`` the scene's environment map, (height, width, 3) float32 radiance as
+    ``pipeline.images.read_environment`` checked it, when the stage declares the
+    ``environment.file`` section (None otherwise, or without an environment light)."""
 
     chunk: Chunk = ALL
     key: str = ""
     rng: np.random.Generator = field(default_factory=np.random.default_rng)
     meshes: dict[str, RawMesh] = field(default_factory=dict)
+    environment: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
 
 

@@ -53,7 +53,6 @@ from pipeline.stages import (
 )
 
 RAY_EPSILON = 1e-4   # ray origin offset along the face normal, relative to the scene diagonal
-KEEP_FIRST = 320     # coefficients always stored when non-zero: levels 0 and 1
 TEXEL_BATCH = 64     # texels whose rays are cast together (× 10·4^(L+r) directions)
 
 _SCENES: dict[str, tuple[RayTracer, np.ndarray, float]] = {}
@@ -159,7 +158,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         return select_coefficients(basis.forward(means), basis, "adaptive",
                                    int(ctx.params["triple.store_budget"]),
                                    float(ctx.params["triple.store_tolerance"]),
-                                   keep_first=min(KEEP_FIRST, basis.size))
+                                   keep_first=min(int(ctx.params["triple.store_top"]), basis.size))
 
     parts, rays = visibility_batches(
         tracer, texel["texel_position"][filled].astype(np.float64),
@@ -211,7 +210,7 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     return Output(
         attrs={"leaf_level": level, "coefficients": wavelet_basis(level).size,
                "visibility_refine": int(ctx.params["triple.visibility_refine"]),
-               "selection": "adaptive", "keep_first": min(KEEP_FIRST, wavelet_basis(level).size),
+               "selection": "adaptive", "keep_first": min(int(ctx.params["triple.store_top"]), wavelet_basis(level).size),
                "store_tolerance": tolerance, "store_budget": budget,
                "texel_tile": int(ctx.params["triple.texel_tile"]),
                "texture_sizes": sizes, "ray_epsilon": RAY_EPSILON,

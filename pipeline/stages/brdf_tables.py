@@ -1,0 +1,164 @@
+"""Stage ``triple.brdf_tables``: each material's BRDF table over local views, as stored
+wavelet rows (method triple, paper 004 §3.2 and §5). Schema ``triple_brdf``; one chunk
+per material.
+
+A material's rows, in order: row 0 the diffuse row ρ̃_d(ω_i) = max(cos θ_i, 0)/π (kept
+to ``triple.store_tolerance`` whatever ``triple.store_budget``: one row), then
+(glossy models only) one row per view of the view grid (``triple.view_grid``, row
+1 + ViewGrid entry index) holding ρ̃_g(ω_i; ω_o) = f_g(ω_i, ω_o) max(cos θ_i, 0) without
+ρs (pipeline/math/brdf_tables.py). Each is a function of ω_i in the local frame, as leaf
+means of level ``triple.leaf_level`` from 4^r samples per leaf (``triple.brdf_refine``),
+f_g evaluated in OpenCL (kernels/brdf_tables.cl through kernels/brdf.h) for a quarter
+of the views and mirrored to the others (:func:`view_leaf_means`), transformed
+(kernels/wavelet_forward.cl) and truncated (pipeline/math/wavelet_rows.py). A chunk's
+key holds only what shapes f_g (model, γ, alpha_ratio, cxy, cz, f0 or ior): editing the
+albedo or ρs re-bakes nothing, editing γ re-bakes that material's table only.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.math.brdf import BrdfParams, pack_materials
+from pipeline.math.brdf_tables import diffuse_leaf_means
+from pipeline.math.frame_grids import ViewGrid
+from pipeline.math.sphwavelet import wavelet_basis
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
+from pipeline.rows import ROW_CHUNKS
+from pipeline.sphwavelet_cl import forward
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
+
+SHAPE_KEYS = ("gamma", "alpha_ratio", "cxy", "cz", "f0", "ior")  # what shapes f_g
+
+
+def view_grid(params: dict[str, Any]) -> ViewGrid:
+    """The grid of ``triple.view_grid`` ([n_phi, n_theta])."""
+    return ViewGrid(*(int(n) for n in params["triple.view_grid"]))
+
+
+def glossy_params(model: str, shape: dict[str, Any]) -> BrdfParams:
+    """The material's glossy term as BrdfParams (albedo 0, ρs 1), from its model and the
+    scene values of :data:`SHAPE_KEYS` (absent ones None)."""
+    given = {k: v for k, v in shape.items() if v is not None}
+    return BrdfParams.from_material(model, (0.0, 0.0, 0.0), {**given, "specular": (1, 1, 1)})
+
+
+def leaf_means_buffer(params: BrdfParams, views: np.ndarray, leaf_level: int,
+                      refine: int) -> Any:
+    """A device buffer of the leaf means (V, N) float32 of ρ̃_g for local views (V, 3)
+    (kernels/brdf_tables.cl)."""
+    import pyopencl as cl_
+
+    fine, weights = leaf_samples(leaf_level, refine)
+    leaves = len(fine) // 4 ** refine
+    kernel = cl.kernel("brdf_tables.cl", "brdf_leaf_means", {"SAMPLES": 4 ** refine})
+    buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
+               (pack_materials([params])[0], views, fine, weights)]
+    result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(views) * leaves * 4)
+    kernel(cl.queue(), (leaves, len(views)), None, *buffers, np.int32(len(views)),
+           np.int32(leaves), result)
+    return result
+
+
+def kernel_leaf_means(params: BrdfParams, views: np.ndarray, leaf_level: int,
+                      refine: int) -> np.ndarray:
+    """The leaf means of :func:`leaf_means_buffer` on the host."""
+    import pyopencl as cl_
+
+    out = np.empty((len(views), 20 * 4 ** leaf_level), np.float32)
+    cl_.enqueue_copy(cl.queue(), out, leaf_means_buffer(params, views, leaf_level, refine))
+    return out
+
+
+def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
+                    refine: int) -> np.ndarray:
+    """Leaf means (grid.size, N) float32 of ρ̃_g for every view of ``grid``, evaluating
+    only the views with φ_o ∈ [0, π/2] when n_φ is a multiple of 4.
+
+    Every model here is unchanged when ω_i and ω_o are reflected together in the
+    planes x = 0 or y = 0 (it reads them through n·ω, ω_i·ω_o and s_x², s_y² of
+    s = ω_i + ω_o). So with g_φ(ω_i) = ρ̃_g(ω_i; ω_o(θ_o, φ)): g_{π−φ}(ω) = g_φ(M_x ω),
+    g_{−φ}(ω) = g_φ(M_y ω) and g_{φ+π}(ω) = g_φ(M_x M_y ω), and their leaf means are
+    g_φ's permuted (:func:`pipeline.math.wavelet_rows.leaf_permutation`)."""
+    if grid.n_phi % 4:
+        return kernel_leaf_means(params, grid.directions(), leaf_level, refine)
+    quarter = grid.n_phi // 4
+    views = grid.directions().reshape(grid.n_phi, grid.n_theta, 3)
+    base = kernel_leaf_means(params, views[:quarter + 1].reshape(-1, 3), leaf_level, refine)
+    base = base.reshape(quarter + 1, grid.n_theta, -1)
+    out = np.empty((grid.n_phi, *base.shape[1:]), np.float32)
+    out[:quarter + 1] = base
+    mirror_x = leaf_permutation(leaf_level, (-1, 1, 1))
+    mirror_y = leaf_permutation(leaf_level, (1, -1, 1))
+    half_turn = leaf_permutation(leaf_level, (-1, -1, 1))
+    for j in range(quarter + 1, grid.n_phi):
+        if j <= 2 * quarter:
+            out[j] = base[2 * quarter - j][:, mirror_x]
+        elif j <= 3 * quarter:
+            out[j] = base[j - 2 * quarter][:, half_turn]
+        else:
+            out[j] = base[4 * quarter - j][:, mirror_y]
+    return out.reshape(grid.size, -1)
+
+
+def _section(ctx: AssembleContext, name: str, key: str) -> Any:
+    return ctx.scene.get(f"materials.{name}.{key}")
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    """The material's rows: the diffuse row, then one per view for a glossy model."""
+    name = ctx.chunk.material
+    model = _section(ctx, name, "model")
+    level, refine = int(ctx.params["triple.leaf_level"]), int(ctx.params["triple.brdf_refine"])
+    tolerance = float(ctx.params["triple.store_tolerance"])
+    top = int(ctx.params["triple.store_top"])
+    diffuse = wavelet_basis(level).forward(diffuse_leaf_means(level, refine))
+    # the clamped cosine's kink at the horizon needs ~1.5k coefficients for 1 %: one row
+    # per material, so it is kept to the tolerance whatever the budget
+    parts = [select_rows(diffuse[None, None], level, diffuse.size, tolerance, top)]
+    if model != "lambert":
+        params = glossy_params(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS})
+        glossy = forward(view_leaf_means(params, view_grid(ctx.params), level, refine),
+                         level)
+        parts.append(select_rows(glossy[:, None], level,
+                                 int(ctx.params["triple.store_budget"]), tolerance, top))
+    rows = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
+    ctx.meta.update(rows=len(rows["count"]), worst_residual=float(rows["residual"].max()),
+                    most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
+    return {**rows, "value": rows["value"][:, 0]}
+
+
+def layout(ctx: AssembleContext) -> Layout:
+    return Layout(sizes=ROW_CHUNKS)
+
+
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    """Attributes (where each material's rows start), and per glossy material whether
+    its rows met ``triple.store_tolerance``."""
+    tolerance = float(ctx.params["triple.store_tolerance"])
+    budget = int(ctx.params["triple.store_budget"])
+    names = [chunk.material for chunk, _ in metas]
+    starts = np.concatenate([[0], np.cumsum([m["rows"] for _, m in metas])]).tolist()
+    results = []
+    for chunk, meta in metas:
+        short = meta["worst_residual"] > tolerance
+        results.append(ToleranceResult(
+            f"material {chunk.material}", "worst relative L2 error of a stored BRDF row",
+            tolerance, meta["worst_residual"], {"coefficients": meta["most_coefficients"]},
+            f"triple.store_budget {budget}" if short else "",
+            "raise triple.store_budget" if short else ""))
+    grid = view_grid(ctx.params)
+    return Output({
+        "material_names": names,
+        "models": [_section(ctx, n, "model") for n in names],
+        "row_start": [int(s) for s in starts],
+        "view_grid": [grid.n_phi, grid.n_theta],
+        "leaf_level": int(ctx.params["triple.leaf_level"]),
+        "refine": int(ctx.params["triple.brdf_refine"]),
+        "store_tolerance": tolerance,
+        "store_budget": budget,
+        "store_top": int(ctx.params["triple.store_top"]),
+    }, tolerances=results)

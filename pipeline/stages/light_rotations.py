@@ -1,0 +1,145 @@
+"""Stage ``triple.light_rotations``: the scene's environment map resampled in every local
+frame of the frame grid, as stored wavelet rows (method triple, paper 004 §3.2).
+Schema ``triple_lighting``; one chunk per block of ``triple.light_block`` grid entries.
+
+Per grid entry (row = FrameGrid entry index, pipeline/math/frame_grids.py) the leaf
+means of L_local(ω) = L(R ω) over the level-L leaves (``triple.leaf_level``), from
+4^r samples per leaf (``triple.light_refine``) of the map prefiltered to their spacing
+(pipeline/math/light_grid.py), computed in OpenCL (kernels/light_rotations.cl),
+transformed there too (kernels/wavelet_forward.cl, pipeline/sphwavelet_cl.py) and
+truncated with one index set for the three channels (luminance-weighted energy,
+pipeline/math/wavelet_rows.py). The map's
+rotation and scale are applied by the renderer: the key holds the map file's bytes
+(scene section ``environment.file``) and the params only.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.errors import PrtError
+from pipeline.math.envmap import LUMINANCE
+from pipeline.math.frame_grids import FrameGrid, euler_frame
+from pipeline.math.light_grid import prefilter, prefiltered_width, sample_spacing
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
+from pipeline.rows import ROW_CHUNKS
+from pipeline.sphwavelet_cl import forward_buffer
+from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
+
+
+def frame_grid(params: dict[str, Any]) -> FrameGrid:
+    """The grid of ``triple.frame_grid`` ([n_phi, n_theta, n_psi])."""
+    return FrameGrid(*(int(n) for n in params["triple.frame_grid"]))
+
+
+def _rgbx(rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) as (H, W, 4) float32 (the kernel's aligned texels; the 4th unused)."""
+    out = np.zeros((*rgb.shape[:2], 4), np.float32)
+    out[..., :3] = rgb
+    return out
+
+
+def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_count: int,
+                      leaf_level: int, refine: int) -> Any:
+    """A device buffer of the leaf means (phi_count, n_theta · n_psi, 3, N) float32 of
+    map ``rgb`` (H, W, 3), W a multiple of ``grid.n_phi``, in the grid frames of φ
+    indices ``phi_first`` .. ``phi_first + phi_count − 1`` (kernels/light_rotations.cl)."""
+    import pyopencl as cl_
+
+    height, width = rgb.shape[:2]
+    if width % grid.n_phi:
+        raise ValueError(f"map width {width} is not a multiple of n_phi {grid.n_phi}")
+    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi  # the kernel's
+    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)        # half turns
+    psi = 2 * np.pi * np.arange(psi_given) / grid.n_psi
+    t, p = (g.reshape(-1) for g in np.meshgrid(theta, psi, indexing="ij"))
+    frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
+    fine, weights = leaf_samples(leaf_level, refine)
+    leaves = len(fine) // 4 ** refine
+    kernel = cl.kernel("light_rotations.cl", "light_leaf_means", {"SAMPLES": 4 ** refine})
+    buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
+               (frames.reshape(-1, 9), fine, weights, _rgbx(rgb))]
+    partner = cl.read_only_buffer(leaf_permutation(leaf_level, (-1, -1, 1)).astype(np.int32))
+    result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
+                        phi_count * grid.n_theta * grid.n_psi * 3 * leaves * 4)
+    kernel(cl.queue(), (leaves, len(frames)), None, *buffers, np.int32(width),
+           np.int32(height), np.int32(len(frames)), np.int32(leaves), np.int32(phi_first),
+           np.int32(phi_count), np.int32(width // grid.n_phi), np.int32(psi_given),
+           np.int32(grid.n_psi), partner, result)
+    return result
+
+
+def kernel_leaf_means(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_count: int,
+                      leaf_level: int, refine: int) -> np.ndarray:
+    """The leaf means of :func:`leaf_means_buffer` on the host."""
+    import pyopencl as cl_
+
+    leaves = 20 * 4 ** leaf_level
+    out = np.empty((phi_count, grid.n_theta * grid.n_psi, 3, leaves), np.float32)
+    buffer = leaf_means_buffer(rgb, grid, phi_first, phi_count, leaf_level, refine)
+    cl_.enqueue_copy(cl.queue(), out, buffer)
+    return out
+
+
+def prefiltered_map(rgb: np.ndarray, params: dict[str, Any]) -> np.ndarray:
+    """The map as the kernel samples it: prefiltered to the samples' spacing."""
+    spacing = sample_spacing(int(params["triple.leaf_level"]), int(params["triple.light_refine"]))
+    return prefilter(rgb, spacing, frame_grid(params).n_phi)
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    """The stored rows of grid entries [start, end) of the chunk's span."""
+    if ctx.environment is None:
+        raise PrtError(None, "method triple needs an environment light (lights: "
+                       "[{type: environment, file: ...}])")
+    grid = frame_grid(ctx.params)
+    level, refine = int(ctx.params["triple.leaf_level"]), int(ctx.params["triple.light_refine"])
+    start, end = ctx.chunk.span
+    per_phi = grid.n_theta * grid.n_psi
+    phi_first, phi_end = start // per_phi, -(-end // per_phi)
+    rgb = prefiltered_map(ctx.environment, ctx.params)
+    phis = phi_end - phi_first
+    means = leaf_means_buffer(rgb, grid, phi_first, phis, level, refine)
+    coefficients = forward_buffer(means, phis * per_phi * 3, level)
+    coefficients = coefficients.reshape(phis * per_phi, 3, -1)[start - phi_first * per_phi:
+                                                               end - phi_first * per_phi]
+    rows = select_rows(coefficients, level, int(ctx.params["triple.store_budget"]),
+                       float(ctx.params["triple.store_tolerance"]),
+                       int(ctx.params["triple.store_top"]), LUMINANCE)
+    ctx.meta.update(map_width=int(ctx.environment.shape[1]),
+                    worst_residual=float(rows["residual"].max()),
+                    most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
+    return rows
+
+
+def layout(ctx: AssembleContext) -> Layout:
+    return Layout(sizes=ROW_CHUNKS)
+
+
+def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
+    """Attributes, and whether every row met ``triple.store_tolerance``."""
+    tolerance = float(ctx.params["triple.store_tolerance"])
+    budget = int(ctx.params["triple.store_budget"])
+    worst = max(m["worst_residual"] for _, m in metas)
+    most = max(m["most_coefficients"] for _, m in metas)
+    short = worst > tolerance
+    grid = frame_grid(ctx.params)
+    level, refine = int(ctx.params["triple.leaf_level"]), int(ctx.params["triple.light_refine"])
+    width = prefiltered_width(metas[0][1]["map_width"], grid.n_phi)
+    return Output({
+        "frame_grid": [grid.n_phi, grid.n_theta, grid.n_psi],
+        "leaf_level": level,
+        "refine": refine,
+        "prefiltered_width": int(width),
+        "store_tolerance": tolerance,
+        "store_budget": budget,
+        "store_top": int(ctx.params["triple.store_top"]),
+        "entries": int(sum(m["entries"] for _, m in metas)),
+    }, tolerances=[ToleranceResult(
+        "environment lighting", "worst relative L2 error of a stored row (luminance-weighted)",
+        tolerance, worst, {"coefficients": most},
+        f"triple.store_budget {budget}" if short else "",
+        "raise triple.store_budget" if short else "")])
