@@ -11,13 +11,11 @@ import pytest
 from pipeline.math.geodesic import geodesic_levels, locate, solid_angles
 from pipeline.math.sphwavelet import (
     PATTERNS,
-    SELECTIONS,
     basis_functions,
     depth_first_keys,
     equal_area_basis,
     kernel_tables,
     leaf_means,
-    select_coefficients,
     sparse_triple_product,
     tripling_by_quadrature,
     tripling_coefficients,
@@ -235,57 +233,3 @@ def test_triple_product_kernel_matches_numpy():
     cl.run(kernel, n, *buffers, np.int32(n), out=out)
     assert np.all(np.abs(out - expected) <= 1e-5 * scale), np.max(np.abs(out - expected) / scale)
     assert np.abs(expected).max() > 1e-3 * scale.max()  # the sums are not trivially zero
-
-
-@pytest.mark.parametrize("selection", SELECTIONS)
-def test_selected_rows_are_sorted_depth_first_and_report_their_residual(selection):
-    basis = wavelet_basis(3)
-    keys = depth_first_keys(3)
-    rng = np.random.default_rng(5)
-    leaf = rng.normal(size=(6, basis.size)) * rng.uniform(0.1, 3, size=(6, 1))
-    leaf[0] = 0.0  # an empty row keeps nothing
-    c = basis.forward(leaf)
-    for budget, tolerance in ((80, 0.0), (basis.size, 0.3), (40, 0.3)):
-        rows = select_coefficients(c, basis, selection, budget, tolerance)
-        start = np.concatenate([[0], np.cumsum(rows["count"])])
-        assert rows["count"][0] == 0 and rows["count"].max() <= budget
-        for r in range(len(c)):
-            index = rows["index"][start[r]:start[r + 1]].astype(np.int64)
-            assert np.all(np.diff(keys[index]) > 0)
-            kept = np.zeros(basis.size)
-            kept[index] = rows["value"][start[r]:start[r + 1]]
-            assert np.allclose(kept[index], c[r, index], rtol=1e-6)  # float32 values
-            relative = np.linalg.norm(c[r] - kept) / max(np.linalg.norm(c[r]), 1e-300)
-            assert rows["residual"][r] == pytest.approx(relative, abs=1e-5)
-            if tolerance and rows["count"][r] < budget:
-                assert relative <= tolerance + 1e-6
-            if selection == "top-only" and r:
-                assert np.array_equal(np.sort(index), np.arange(len(index)))
-
-
-def test_keep_first_keeps_every_coarse_coefficient_and_chooses_the_rest_adaptively():
-    """keep_first = 80 at level 3: every non-zero coefficient of indices < 80 is stored
-    even where the tolerance or a budget below 80 would drop it (so a top-only cut to
-    ≤ 80 of the stored row is exact); the rest follow the adaptive order, and without
-    keep_first the selection is unchanged."""
-    basis = wavelet_basis(3)
-    rng = np.random.default_rng(9)
-    c = basis.forward(rng.normal(size=(5, basis.size)) ** 3)
-    c[:, 7] = 0.0  # a zero coefficient among the forced ones is not stored
-    plain = select_coefficients(c, basis, "adaptive", 200, 0.3)
-    assert all(np.array_equal(plain[k], v) for k, v in
-               select_coefficients(c, basis, "adaptive", 200, 0.3, keep_first=0).items())
-    for budget, tolerance in ((200, 0.3), (30, 0.0), (200, 0.9)):
-        rows = select_coefficients(c, basis, "adaptive", budget, tolerance, keep_first=80)
-        start = np.concatenate([[0], np.cumsum(rows["count"])])
-        for r in range(len(c)):
-            index = rows["index"][start[r]:start[r + 1]].astype(np.int64)
-            coarse = set(np.flatnonzero(c[r, :80]).tolist())
-            assert coarse <= set(index.tolist()) and 7 not in index
-            finer = index[index >= 80]
-            if len(finer):  # the finer ones kept are the largest area-weighted ones
-                weight = np.abs(c[r]) * np.sqrt(basis.support_areas())
-                dropped = np.setdiff1d(np.arange(80, basis.size), finer)
-                assert weight[finer].min() >= weight[dropped].max()
-        if budget < 80:
-            assert np.all(rows["count"] == 79)  # the budget does not cut the forced ones

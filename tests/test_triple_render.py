@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
-from pipeline.math.sphwavelet import depth_first_keys, select_coefficients, wavelet_basis
+from pipeline.math.sphwavelet import depth_first_keys, wavelet_basis
+from pipeline.math.wavelet_rows import select_rows
 from pipeline.render.triple import (
     PixelLookups,
     TripleTables,
@@ -25,15 +26,9 @@ def random_rows(rng, count: int, channels: int, budget: int) -> WaveletRows:
     basis = wavelet_basis(LEVEL)
     leaf = rng.normal(size=(count, channels, basis.size)) + 2.0
     coefficients = basis.forward(leaf)
-    if channels == 1:
-        rows = select_coefficients(coefficients[:, 0], basis, "adaptive", budget)
-        return WaveletRows.from_counts(rows["count"], rows["index"], rows["value"])
-    luminance = select_coefficients(coefficients.mean(1), basis, "adaptive", budget)
-    start = np.concatenate([[0], np.cumsum(luminance["count"])])
-    row = np.repeat(np.arange(count), luminance["count"])
-    value = coefficients[row, :, luminance["index"].astype(np.int64)]
-    assert start[-1] == len(value)
-    return WaveletRows.from_counts(luminance["count"], luminance["index"], value)
+    rows = select_rows(coefficients, LEVEL, budget, 0.0, 0)
+    value = rows["value"][:, 0] if channels == 1 else rows["value"]
+    return WaveletRows.from_counts(rows["count"], rows["index"], value)
 
 
 def synthetic_tables(rng) -> TripleTables:

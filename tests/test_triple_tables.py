@@ -341,3 +341,15 @@ def test_material_edits_rebake_only_the_table_they_shape(tmp_path):
     changed = _scene(tmp_path, rgb, "m.yaml")
     report = _runs(changed, workdir, "triple.light_rotations")["triple.light_rotations"]
     assert report.action == "ran" and len(report.ran_chunks) == 6  # 160 rows in blocks of 30
+
+
+def test_select_rows_with_every_index_forced_keeps_every_non_zero():
+    """keep_first = N (a leaf level whose 20·4^L coefficients all lie below store_top):
+    nothing is left to choose, every non-zero coefficient is stored whatever the
+    budget, and the residual is 0."""
+    size = 20 * 4 ** 2
+    c = np.random.default_rng(3).normal(size=(4, 1, size))
+    c[:, :, ::7] = 0.0
+    rows = select_rows(c, 2, budget=10, tolerance=0.5, keep_first=size)
+    assert np.array_equal(rows["count"], np.count_nonzero(c[:, 0], axis=1))
+    assert np.all(rows["residual"] == 0.0)

@@ -91,8 +91,9 @@ def select_rows(coefficients: np.ndarray, leaf_level: int, budget: int, toleranc
     small = np.cumsum(ascending, axis=1)
     droppable = np.sum(small <= (tolerance ** 2 * total)[:, None], axis=1)
     need = np.minimum(tail.shape[1] - droppable, np.maximum(budget - head.sum(axis=1), 0))
-    at = np.clip(tail.shape[1] - need, 0, tail.shape[1] - 1)
-    threshold = np.where(need > 0, ascending[np.arange(rows), at], np.inf)
+    at = np.clip(tail.shape[1] - need, 0, max(tail.shape[1] - 1, 0))
+    threshold = (np.where(need > 0, ascending[np.arange(rows), at], np.inf)
+                 if tail.shape[1] else np.full(rows, np.inf))  # keep_first = N: no tail
     keep = np.concatenate([head, (tail >= threshold[:, None]) & (tail > 0.0)], axis=1)
     order = _depth_first_order(leaf_level)
     row_of, position = np.nonzero(keep[:, order])

@@ -27,20 +27,33 @@ sums the triple products; :func:`shade_numpy` is its NumPy twin.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline import cl
+from pipeline.errors import PrtError
+from pipeline.images import read_environment
+from pipeline.math.brdf import scene_brdfs, to_local
+from pipeline.math.camera import camera_rays
+from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.sphwavelet import (
     WaveletBasis,
     depth_first_keys,
     kernel_tables,
     sparse_triple_product,
+    wavelet_basis,
 )
+from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
+from pipeline.render import Frame
+from pipeline.scene import Light, Scene
+from pipeline.store import Artifact
 
 LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 5  # as kernels/triple.cl
+SELECTIONS = ("top-only", "adaptive")  # run-time cuts of the stored rows (WaveletRows.truncated)
 
 
 @dataclass(frozen=True)
@@ -228,3 +241,133 @@ def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
                 lists.append((nonzero, f[nonzero, c]))
             out[k, c] = sparse_triple_product(tables.basis, tuple(lists))
     return out
+
+
+# ------------------------------------------------------------------------- artifacts
+
+
+def _rows(artifact: Artifact) -> WaveletRows:
+    """The CSR rows of a triple artifact (``count``, ``index``, ``value``; rows stored
+    back to back)."""
+    return WaveletRows.from_counts(artifact.read("count"), artifact.read("index"),
+                                   artifact.read("value"))
+
+
+@dataclass
+class Atlas:
+    """Where a surface point's visibility lives: per face its atlas corners ``face_uv``
+    (F, 3, 2) in texel units, per object its texture ``size`` (objects, 2) = (height,
+    width) and flat ``offset``, per flat texel whether it is ``filled`` and its
+    visibility ``row``."""
+
+    face_uv: np.ndarray
+    size: np.ndarray
+    offset: np.ndarray
+    filled: np.ndarray
+    row: np.ndarray
+
+    def lookups(self, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
+        """Visibility rows and bilinear weights (P, 4) at surface hits."""
+        w = np.stack([1.0 - surface.hits.u - surface.hits.v, surface.hits.u, surface.hits.v],
+                     1)
+        texel_xy = np.einsum("pc,pcd->pd", w, self.face_uv[surface.face])
+        obj = surface.object_id
+        texels, weight = texel_lookups(texel_xy, self.size[obj], self.offset[obj], self.filled)
+        return self.row[texels], weight
+
+
+def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str]
+                ) -> tuple[TripleTables, Atlas]:
+    """The baked tables and the atlas, from the artifacts of ``triple.atlas``,
+    ``triple.visibility``, ``triple.light_rotations`` and ``triple.brdf_tables``."""
+    light, brdf = artifacts["triple.light_rotations"], artifacts["triple.brdf_tables"]
+    atlas, visibility = artifacts["triple.atlas"], artifacts["triple.visibility"]
+    names = brdf.attrs["material_names"]
+    row_start = np.asarray(brdf.attrs["row_start"])
+    views = ViewGrid(*brdf.attrs["view_grid"])
+    order = [names.index(n) for n in material_names]
+    diffuse = row_start[order]
+    glossy = np.where(np.diff(row_start)[order] > 1, row_start[order] + 1, -1)
+    tables = TripleTables(wavelet_basis(int(light.attrs["leaf_level"])),
+                          FrameGrid(*light.attrs["frame_grid"]), views, _rows(light),
+                          _rows(visibility), _rows(brdf), glossy, diffuse)
+    sizes = atlas.attrs["texture_sizes"]
+    objects = list(sizes)
+    return tables, Atlas(atlas.read("face_uv"),
+                         np.array([sizes[o] for o in objects], np.int64),
+                         np.asarray(atlas.read("texture_offsets"), np.int64),
+                         atlas.read("texel_state") > 0,
+                         np.asarray(visibility.read("texel_row"), np.int64))
+
+
+# -------------------------------------------------------------------------- frames
+
+
+def environment_of(scene: Scene) -> Light:
+    """The scene's environment light (method triple renders exactly one)."""
+    return next(light for light in scene.lights if light.type == "environment")
+
+
+def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int = 0,
+                    selection: str = "top-only") -> Callable[[Scene], Frame]:
+    """Frames from the baked tables, loaded once (cut to ``budget`` coefficients per
+    function by ``selection`` when ``budget`` > 0; else as stored): each call traces
+    its scene's camera, looks up every pixel's rows and shades them (timings: trace,
+    lookups, kernel). Materials' kd and ρs and the environment's rotation and scale are
+    read from the scene of each call."""
+    if selection not in SELECTIONS:
+        raise PrtError("--option", f"selection={selection!r}: expected one of "
+                       f"{', '.join(SELECTIONS)}")
+    if budget < 0:
+        raise PrtError("--option", f"budget={budget}: expected 0 (as stored) or a positive "
+                       "number of coefficients")
+    geo = artifacts["geometry"]
+    material_names = geo.attrs["material_names"]
+    tables, atlas = load_tables(artifacts, material_names)
+    if budget > 0:
+        tables = tables.truncated(selection, budget)
+    arrays = {n: geo.read(n) for n in
+              ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
+    tracer = RayTracer(arrays["vertices"], arrays["faces"])
+    mesh = Mesh.from_arrays(arrays)
+    env_map = read_environment(environment_of(scene).params["file"])
+    backgrounds: dict[tuple[float, float], EnvironmentMap] = {}
+
+    def frame(scene: Scene) -> Frame:
+        t0 = time.perf_counter()
+        cam = scene.camera
+        origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                          cam.width, cam.height)
+        origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+        hits = tracer.intersect(origins, directions)
+        hit = hits.prim >= 0
+        d = directions[hit].astype(np.float64)
+        surface = surface_at(mesh, hits.select(hit), origins[hit].astype(np.float64), d)
+        t1 = time.perf_counter()
+        light = environment_of(scene).params
+        turn = np.radians(light.get("rotation", 0.0))
+        light_rows, light_weight = tables.frames.weights(surface.normal, surface.tangent, turn)
+        vis_rows, vis_weight = atlas.lookups(surface)
+        brdfs = scene_brdfs(scene, material_names)
+        kd = np.array([b.albedo for b in brdfs])
+        rho_s = np.array([b.specular for b in brdfs])
+        wo = to_local(-d, surface.normal, surface.tangent)
+        brdf_rows, brdf_weight = brdf_lookups(tables, surface.material_id, wo, kd, rho_s)
+        lookups = PixelLookups(light_rows, light_weight, vis_rows, vis_weight, brdf_rows,
+                               brdf_weight)
+        t2 = time.perf_counter()
+        shaded, kernel_ms, moved = shade(tables, lookups)
+        scale = light.get("scale", 1.0)
+        rgb = np.empty((len(hit), 3), np.float32)
+        rgb[hit] = shaded * scale
+        pose = (light.get("rotation", 0.0), scale)
+        if pose not in backgrounds:
+            backgrounds[pose] = EnvironmentMap(env_map, *pose)
+        rgb[~hit] = backgrounds[pose].radiance(directions[~hit].astype(np.float64))
+        t3 = time.perf_counter()
+        timings = {"trace_ms": (t1 - t0) * 1e3, "lookup_ms": (t2 - t1) * 1e3,
+                   "kernel_ms": kernel_ms, "counted_kernel_ms": kernel_ms,
+                   "setup_ms": (t2 - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
+        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved)
+
+    return frame

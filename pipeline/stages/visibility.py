@@ -17,10 +17,11 @@ with surface point p, shading normal n, tangent t and its face's geometric norma
   itself is in the way, so V is zero on the lower hemisphere and the rows are sparser;
 * V's leaf means over level L (the solid-angle-weighted mean of the 4^r fine values
   in each leaf, as ``pipeline.math.sphwavelet.leaf_means``) go through
-  ``wavelet_basis(L).forward`` and are stored with ``select_coefficients``: adaptive,
-  keeping every non-zero coefficient of indices < 320 (levels 0 and 1, so run-time
-  top-only budgets ≤ 320 are exact) and beyond them as few as leave a relative L2 error
-  ≤ ``triple.store_tolerance``, at most ``triple.store_budget`` per row.
+  ``wavelet_basis(L).forward`` and are stored with ``pipeline.math.wavelet_rows.
+  select_rows`` (as the lighting and BRDF tables are): every non-zero coefficient of
+  indices < ``triple.store_top`` (320: levels 0 and 1, so run-time top-only budgets ≤
+  320 are exact), and beyond them the largest first, as few as leave a relative L2
+  error ≤ ``triple.store_tolerance``, at most ``triple.store_budget`` per row.
 
 Rows (schema ``triple_visibility``): one per texel of the tile, in raster order within
 the tile, tiles in the chunk order (objects in scene order, tiles in raster order over
@@ -39,8 +40,9 @@ import numpy as np
 from pipeline.chunkwrite import segment_name
 from pipeline.executors import map_slices
 from pipeline.math.geodesic import geodesic_levels
-from pipeline.math.sphwavelet import select_coefficients, wavelet_basis
+from pipeline.math.sphwavelet import wavelet_basis
 from pipeline.math.texels import EMPTY
+from pipeline.math.wavelet_rows import select_rows
 from pipeline.raytrace import Mesh, RayTracer
 from pipeline.rows import ROW_CHUNKS, join_arrays
 from pipeline.stages import (
@@ -155,10 +157,11 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     basis = wavelet_basis(level)
 
     def rows(means: np.ndarray) -> dict[str, np.ndarray]:
-        return select_coefficients(basis.forward(means), basis, "adaptive",
-                                   int(ctx.params["triple.store_budget"]),
-                                   float(ctx.params["triple.store_tolerance"]),
-                                   keep_first=min(int(ctx.params["triple.store_top"]), basis.size))
+        selected = select_rows(basis.forward(means)[:, None, :], level,
+                               int(ctx.params["triple.store_budget"]),
+                               float(ctx.params["triple.store_tolerance"]),
+                               min(int(ctx.params["triple.store_top"]), basis.size))
+        return {**selected, "value": selected["value"][:, 0]}
 
     parts, rays = visibility_batches(
         tracer, texel["texel_position"][filled].astype(np.float64),
@@ -210,7 +213,8 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     return Output(
         attrs={"leaf_level": level, "coefficients": wavelet_basis(level).size,
                "visibility_refine": int(ctx.params["triple.visibility_refine"]),
-               "selection": "adaptive", "keep_first": min(int(ctx.params["triple.store_top"]), wavelet_basis(level).size),
+               "selection": "largest",
+               "keep_first": min(int(ctx.params["triple.store_top"]), wavelet_basis(level).size),
                "store_tolerance": tolerance, "store_budget": budget,
                "texel_tile": int(ctx.params["triple.texel_tile"]),
                "texture_sizes": sizes, "ray_epsilon": RAY_EPSILON,
