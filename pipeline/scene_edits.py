@@ -74,3 +74,28 @@ def with_light_offset(scene: Scene, index: int, offset: tuple[float, float, floa
     raw = list(scene.raw["lights"])
     raw[index] = {**raw[index], key: moved}
     return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+
+
+def with_environment_rotation(scene: Scene, degrees: float) -> Scene:
+    """The scene with every environment light turned to ``degrees`` about +y (the
+    scene file's ``rotation``). A method that bakes the map unrotated (triple) renders
+    it without a re-bake."""
+    if not math.isfinite(degrees):
+        raise PrtError(scene.path, f"environment rotation {degrees!r}: expected a finite "
+                       "number of degrees")
+    if not any(light.type == "environment" for light in scene.lights):
+        raise PrtError(scene.path, "the scene has no environment light to turn")
+    lights = [Light(light.type, {**light.params, "rotation": float(degrees)})
+              if light.type == "environment" else light for light in scene.lights]
+    raw = [{**r, "rotation": float(degrees)} if r["type"] == "environment" else r
+           for r in scene.raw["lights"]]
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+
+
+def with_camera_position(scene: Scene, position: tuple[float, float, float]) -> Scene:
+    """The scene seen from ``position`` (scene units), still looking at its look_at."""
+    camera = replace(scene.camera, position=tuple(float(v) for v in position))
+    if camera.position == tuple(camera.look_at):
+        raise PrtError(scene.path, "camera moved onto its look_at point")
+    raw_camera = {**scene.raw["camera"], "position": list(camera.position)}
+    return replace(scene, camera=camera, raw={**scene.raw, "camera": raw_camera})

@@ -1,0 +1,101 @@
+"""Method ``triple``: all-frequency environment lighting with shadows by triple products
+of spherical Haar wavelets in local frames (paper 004, building on Ng et al. 2004).
+
+Stages (stages.yaml, ``triple.*``): ``triple.atlas`` (a UV atlas per object, texels →
+surface points), ``triple.visibility`` (per texel, visibility in its local frame as
+wavelet rows, texel tiles), ``triple.light_rotations`` (the environment map in every
+frame of the rotation grid), ``triple.brdf_tables`` (per material, the glossy term × cos
+over a grid of local views, and the diffuse row); shared: ``geometry``. The bake does
+not depend on the camera's pose (only the texture sizes read the scene camera), on the
+map's rotation or scale, or on the materials' albedo and ρs. Renderer:
+pipeline/render/triple.py.
+
+Run-time options (``prt render --option NAME=VALUE``):
+
+* ``budget`` (int, 0): coefficients per function at most (0: as stored, i.e. what the
+  bake's ``triple.store_tolerance`` chose, at most ``triple.store_budget``);
+* ``selection`` (str, ``top-only``): which coefficients a budget keeps: ``top-only``
+  (the first ``budget`` of the layout, coarse levels first; exact up to 320 from the
+  stored rows) or ``adaptive`` (the largest by area-weighted magnitude).
+
+Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y
+(N frames 360°/N apart, from the scene's rotation); ``orbit:N`` moves the camera once
+around a horizontal circle about its look_at point (radius and height kept).
+
+Scene requirements: exactly one environment light (other light kinds are refused up
+front: methods ``direct`` and ``d2i`` render them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from pipeline.errors import PrtError
+from pipeline.method import Method, Option
+from pipeline.scene import Scene
+from pipeline.scene_edits import with_camera_position, with_environment_rotation
+from pipeline.store import Artifact
+
+METHOD = Method(
+    name="triple",
+    description="paper 004: environment light with all-frequency shadows, wavelet triple "
+                "products in local frames",
+    renderer="pipeline.render.triple:triple_renderer",
+    reads=("geometry", "triple.atlas", "triple.visibility", "triple.light_rotations",
+           "triple.brdf_tables"),
+    reference="env-direct",
+    headline="rel_rmse_surfaces",
+    options=(
+        Option("budget", int, 0, "coefficients per function at most (0: as stored)"),
+        Option("selection", str, "top-only", "top-only or adaptive: which a budget keeps"),
+    ),
+    sequences="pipeline.methods.triple:sequence",
+    main_sequences=("rotate:8",),
+    evaluate_sweep={"render.budget": [80, 320, 0]},
+    evaluate_size=128,
+    evaluate_reference_spp=1024,
+    lights=("environment",),
+    check_scene="pipeline.methods.triple:check_scene",
+)
+
+SEQUENCE_KINDS = ("rotate", "orbit")
+
+
+def check_scene(scene: Scene) -> None:
+    """Exactly one environment light."""
+    count = sum(light.type == "environment" for light in scene.lights)
+    if count != 1:
+        raise PrtError(scene.path, f"lights: method triple renders exactly one environment "
+                       f"light; the scene has {count}")
+
+
+def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
+             ) -> tuple[str, list[Scene], list[str], str]:
+    """The edit kind, edited scenes, a label per frame and the path in words."""
+    kind, _, count_text = spec.partition(":")
+    if kind not in SEQUENCE_KINDS or not count_text.isdigit() or int(count_text) < 1:
+        raise PrtError(None, f"--frames {spec}: expected rotate:N or orbit:N (N ≥ 1 frames)")
+    count = int(count_text)
+    steps = 360.0 * np.arange(count) / count
+    if kind == "rotate":
+        start = next(light for light in scene.lights
+                     if light.type == "environment").params.get("rotation", 0.0)
+        angles = [start + a for a in steps]
+        return (kind, [with_environment_rotation(scene, a) for a in angles],
+                [f"environment rotation {a:.4g}°" for a in angles],
+                f"the environment map turns about +y from {start:g}° in {count} steps of "
+                f"{360 / count:.4g}°")
+    cam = scene.camera
+    offset = np.subtract(cam.position, cam.look_at)
+    positions = []
+    for a in np.radians(steps):  # about +y through look_at
+        c, s = np.cos(a), np.sin(a)
+        turned = (c * offset[0] + s * offset[2], offset[1], -s * offset[0] + c * offset[2])
+        positions.append(tuple(np.add(cam.look_at, turned)))
+    return (kind, [with_camera_position(scene, p) for p in positions],
+            [f"camera at ({p[0]:.4g}, {p[1]:.4g}, {p[2]:.4g})" for p in positions],
+            f"the camera circles its look_at point about +y at radius "
+            f"{float(np.hypot(offset[0], offset[2])):.4g} scene units in {count} steps of "
+            f"{360 / count:.4g}°")
