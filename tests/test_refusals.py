@@ -349,7 +349,7 @@ def test_a_material_or_feature_a_method_does_not_render(tmp_path):
     with pytest.raises(PrtError) as error:
         check_method_scene(diffuse_only, scene)
     assert error.value.problem == ("materials.shiny: method diffuse_only does not render "
-                                   "blinn_phong materials (methods that do: d2i, direct)")
+                                   "blinn_phong materials (methods that do: d2i, direct, triple)")
     doc = small_scene_dict(size=8)
     doc["materials"]["shiny"] = {"model": "lambert"}
     doc["lights"][1]["object"] = "box"
