@@ -4,15 +4,19 @@ renderer's env-direct transport, and an environment rotation against a rotated m
 from __future__ import annotations
 
 import numpy as np
+import pytest
+import yaml
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
+from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math.camera import camera_rays
+from pipeline.method import get_method
 from pipeline.raytrace import RayTracer
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import load_scene
-from pipeline.scene_edits import with_environment_rotation
+from pipeline.scene_edits import with_environment_rotation, with_material_edits
 
 # Small settings so a bake takes seconds: 1280 leaves (~6° cells), a coarse frame and
 # view grid, rows of at most 320 coefficients; 4 texels per pixel (at 1, the default,
@@ -89,3 +93,44 @@ def test_an_environment_rotation_equals_the_rotated_map(tmp_path):
     errors = {roll: float(np.abs(b - a).max() / np.abs(a).max()) for roll, b in rolled.items()}
     same, other = sorted(errors.values())
     assert same < 1e-4 and other > 1e-2, errors
+
+
+def test_a_gamma_edit_at_run_time_equals_a_fresh_bake(tmp_path):
+    """The renderer re-samples an edited material's glossy rows as the stage does: a
+    frame of the scene baked at γ = 20 with the ball edited to γ = 60 equals the frame of
+    a bake at γ = 60 (the same rows, so to float32 rounding)."""
+    env = sky(tmp_path / "sky.exr")
+    scene = triple_scene(tmp_path, env)
+    workdir = job.workdir_for(scene, tmp_path / "w20")
+    job.bake(scene, workdir, quiet=True, methods=[get_method("triple")])
+    edited = with_material_edits(scene, ["shiny.gamma=60"])
+    renderer = job.frame_renderer(scene, workdir, "triple", {})
+    frame = renderer(edited)
+    assert frame.timings["resample_ms"] > 0
+    triple_scene(tmp_path, env, "g60.yaml")
+    doc = yaml.safe_load((tmp_path / "g60.yaml").read_text())
+    doc["materials"]["shiny"]["gamma"] = 60
+    fresh = load_scene(write_scene(tmp_path, doc, "g60.yaml"))
+    baked = render(fresh, tmp_path / "w60", tmp_path / "g60.exr").rgb
+    assert np.abs(frame.rgb - baked).max() <= 1e-5 * np.abs(baked).max()
+    assert np.abs(renderer(scene).rgb - baked).max() > 1e-3 * np.abs(baked).max()
+
+
+def test_sequences_rotate_orbit_and_gamma(tmp_path):
+    """The three sequence specs: the map turns from the scene's rotation, the camera
+    circles its look_at at constant distance and height, γ sweeps the gamma_range; a bad
+    spec is one PrtError naming it."""
+    from pipeline.methods.triple import sequence
+
+    scene = triple_scene(tmp_path, sky(tmp_path / "sky.exr"))
+    kind, scenes, labels, _ = sequence(scene, {}, "rotate:4")
+    assert [s.lights[0].params["rotation"] for s in scenes] == [0.0, 90.0, 180.0, 270.0]
+    kind, scenes, labels, _ = sequence(scene, {}, "orbit:3")
+    offsets = [np.subtract(s.camera.position, s.camera.look_at) for s in scenes]
+    assert np.allclose([np.linalg.norm(o) for o in offsets], np.linalg.norm(offsets[0]))
+    assert np.allclose([o[1] for o in offsets], offsets[0][1])
+    assert not np.allclose(offsets[1], offsets[0])
+    kind, scenes, labels, _ = sequence(scene, {}, "gamma:shiny:3")
+    assert [s.materials["shiny"].params["gamma"] for s in scenes] == pytest.approx([3, 30, 300])
+    with pytest.raises(PrtError, match="--frames light:3"):
+        sequence(scene, {}, "light:3")

@@ -20,7 +20,9 @@ Run-time options (``prt render --option NAME=VALUE``):
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y
 (N frames 360°/N apart, from the scene's rotation); ``orbit:N`` moves the camera once
-around a horizontal circle about its look_at point (radius and height kept).
+around a horizontal circle about its look_at point (radius and height kept);
+``gamma[:MATERIAL]:N`` sweeps a glossy material's γ geometrically over its
+``gamma_range`` (else [γ/4, 4γ]), each new γ's table re-sampled at run time.
 
 Scene requirements: exactly one environment light (other light kinds are refused up
 front: methods ``direct`` and ``d2i`` render them).
@@ -35,7 +37,11 @@ import numpy as np
 from pipeline.errors import PrtError
 from pipeline.method import Method, Option
 from pipeline.scene import Scene
-from pipeline.scene_edits import with_camera_position, with_environment_rotation
+from pipeline.scene_edits import (
+    with_camera_position,
+    with_environment_rotation,
+    with_material_edits,
+)
 from pipeline.store import Artifact
 
 METHOD = Method(
@@ -60,7 +66,7 @@ METHOD = Method(
     check_scene="pipeline.methods.triple:check_scene",
 )
 
-SEQUENCE_KINDS = ("rotate", "orbit")
+SEQUENCE_KINDS = ("rotate", "orbit", "gamma")
 
 
 def check_scene(scene: Scene) -> None:
@@ -74,10 +80,15 @@ def check_scene(scene: Scene) -> None:
 def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
              ) -> tuple[str, list[Scene], list[str], str]:
     """The edit kind, edited scenes, a label per frame and the path in words."""
-    kind, _, count_text = spec.partition(":")
-    if kind not in SEQUENCE_KINDS or not count_text.isdigit() or int(count_text) < 1:
-        raise PrtError(None, f"--frames {spec}: expected rotate:N or orbit:N (N ≥ 1 frames)")
+    parts = spec.split(":")
+    kind, count_text = parts[0], parts[-1]
+    if kind not in SEQUENCE_KINDS or len(parts) not in (2, 3) or not count_text.isdigit() \
+            or int(count_text) < 1 or (len(parts) == 3 and kind != "gamma"):
+        raise PrtError(None, f"--frames {spec}: expected rotate:N, orbit:N or "
+                       "gamma[:MATERIAL]:N (N ≥ 1 frames)")
     count = int(count_text)
+    if kind == "gamma":
+        return _gamma_sweep(scene, parts[1] if len(parts) == 3 else None, count)
     steps = 360.0 * np.arange(count) / count
     if kind == "rotate":
         start = next(light for light in scene.lights
@@ -99,3 +110,21 @@ def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
             f"the camera circles its look_at point about +y at radius "
             f"{float(np.hypot(offset[0], offset[2])):.4g} scene units in {count} steps of "
             f"{360 / count:.4g}°")
+
+
+def _gamma_sweep(scene: Scene, name: str | None, count: int
+                 ) -> tuple[str, list[Scene], list[str], str]:
+    """Material ``name``'s γ (default: the first glossy material) geometrically over its
+    gamma_range, else [γ/4, 4γ]."""
+    glossy = [n for n, m in scene.materials.items() if m.model != "lambert"]
+    name = name or (glossy[0] if glossy else None)
+    if name not in glossy:
+        raise PrtError(scene.path, f"a gamma sequence needs a glossy material (found "
+                       f"{name!r}; glossy: {', '.join(glossy) or 'none'})")
+    params = scene.materials[name].params
+    lo, hi = params.get("gamma_range") or (params["gamma"] / 4, params["gamma"] * 4)
+    gammas = np.geomspace(lo, hi, count) if count > 1 else [params["gamma"]]
+    edits = [f"{name}.gamma={g:.6g}" for g in gammas]
+    return ("gamma", [with_material_edits(scene, [e]) for e in edits], edits,
+            f"material {name!r}: gamma from {gammas[0]:.4g} to {gammas[-1]:.4g}, {count} "
+            "frame(s) in geometric steps, each table re-sampled at run time")

@@ -17,7 +17,8 @@ with every factor a spherical Haar wavelet expansion over local directions ω
   texture (texels that hold nothing are left out and the weights renormalised);
 * ρ̃ the material's diffuse row weighted by kd and its glossy rows at the nearest
   local views (``ViewGrid``) weighted by ρs × the bilinear weights: kd and ρs edits cost
-  nothing, a γ edit re-bakes one table.
+  nothing; a γ (or other shape) edit at run time re-samples that material's glossy rows
+  as the ``triple.brdf_tables`` stage does (``resample_ms``, once per edited value).
 
 Camera rays are traced per frame (any camera; pipeline/raytrace.py): pixels that miss
 see the environment map itself. This module keeps the tables as :class:`WaveletRows`
@@ -27,9 +28,11 @@ sums the triple products; :func:`shade_numpy` is its NumPy twin.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -50,6 +53,7 @@ from pipeline.math.sphwavelet import (
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
 from pipeline.render import Frame
 from pipeline.scene import Light, Scene
+from pipeline.stages.brdf_tables import SHAPE_KEYS, glossy_rows
 from pipeline.store import Artifact
 
 LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 5  # as kernels/triple.cl
@@ -106,6 +110,17 @@ class WaveletRows:
             keep = rank < budget
         kept_count = np.bincount(row[keep], minlength=self.rows)
         return WaveletRows.from_counts(kept_count, self.index[keep], self.value[keep])
+
+    def with_rows(self, first: int, rows: WaveletRows) -> WaveletRows:
+        """These rows with rows ``first`` .. ``first + rows.rows − 1`` replaced."""
+        count = np.diff(self.start.astype(np.int64))
+        count[first:first + rows.rows] = np.diff(rows.start.astype(np.int64))
+        a, b = int(self.start[first]), int(self.start[first + rows.rows])
+        return WaveletRows.from_counts(count,
+                                       np.concatenate([self.index[:a], rows.index,
+                                                       self.index[b:]]),
+                                       np.concatenate([self.value[:a], rows.value,
+                                                       self.value[b:]]))
 
     def dense(self, row: int, size: int) -> np.ndarray:
         """Row ``row`` as dense coefficients (size, channels) float64."""
@@ -303,6 +318,12 @@ def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str]
 # -------------------------------------------------------------------------- frames
 
 
+def _shape(scene: Scene, name: str) -> dict[str, Any]:
+    """What shapes material ``name``'s glossy table (γ, alpha_ratio, ...; absent: None)."""
+    params = scene.materials[name].params
+    return {k: params.get(k) for k in SHAPE_KEYS}
+
+
 def environment_of(scene: Scene) -> Light:
     """The scene's environment light (method triple renders exactly one)."""
     return next(light for light in scene.lights if light.type == "environment")
@@ -326,6 +347,32 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     tables, atlas = load_tables(artifacts, material_names)
     if budget > 0:
         tables = tables.truncated(selection, budget)
+    brdf_attrs = artifacts["triple.brdf_tables"].attrs
+    baked_shapes = {n: _shape(scene, n) for n in material_names}
+    resampled: dict[tuple, WaveletRows] = {}
+
+    def current_brdf(scene: Scene) -> WaveletRows:
+        """The BRDF rows, with the glossy rows of every material whose shape (γ, ...)
+        differs from the bake re-sampled as the stage samples them."""
+        rows = tables.brdf
+        for m, name in enumerate(material_names):
+            shape = _shape(scene, name)
+            if tables.glossy_base[m] < 0 or shape == baked_shapes[name]:
+                continue
+            key = (name, tuple(sorted(shape.items())))
+            if key not in resampled:
+                a = brdf_attrs
+                fresh = glossy_rows(scene.materials[name].model, shape, tables.views,
+                                    int(a["leaf_level"]), int(a["refine"]),
+                                    int(a["store_budget"]), float(a["store_tolerance"]),
+                                    int(a["store_top"]))
+                new = WaveletRows.from_counts(fresh["count"], fresh["index"],
+                                              fresh["value"][:, 0])
+                resampled[key] = new.truncated(tables.basis, selection, budget) \
+                    if budget > 0 else new
+            rows = rows.with_rows(int(tables.glossy_base[m]), resampled[key])
+        return rows
+
     arrays = {n: geo.read(n) for n in
               ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
     tracer = RayTracer(arrays["vertices"], arrays["faces"])
@@ -344,6 +391,8 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
         d = directions[hit].astype(np.float64)
         surface = surface_at(mesh, hits.select(hit), origins[hit].astype(np.float64), d)
         t1 = time.perf_counter()
+        frame_tables = dataclasses.replace(tables, brdf=current_brdf(scene))
+        t_resample = time.perf_counter()
         light = environment_of(scene).params
         turn = np.radians(light.get("rotation", 0.0))
         light_rows, light_weight = tables.frames.weights(surface.normal, surface.tangent, turn)
@@ -356,7 +405,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
         lookups = PixelLookups(light_rows, light_weight, vis_rows, vis_weight, brdf_rows,
                                brdf_weight)
         t2 = time.perf_counter()
-        shaded, kernel_ms, moved = shade(tables, lookups)
+        shaded, kernel_ms, moved = shade(frame_tables, lookups)
         scale = light.get("scale", 1.0)
         rgb = np.empty((len(hit), 3), np.float32)
         rgb[hit] = shaded * scale
@@ -365,7 +414,8 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
             backgrounds[pose] = EnvironmentMap(env_map, *pose)
         rgb[~hit] = backgrounds[pose].radiance(directions[~hit].astype(np.float64))
         t3 = time.perf_counter()
-        timings = {"trace_ms": (t1 - t0) * 1e3, "lookup_ms": (t2 - t1) * 1e3,
+        timings = {"trace_ms": (t1 - t0) * 1e3, "resample_ms": (t_resample - t1) * 1e3,
+                   "lookup_ms": (t2 - t_resample) * 1e3,
                    "kernel_ms": kernel_ms, "counted_kernel_ms": kernel_ms,
                    "setup_ms": (t2 - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
         return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved)

@@ -104,6 +104,15 @@ def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
     return out.reshape(grid.size, -1)
 
 
+def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, refine: int,
+                budget: int, tolerance: float, top: int) -> dict[str, np.ndarray]:
+    """The stored glossy rows of a material (one per view of ``grid``; CSR as
+    :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1)): what a chunk
+    stores, and what the renderer re-samples for a γ edit at run time."""
+    glossy = forward(view_leaf_means(glossy_params(model, shape), grid, level, refine), level)
+    return select_rows(glossy[:, None], level, budget, tolerance, top)
+
+
 def _section(ctx: AssembleContext, name: str, key: str) -> Any:
     return ctx.scene.get(f"materials.{name}.{key}")
 
@@ -120,10 +129,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     # per material, so it is kept to the tolerance whatever the budget
     parts = [select_rows(diffuse[None, None], level, diffuse.size, tolerance, top)]
     if model != "lambert":
-        params = glossy_params(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS})
-        glossy = forward(view_leaf_means(params, view_grid(ctx.params), level, refine),
-                         level)
-        parts.append(select_rows(glossy[:, None], level,
+        parts.append(glossy_rows(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS},
+                                 view_grid(ctx.params), level, refine,
                                  int(ctx.params["triple.store_budget"]), tolerance, top))
     rows = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     ctx.meta.update(rows=len(rows["count"]), worst_residual=float(rows["residual"].max()),
