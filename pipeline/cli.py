@@ -12,7 +12,7 @@ import click
 
 from pipeline.errors import PrtError
 from pipeline.executors import Cores, available_cpus, use_cores
-from pipeline.scene import MAX_IMAGE_SIDE
+from pipeline.scene import MAX_IMAGE_SIDE, Scene
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -152,6 +152,18 @@ def check_exposure(ev: float) -> None:
     """PrtError unless ``ev`` (stops) is finite and within ±64 stops."""
     if not -64.0 <= ev <= 64.0:
         raise PrtError("--exposure", f"{ev!r}: expected stops between -64 and 64")
+
+
+def environment_edits(scene: Scene, env_file: Path | None, env_rotate: float | None
+                      ) -> Scene:
+    """``scene`` with ``--env`` and ``--env-rotate`` applied (pipeline/scene_edits.py)."""
+    from pipeline.scene_edits import with_environment_file, with_environment_rotation
+
+    if env_file is not None:
+        scene = with_environment_file(scene, env_file)
+    if env_rotate is not None:
+        scene = with_environment_rotation(scene, env_rotate)
+    return scene
 
 
 def show_notes(notes: list[str], as_json: bool) -> None:
@@ -386,14 +398,20 @@ def methods_cmd(as_json) -> None:
               help="Run-time material edit (repeatable): NAME a material or object, KEY "
                    "gamma, specular or albedo, VALUE a number or r,g,b; gamma must lie in "
                    "the material's baked gamma_range.")
+@click.option("--env", "env_file", type=click.Path(path_type=Path), default=None,
+              help="Light the scene with this environment map (EXR or HDR, lat-long) "
+                   "instead of its environment light's file.")
+@click.option("--env-rotate", "env_rotate", type=float, default=None, metavar="DEG",
+              help="Turn the environment map to DEG degrees about +y (instead of the "
+                   "scene's rotation).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON line with timings (ms) and the image size.")
 @WORKDIR
 @JOBS
 @THREADS
 @QUIET
-def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_json, workdir,
-               jobs, threads, quiet) -> None:
+def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env_file,
+               env_rotate, as_json, workdir, jobs, threads, quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
@@ -402,7 +420,8 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, as_
 
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
-    sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
+    sc = environment_edits(with_material_edits(job.open_scene(scene, parse_size(size)),
+                                               list(edits)), env_file, env_rotate)
     m = get_method(method) if method else scene_methods(sc)[0]
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:

@@ -1,13 +1,17 @@
-"""Run-time edits of a loaded scene: material γ, ρs and albedo, and light moves.
+"""Run-time edits of a loaded scene: material γ, ρs and albedo, light moves, the
+environment map's file and rotation, the camera's position.
 
-None of these re-bakes anything (they are in no stage key); each returns a new Scene and
-reports a bad edit as a PrtError naming the scene file.
+Each returns a new Scene and reports a bad edit as a PrtError naming the scene file.
+Which of them re-bakes what follows from the stage keys: none for d2i's light moves and
+BRDF edits, the lighting grid of method triple for a new map file, nothing for a map
+rotation (a lookup shift there).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 from pipeline.errors import PrtError
 from pipeline.scene import Light, Scene
@@ -99,3 +103,19 @@ def with_camera_position(scene: Scene, position: tuple[float, float, float]) -> 
         raise PrtError(scene.path, "camera moved onto its look_at point")
     raw_camera = {**scene.raw["camera"], "position": list(camera.position)}
     return replace(scene, camera=camera, raw={**scene.raw, "camera": raw_camera})
+
+
+def with_environment_file(scene: Scene, path: str | Path) -> Scene:
+    """The scene lit by the map ``path`` instead of its environment lights' files (its
+    rotation and scale kept). A method that bakes the map (triple) re-bakes its lighting
+    for the new file's content."""
+    if not any(light.type == "environment" for light in scene.lights):
+        raise PrtError(scene.path, "the scene has no environment light to give a map")
+    file = Path(path).resolve()
+    if not file.is_file():
+        raise PrtError(file, "environment map not found")
+    lights = [Light(light.type, {**light.params, "file": str(file)})
+              if light.type == "environment" else light for light in scene.lights]
+    raw = [{**r, "file": str(file)} if r["type"] == "environment" else r
+           for r in scene.raw["lights"]]
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})

@@ -3,6 +3,9 @@ renderer's env-direct transport, and an environment rotation against a rotated m
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import yaml
@@ -134,3 +137,33 @@ def test_sequences_rotate_orbit_and_gamma(tmp_path):
     assert [s.materials["shiny"].params["gamma"] for s in scenes] == pytest.approx([3, 30, 300])
     with pytest.raises(PrtError, match="--frames light:3"):
         sequence(scene, {}, "light:3")
+
+
+def test_env_and_env_rotate_at_run_time(tmp_path):
+    """`prt render --env FILE --env-rotate DEG`: the frame of a scene lit by map A with
+    `--env B --env-rotate 90` equals the frame of a scene file naming B at rotation 90
+    (the same bake of B, a lookup shift), and differs from A's; a missing map is one
+    error line naming it, exit 2."""
+    from pipeline.images import read_exr
+
+    def prt(*args) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "pipeline", *map(str, args)],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=300)
+
+    a, b = sky(tmp_path / "a.exr"), sky(tmp_path / "b.exr", roll=5)
+    scene_a = triple_scene(tmp_path, a, "a.yaml")
+    doc = yaml.safe_load((tmp_path / "a.yaml").read_text())
+    doc["lights"][0].update(file=str(b), rotation=90)
+    scene_b = load_scene(write_scene(tmp_path, doc, "b.yaml"))
+    result = prt("render", scene_a.path, "--env", b, "--env-rotate", "90", "--workdir",
+                 tmp_path / "w", "--out", tmp_path / "cli.exr", "-q")
+    assert result.returncode == 0, result.stderr
+    expected = render(scene_b, tmp_path / "wb", tmp_path / "b_out.exr").rgb
+    plain = render(scene_a, tmp_path / "w", tmp_path / "a_out.exr").rgb
+    got = read_exr(tmp_path / "cli.exr")
+    assert np.abs(got - expected).max() <= 1e-5 * np.abs(expected).max()
+    assert np.abs(plain - expected).max() > 1e-2 * np.abs(expected).max()
+    missing = prt("render", scene_a.path, "--env", tmp_path / "no.exr", "--workdir",
+                  tmp_path / "w", "--out", tmp_path / "x.exr", "-q")
+    assert missing.returncode == 2
+    assert f"{tmp_path / 'no.exr'}: environment map not found" in missing.stderr
