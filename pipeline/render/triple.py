@@ -32,6 +32,7 @@ import dataclasses
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -121,6 +122,12 @@ class WaveletRows:
                                                        self.index[b:]]),
                                        np.concatenate([self.value[:a], rows.value,
                                                        self.value[b:]]))
+
+    @cached_property
+    def device(self) -> list[Any]:
+        """``start``, ``index`` and ``value`` as read-only device buffers, uploaded once
+        per set of rows (not once per frame)."""
+        return [cl.read_only_buffer(a) for a in (self.start, self.index, self.value)]
 
     def dense(self, row: int, size: int) -> np.ndarray:
         """Row ``row`` as dense coefficients (size, channels) float64."""
@@ -222,9 +229,9 @@ def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, floa
     basis = kernel_tables(tables.basis)
     table_arrays = [a for t in (tables.light, tables.visibility, tables.brdf)
                     for a in (t.start, t.index, t.value)]
-    args = [cl.read_only_buffer(a) for a in (*table_arrays, *lookups.arrays(),
-                                             basis["root_area"], basis["wavelet"],
-                                             basis["tensor"])]
+    args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
+    args += [cl.read_only_buffer(a) for a in (*lookups.arrays(), basis["root_area"],
+                                              basis["wavelet"], basis["tensor"])]
     kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level})
     ms = cl.run(kernel, max(n, 1), *args, np.int32(n), out=out)
     moved = sum(a.nbytes for a in (*table_arrays, *lookups.arrays(), out))
