@@ -6,14 +6,19 @@
  *      (TRIPLE_VIS_ROWS rows, grey values, bilinear weights),
  *   ρ̃  kd · (cos θ_i / π) + ρs · f_g(ω_i, ω_o) cos θ_i: the material's diffuse row
  *      weighted by kd and its glossy rows at the nearest local views weighted by
- *      ρs × the bilinear weights (TRIPLE_BRDF_ROWS rows, grey values, RGB weights).
+ *      ρs × the bilinear weights, and for a blend (1 − t) a + t b the glossy rows of
+ *      both materials (TRIPLE_BRDF_ROWS rows, grey values, RGB weights).
  * Rows and weights per pixel come from the host (pipeline/render/triple.py, whose NumPy
  * twin computes the same sums); a pixel with no rows (a miss) gets 0. */
 #include "sphwavelet.h"
 
 #define TRIPLE_LIGHT_ROWS 8
 #define TRIPLE_VIS_ROWS 4
-#define TRIPLE_BRDF_ROWS 5
+#define TRIPLE_BRDF_ROWS 9  /* diffuse + 4 glossy views of material a + 4 of b (blends);
+                              built with SW_ROWS >= 9 */
+#if SW_ROWS < TRIPLE_BRDF_ROWS
+#error "kernels/triple.cl needs SW_ROWS >= TRIPLE_BRDF_ROWS"
+#endif
 
 __kernel void triple_shade(__global const uint* light_start, __global const ushort* light_index,
                            __global const float* light_value,
@@ -25,8 +30,8 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
                            __global const float* light_weight, /* n * 8 */
                            __global const uint* vis_rows,      /* n * 4 */
                            __global const float* vis_weight,   /* n * 4 */
-                           __global const uint* brdf_rows,     /* n * 5 */
-                           __global const float* brdf_weight,  /* n * 5 * 3 */
+                           __global const uint* brdf_rows,     /* n * 9 */
+                           __global const float* brdf_weight,  /* n * 9 * 3 */
                            __global const float* root_area,
                            __global const float* wavelet,
                            __global const float* tensor,

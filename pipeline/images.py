@@ -175,3 +175,43 @@ def read_environment(path: str | Path) -> np.ndarray:
                            f"({rgb[y, x, c]} in channel {'RGB'[c]}; {int(bad.sum())} values "
                            "in all)")
     return rgb
+
+
+def read_texture(path: str | Path) -> np.ndarray:
+    """A scalar texture (height, width) float64 from a PNG or EXR file: 8- and 16-bit
+    PNG values are read as linear fractions of their maximum (255, 65535; no sRGB
+    decoding: masks and heights are data), EXR values as stored; colour images give the
+    mean of R, G, B (alpha ignored). Raise PrtError naming the file when it cannot be
+    read, is not PNG/EXR, or holds a NaN or Inf."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".exr":
+        values = read_exr(path).astype(np.float64).mean(axis=2)
+    elif suffix == ".png":
+        from PIL import Image
+
+        try:
+            with Image.open(path) as image:
+                image.load()
+                pixels = np.asarray(image)
+                mode = image.mode
+        except Exception as exc:
+            raise PrtError(path, f"cannot read PNG ({exc})") from None
+        full = 255.0 if pixels.dtype == np.uint8 else 65535.0
+        if mode not in ("L", "LA", "RGB", "RGBA", "I", "I;16", "I;16B"):
+            raise PrtError(path, f"PNG mode {mode!r}: expected grey or RGB(A) values "
+                           "(a palette image is not a texture of values)")
+        pixels = pixels.astype(np.float64) / full
+        if pixels.ndim == 3:
+            pixels = pixels[..., :3].mean(axis=2) if pixels.shape[2] >= 3 else pixels[..., 0]
+        values = pixels
+    else:
+        raise PrtError(path, f"texture file type {suffix or '(none)'!r}: expected .png or "
+                       ".exr")
+    if values.ndim != 2 or min(values.shape) < 1:
+        raise PrtError(path, f"texture of shape {values.shape}: expected an image")
+    bad = ~np.isfinite(values)
+    if bad.any():
+        y, x = (int(i) for i in np.argwhere(bad)[0])
+        raise PrtError(path, f"texture texel (x {x}, y {y}) is not finite ({int(bad.sum())} "
+                       "in all)")
+    return values

@@ -39,6 +39,8 @@ ALL_MATERIALS = tuple(MATERIAL_PARAMETERS)
 # declares them (``Method.features``), each with what it is.
 FEATURES = {
     "emitters": "the emitting object of a quad light (its radiance seen by the camera)",
+    "blends": "a material blended with another by a texture (materials.NAME.blend)",
+    "bumps": "a bump map (materials.NAME.bump)",
 }
 
 
@@ -221,6 +223,11 @@ def scene_features(scene: Scene) -> dict[str, str]:
     for i, light in enumerate(scene.lights):
         if light.type == "quad" and light.params.get("object"):
             used.setdefault("emitters", f"lights[{i}].object")
+    for name, material in scene.materials.items():
+        if material.blend is not None:
+            used.setdefault("blends", f"materials.{name}.blend")
+        if material.bump is not None:
+            used.setdefault("bumps", f"materials.{name}.bump")
     return used
 
 

@@ -32,7 +32,11 @@ test-only emitting objects reached by BRDF sampling alone (weight 1).
 
 Shading frame (``pipeline.raytrace.surface_at``, as in the G-buffer, here in float64): the
 normal is the barycentric blend of vertex normals turned to face the incoming ray, the
-tangent follows +u of the mesh's uv. A direction
+tangent follows +u of the mesh's uv; a material's bump map turns that frame and its
+blend mixes two BRDFs, (1 − t) f_a + t f_b, sampled as the mixture (material b with
+probability t; pipeline/surface_detail.py). Shadow rays leave from the geometric
+point along the face normal whatever the bump (the physically bumped reference that
+method triple's approximation is measured against). A direction
 on the shading side of the normal but behind the triangle's plane carries nothing. Ray
 origins are offset by ``1e-4`` × the scene diagonal along the triangle's normal.
 
@@ -82,6 +86,7 @@ from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.lights import TYPE_CODES, LightRow, pack_lights, quad_normal, smoothstep
 from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.scene import Scene
+from pipeline.surface_detail import SceneDetail
 
 TRANSPORTS = ("direct", "env-direct", "first-glossy", "first-glossy-indirect", "full")
 PIXEL_FILTERS = ("center", "box")
@@ -166,6 +171,7 @@ class TransportScene:
         self.face_object = self.mesh.face_object
         object_names = list(geometry["object_names"])
         self.materials = scene_brdfs(scene, list(geometry["material_names"]))
+        self.detail = SceneDetail(scene, list(geometry["material_names"]))
         self.lambert = [BrdfParams("lambert", p.albedo) for p in self.materials]
         self.tracer = RayTracer(v, faces)
         self.epsilon = RAY_EPSILON * float(np.linalg.norm(v.max(0) - v.min(0)))
@@ -191,7 +197,8 @@ class TransportScene:
 
 @dataclass
 class _Vertex:
-    """Shading vertices of the live paths: points, frames, materials, outgoing ``wo``."""
+    """Shading vertices of the live paths: points, frames, materials, outgoing ``wo``;
+    where materials blend, ``material_b`` and its weight ``blend`` (None: no blends)."""
 
     x: np.ndarray
     n: np.ndarray
@@ -200,6 +207,8 @@ class _Vertex:
     wo: np.ndarray
     material: np.ndarray
     prim: np.ndarray | None = None
+    material_b: np.ndarray | None = None
+    blend: np.ndarray | None = None
 
     def local(self, w: np.ndarray) -> np.ndarray:
         b = np.cross(self.n, self.t)
@@ -218,16 +227,24 @@ def _per_material(material: np.ndarray, table: list[BrdfParams], fn, shape) -> n
     return out
 
 
+def _blended(vtx: _Vertex, table: list[BrdfParams], fn, shape) -> np.ndarray:
+    """``fn`` per material, (1 − t) · of material a + t · of material b where blended."""
+    out = _per_material(vtx.material, table, fn, shape)
+    if vtx.blend is None:
+        return out
+    t = vtx.blend.reshape((-1,) + (1,) * (len(shape) - 1))
+    return (1 - t) * out + t * _per_material(vtx.material_b, table, fn, shape)
+
+
 def _brdf(vtx: _Vertex, wi_local: np.ndarray, table: list[BrdfParams]) -> np.ndarray:
     wo = vtx.local(vtx.wo)
-    return _per_material(vtx.material, table,
-                         lambda s, p: evaluate(wi_local[s], wo[s], p), (len(wo), 3))
+    return _blended(vtx, table, lambda s, p: evaluate(wi_local[s], wo[s], p), (len(wo), 3))
 
 
 def _brdf_pdf(vtx: _Vertex, wi_local: np.ndarray, table: list[BrdfParams]) -> np.ndarray:
     wo = vtx.local(vtx.wo)
-    return _per_material(vtx.material, table,
-                         lambda s, p: brdf_sampling.pdf(wi_local[s], wo[s], p), (len(wo),))
+    return _blended(vtx, table, lambda s, p: brdf_sampling.pdf(wi_local[s], wo[s], p),
+                    (len(wo),))
 
 
 def _power(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -384,8 +401,12 @@ class PathTracer:
 
     def _vertex(self, o, d, hits, hit) -> _Vertex:
         s = surface_at(self.ts.mesh, hits.select(hit), o, d)
-        return _Vertex(s.position, s.normal, s.tangent, s.geometric_normal, -d, s.material_id,
-                       s.face)
+        if self.ts.detail.empty:
+            return _Vertex(s.position, s.normal, s.tangent, s.geometric_normal, -d,
+                           s.material_id, s.face)
+        detail = self.ts.detail.at(s)
+        return _Vertex(s.position, detail.normal, detail.tangent, s.geometric_normal, -d,
+                       detail.material_a, s.face, detail.material_b, detail.blend)
 
     def _add_environment(self, radiance, index, throughput, d, brdf_pdf, depth) -> bool:
         """Add the environment's radiance to escaped paths; whether this transport
@@ -429,16 +450,22 @@ class PathTracer:
         return emitted
 
     def _sample_brdf(self, vtx: _Vertex, table, rng):
-        """Sampled local directions, their densities and BRDF × cos / density (N, 3)."""
+        """Sampled local directions, their densities and BRDF × cos / density (N, 3);
+        a blend samples material b with probability t (the mixture's density)."""
         n = len(vtx.x)
         u = rng.random((n, 3))
         wo = vtx.local(vtx.wo)
         wi = np.zeros((n, 3))
         pdf = np.zeros(n)
-        for index in np.unique(vtx.material):
-            sel = vtx.material == index
+        chosen = vtx.material
+        if vtx.blend is not None:
+            chosen = np.where(rng.random(n) < vtx.blend, vtx.material_b, vtx.material)
+        for index in np.unique(chosen):
+            sel = chosen == index
             wi[sel] = brdf_sampling.sample(wo[sel], u[sel], table[index])
             pdf[sel] = brdf_sampling.pdf(wi[sel], wo[sel], table[index])
+        if vtx.blend is not None:
+            pdf = _brdf_pdf(vtx, wi, table)
         ok = (wi[:, 2] > 0) & (np.sum(vtx.world(wi) * vtx.ng, -1) > 0) & (pdf > 0)
         f = _brdf(vtx, wi, table)
         weight = np.where(ok[:, None], f * wi[:, 2:3] / np.where(ok, pdf, 1.0)[:, None], 0.0)
@@ -446,8 +473,10 @@ class PathTracer:
 
 
 def _subset(vtx: _Vertex, mask: np.ndarray) -> _Vertex:
+    blended = vtx.blend is not None
     return _Vertex(vtx.x[mask], vtx.n[mask], vtx.t[mask], vtx.ng[mask], vtx.wo[mask],
-                   vtx.material[mask])
+                   vtx.material[mask], None, vtx.material_b[mask] if blended else None,
+                   vtx.blend[mask] if blended else None)
 
 
 def render(scene: Scene, geometry: dict, settings: ReferenceSettings,

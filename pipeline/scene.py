@@ -51,15 +51,51 @@ class Camera:
 
 
 @dataclass(frozen=True)
+class TextureMap:
+    """A scalar texture on a surface (pipeline/math/textures.py): the image ``file``
+    (PNG or EXR), where its coordinates come from (``projection``: ``uv`` the mesh's
+    own uv; ``xy``, ``xz``, ``yz`` two world coordinates of the hit point, in that
+    order), ``scale`` (uv multiplied by it; for a projection, texture repeats per scene
+    unit) and ``wrap`` (``repeat`` or ``clamp``)."""
+
+    file: Path
+    projection: str = "uv"
+    scale: float = 1.0
+    wrap: str = "repeat"
+
+
+@dataclass(frozen=True)
+class Blend:
+    """A spatially varying BRDF: the material's own BRDF blended with ``material``'s,
+    the texture's value t ∈ [0, 1] the weight of ``material`` (f = (1 − t) f_a + t f_b)."""
+
+    material: str
+    texture: TextureMap
+
+
+@dataclass(frozen=True)
+class Bump:
+    """A bump map: the surface displaced along its normal by ``height`` × the texture's
+    value (scene units), for shading only (pipeline/math/textures.py)."""
+
+    texture: TextureMap
+    height: float
+
+
+@dataclass(frozen=True)
 class Material:
     """One named material: ``model`` a key of
     :data:`pipeline.math.brdf.MATERIAL_PARAMETERS`, diffuse RGB ``albedo`` and the model's
-    other parameters as validated (the BRDF module interprets them)."""
+    other parameters as validated (the BRDF module interprets them); optionally a
+    ``blend`` with a second material and a ``bump`` map (run-time surface detail,
+    pipeline/surface_detail.py)."""
 
     name: str
     model: str
     albedo: tuple[float, float, float]
     params: dict[str, Any] = field(default_factory=dict)
+    blend: Blend | None = None
+    bump: Bump | None = None
 
 
 @dataclass(frozen=True)
@@ -140,7 +176,8 @@ class Scene:
         """The canonical value at a dotted path (``camera``, ``objects.floor.material``,
         ``materials.white``). File paths (``mesh``, ``file``) are replaced by the SHA-256
         of the file's content: editing the file changes the value, moving the scene and
-        its files elsewhere does not. Missing paths give ``None``. ``environment.file`` is
+        its files elsewhere does not (so are a material's ``texture`` files). Missing
+        paths give ``None``. ``environment.file`` is
         the SHA-256 of the scene's environment map (its first environment light's
         ``file``; None without one): the map's content without its rotation and scale."""
         if dotted == ENVIRONMENT_FILE:
@@ -152,20 +189,22 @@ class Scene:
             if not isinstance(node, dict) or part not in node:
                 return None
             node = node[part]
-        if parts[-1] in ("mesh", "file") and isinstance(node, str):
+        if parts[-1] in FILE_KEYS and isinstance(node, str):
             return {"sha256": file_hash(Path(node))}
         return _with_file_hashes(node)
 
 
 ENVIRONMENT_FILE = "environment.file"  # the scene section of the environment map's bytes
+FILE_KEYS = ("mesh", "file", "texture")  # keys whose (path) values section() hashes
 
 
 def _with_file_hashes(node: Any) -> Any:
-    """``node`` with each ``mesh`` or ``file`` path in it replaced by its file's SHA-256."""
+    """``node`` with each path under a key of :data:`FILE_KEYS` in it replaced by its
+    file's SHA-256."""
     if isinstance(node, dict):
         out = {}
         for key, value in node.items():
-            if key in ("mesh", "file") and isinstance(value, str):
+            if key in FILE_KEYS and isinstance(value, str):
                 out[key] = {"sha256": file_hash(Path(value))}
             else:
                 out[key] = _with_file_hashes(value)

@@ -56,14 +56,19 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from pipeline.errors import PrtError
+from pipeline.images import read_texture
 from pipeline.math.brdf import MATERIAL_PARAMETERS, SceneParam, specular_albedo_bound
+from pipeline.math.textures import WRAPS
 from pipeline.scene import (
     MAX_IMAGE_SIDE,
+    Blend,
+    Bump,
     Camera,
     Light,
     Material,
     Scene,
     SceneObject,
+    TextureMap,
     shared_data_dir,
 )
 
@@ -209,8 +214,11 @@ def _scene_name(value: Any) -> str:
 
 
 def _material_name(value: Any, info: ValidationInfo) -> str:
-    """The name of a material of the scene (context ``materials``)."""
-    defined = info.context["materials"]
+    """The name of a material of the scene (context ``materials``; absent when one
+    material's edited copy is re-validated, whose names were checked with the file)."""
+    defined = info.context.get("materials")
+    if defined is None:
+        return value
     if value not in defined:
         raise _problem(f"unknown material {value!r} (defined: {', '.join(defined) or 'none'})")
     return value
@@ -373,12 +381,54 @@ class _CameraFile(_Section):
 
 # ------------------------------------------------------------------------- materials
 
+PROJECTIONS = ("uv", "xy", "xz", "yz")
+
+
+def _choice(options: tuple[str, ...]) -> Any:
+    """A field that is one of ``options``."""
+    def check(value: Any) -> str:
+        if value not in options:
+            raise _problem(f"expected one of {', '.join(options)}, found {value!r}")
+        return value
+    return Annotated[str, PlainValidator(check)]
+
+
+class _TextureFields(_Section):
+    """The keys of a texture (pipeline/scene.py ``TextureMap``)."""
+
+    texture: File
+    projection: _choice(PROJECTIONS) = "uv"
+    scale: Annotated[float, PlainValidator(lambda v: _number(v, 0.0, lo_open=True))] = 1.0
+    wrap: _choice(WRAPS) = "repeat"
+
+    def texture_map(self) -> TextureMap:
+        return TextureMap(self.texture, self.projection, self.scale, self.wrap)
+
+    def canonical(self) -> dict[str, Any]:
+        """All keys, defaults filled, the file as a string."""
+        return {k: str(v) if isinstance(v, Path) else v for k, v in self.model_dump().items()}
+
+
+class _BlendFile(_TextureFields):
+    """``materials.NAME.blend``: blended with ``material`` by the texture's value."""
+
+    material: Annotated[str, PlainValidator(_material_name)]
+
+
+class _BumpFile(_TextureFields):
+    """``materials.NAME.bump``: a height map of ``height`` scene units at value 1."""
+
+    height: Annotated[float, PlainValidator(_number)]
+
 
 class _MaterialFile(_Section):
     """``materials.NAME``; each model's subclass (generated from the model's declared
-    parameters) adds its ``model`` tag and a field per parameter."""
+    parameters) adds its ``model`` tag and a field per parameter. ``blend`` and ``bump``
+    (any model) add surface detail."""
 
     model: str
+    blend: _BlendFile | None = None
+    bump: _BumpFile | None = None
     parameters: ClassVar[tuple[SceneParam, ...]] = ()
 
     @classmethod
@@ -423,8 +473,15 @@ class _MaterialFile(_Section):
         params = {p.name: _plain(getattr(self, p.name)) for p in self.parameters
                   if p.name in self.model_fields_set or p.filled}
         albedo = params.pop("albedo")
-        return (Material(name, self.model, tuple(albedo), params),
-                {"model": self.model, "albedo": albedo, **params})
+        canonical = {"model": self.model, "albedo": albedo, **params}
+        blend = bump = None
+        if self.blend is not None:
+            blend = Blend(self.blend.material, self.blend.texture_map())
+            canonical["blend"] = self.blend.canonical()
+        if self.bump is not None:
+            bump = Bump(self.bump.texture_map(), self.bump.height)
+            canonical["bump"] = self.bump.canonical()
+        return Material(name, self.model, tuple(albedo), params, blend, bump), canonical
 
 
 def _parameter_type(param: SceneParam) -> Any:
@@ -673,6 +730,7 @@ def scene_from_document(path: Path, doc: Any) -> Scene:
     materials, raw_materials = {}, {}
     for name, material in spec.materials.items():
         materials[name], raw_materials[name] = material.material(name)
+    check_surface_detail(path, materials)
     objects, raw_objects = {}, {}
     for name, obj in spec.objects.items():
         objects[name], raw_objects[name] = obj.scene_object(name)
@@ -691,6 +749,31 @@ def scene_from_document(path: Path, doc: Any) -> Scene:
     return Scene(path, spec.name, camera, materials, objects,
                  tuple(light for light, _ in lights), dict(spec.settings), raw,
                  methods=spec.methods)
+
+
+def check_surface_detail(path: Path, materials: dict[str, Material]) -> None:
+    """A blend names another material that has no blend or bump of its own, and every
+    texture reads (pipeline/images.py ``read_texture``); a blend's values lie in
+    [0, 1]. The first problem as a PrtError naming the scene file (keys) or the texture
+    file (its content)."""
+    for name, material in materials.items():
+        if material.blend is not None:
+            other = material.blend.material
+            where = f"materials.{name}.blend.material"
+            if other == name:
+                raise PrtError(path, f"{where}: a material cannot blend with itself")
+            if materials[other].blend is not None or materials[other].bump is not None:
+                raise PrtError(path, f"{where}: {other!r} has a blend or bump of its own; "
+                               "a blend's second material must be plain")
+            values = read_texture(material.blend.texture.file)
+            outside = (values < 0.0) | (values > 1.0)
+            if outside.any():
+                y, x = (int(i) for i in np.argwhere(outside)[0])
+                raise PrtError(material.blend.texture.file,
+                               f"{where[:-len('material')]}texture: blend weight "
+                               f"{values[y, x]:g} at texel (x {x}, y {y}) is outside [0, 1]")
+        if material.bump is not None:
+            read_texture(material.bump.texture.file)
 
 
 def material_from_spec(path: Path, name: str, spec: dict[str, Any]

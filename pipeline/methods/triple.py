@@ -24,6 +24,9 @@ around a horizontal circle about its look_at point (radius and height kept);
 ``gamma[:MATERIAL]:N`` sweeps a glossy material's γ geometrically over its
 ``gamma_range`` (else [γ/4, 4γ]), each new γ's table re-sampled at run time.
 
+Surface detail (paper 004 §4.2, run time: nothing is re-baked): a material's ``blend``
+with a second material by a texture and its ``bump`` map (pipeline/surface_detail.py).
+
 Scene requirements: exactly one environment light (other light kinds are refused up
 front: methods ``direct`` and ``d2i`` render them).
 """
@@ -63,6 +66,7 @@ METHOD = Method(
     evaluate_size=128,
     evaluate_reference_spp=1024,
     lights=("environment",),
+    features=("blends", "bumps"),
     check_scene="pipeline.methods.triple:check_scene",
 )
 

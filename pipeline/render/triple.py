@@ -19,6 +19,12 @@ with every factor a spherical Haar wavelet expansion over local directions ω
   local views (``ViewGrid``) weighted by ρs × the bilinear weights: kd and ρs edits cost
   nothing; a γ (or other shape) edit at run time re-samples that material's glossy rows
   as the ``triple.brdf_tables`` stage does (``resample_ms``, once per edited value).
+  A spatially varying BRDF (a blend by a texture, t the weight of the second material)
+  adds the second material's glossy rows weighted by t (:func:`brdf_lookups`).
+
+Bump maps (paper 004 §4.2, pipeline/surface_detail.py): the lighting lookup (the frame
+F) and ω_o use the bumped shading frame, the visibility stays in the texel's geometric
+frame — "not physically correct", the paper's approximation.
 
 Camera rays are traced per frame (any camera; pipeline/raytrace.py): pixels that miss
 see the environment map itself. This module keeps the tables as :class:`WaveletRows`
@@ -56,8 +62,9 @@ from pipeline.render import Frame
 from pipeline.scene import Light, Scene
 from pipeline.stages.brdf_tables import SHAPE_KEYS, glossy_rows
 from pipeline.store import Artifact
+from pipeline.surface_detail import SceneDetail
 
-LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 5  # as kernels/triple.cl
+LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 9  # as kernels/triple.cl
 SELECTIONS = ("top-only", "adaptive")  # run-time cuts of the stored rows (WaveletRows.truncated)
 
 
@@ -166,8 +173,9 @@ class TripleTables:
 class PixelLookups:
     """Per shaded pixel (P of them): the rows and weights of its three functions, as
     kernels/triple.cl reads them: ``light_rows``/``light_weight`` (P, 8),
-    ``vis_rows``/``vis_weight`` (P, 4), ``brdf_rows`` (P, 5) and ``brdf_weight``
-    (P, 5, 3) (row 0: the diffuse row × kd; rows 1–4: glossy rows × ρs × bilinear)."""
+    ``vis_rows``/``vis_weight`` (P, 4), ``brdf_rows`` (P, 9) and ``brdf_weight``
+    (P, 9, 3) (:func:`brdf_lookups`: the diffuse row, 4 glossy rows of the material, 4
+    of the material it blends with)."""
 
     light_rows: np.ndarray
     light_weight: np.ndarray
@@ -206,19 +214,32 @@ def texel_lookups(texel_xy: np.ndarray, size: np.ndarray, offset: np.ndarray,
 
 
 def brdf_lookups(tables: TripleTables, material: np.ndarray, wo_local: np.ndarray,
-                 kd: np.ndarray, rho_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """BRDF rows (P, 5) and RGB weights (P, 5, 3) for materials ``material`` (P,) seen
-    from local ``wo_local`` (P, 3), with per-material diffuse albedo ``kd`` and ``rho_s``
-    (materials, 3)."""
+                 kd: np.ndarray, rho_s: np.ndarray, material_b: np.ndarray | None = None,
+                 blend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """BRDF rows (P, 9) and RGB weights (P, 9, 3) for materials ``material`` (P,)
+    blended with ``material_b`` (P,) by ``blend`` t (P,) (absent: no blend), seen from
+    local ``wo_local`` (P, 3), with per-material diffuse albedo ``kd`` and ``rho_s``
+    (materials, 3). The blended BRDF (1 − t) ρ̃_a + t ρ̃_b is
+
+        diffuse row × ((1 − t) kd_a + t kd_b)                 (row 0: every diffuse row
+                                                              holds the same cos⁺θ/π)
+        + Σ 4 glossy view rows of a × bilinear × (1 − t) ρs_a  (rows 1–4)
+        + Σ 4 glossy view rows of b × bilinear × t ρs_b        (rows 5–8);
+
+    rows of weight 0 (no blend, a Lambertian material) are skipped by the kernel."""
+    if material_b is None or blend is None:
+        material_b, blend = material, np.zeros(len(material))
+    t = np.asarray(blend, np.float64)[:, None]
     entries, weights = tables.views.weights(wo_local)
-    base = tables.glossy_base[material]
-    glossy = base >= 0
-    rows = np.concatenate([tables.diffuse_row[material][:, None],
-                           np.where(glossy[:, None], base[:, None] + entries, 0)], 1)
-    weight = np.concatenate([kd[material][:, None, :],
-                             (weights * glossy[:, None])[:, :, None]
-                             * rho_s[material][:, None, :]], 1)
-    return rows, weight
+    parts_rows = [tables.diffuse_row[material][:, None]]
+    parts_weight = [((1 - t) * kd[material] + t * kd[material_b])[:, None, :]]
+    for m, share in ((material, 1 - t), (material_b, t)):
+        base = tables.glossy_base[m]
+        glossy = base >= 0
+        parts_rows.append(np.where(glossy[:, None], base[:, None] + entries, 0))
+        parts_weight.append((weights * glossy[:, None] * share)[:, :, None]
+                            * rho_s[m][:, None, :])
+    return np.concatenate(parts_rows, 1), np.concatenate(parts_weight, 1)
 
 
 def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, float, int]:
@@ -232,7 +253,8 @@ def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, floa
     args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
     args += [cl.read_only_buffer(a) for a in (*lookups.arrays(), basis["root_area"],
                                               basis["wavelet"], basis["tensor"])]
-    kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level})
+    kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level,
+                                                     "SW_ROWS": max(LIGHT_ROWS, BRDF_ROWS)})
     ms = cl.run(kernel, max(n, 1), *args, np.int32(n), out=out)
     moved = sum(a.nbytes for a in (*table_arrays, *lookups.arrays(), out))
     return out[:n], ms, moved
@@ -385,6 +407,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     tracer = RayTracer(arrays["vertices"], arrays["faces"])
     mesh = Mesh.from_arrays(arrays)
     env_map = read_environment(environment_of(scene).params["file"])
+    detail = SceneDetail(scene, material_names)
     backgrounds: dict[tuple[float, float], EnvironmentMap] = {}
 
     def frame(scene: Scene) -> Frame:
@@ -402,13 +425,15 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
         t_resample = time.perf_counter()
         light = environment_of(scene).params
         turn = np.radians(light.get("rotation", 0.0))
-        light_rows, light_weight = tables.frames.weights(surface.normal, surface.tangent, turn)
+        shading = detail.at(surface)  # blend and bumped frame; visibility stays geometric
+        light_rows, light_weight = tables.frames.weights(shading.normal, shading.tangent, turn)
         vis_rows, vis_weight = atlas.lookups(surface)
         brdfs = scene_brdfs(scene, material_names)
         kd = np.array([b.albedo for b in brdfs])
         rho_s = np.array([b.specular for b in brdfs])
-        wo = to_local(-d, surface.normal, surface.tangent)
-        brdf_rows, brdf_weight = brdf_lookups(tables, surface.material_id, wo, kd, rho_s)
+        wo = to_local(-d, shading.normal, shading.tangent)
+        brdf_rows, brdf_weight = brdf_lookups(tables, shading.material_a, wo, kd, rho_s,
+                                              shading.material_b, shading.blend)
         lookups = PixelLookups(light_rows, light_weight, vis_rows, vis_weight, brdf_rows,
                                brdf_weight)
         t2 = time.perf_counter()
