@@ -294,13 +294,14 @@ def test_reference_blend_at_zero_and_one_equals_each_material():
                        0.5 * _brdf(vertex(0), wi, table) + 0.5 * _brdf(vertex(1), wi, table))
 
 
-def test_triple_renders_a_blended_floor_as_the_reference(tmp_path):
+def test_triple_renders_a_blended_floor_as_the_reference(tmp_path, record_property):
     """End to end: the small test scene's floor blended with the glossy material by a
     4 × 4 checker (the plane's uv), triple against an env-direct reference on the
-    pixels that see a surface. Tolerance 5 % (found: see the assert): the plain scene's
-    test allows 4 % (reference noise ≈ 1.2 %, rows cut at 1 %, level-3 leaves and the
-    coarse frame grid); the checker's edges add bilinear blend weights that the
-    reference evaluates per path, the same function."""
+    pixels that see a surface. Tolerance 4 % (found 2.1 %), as the plain scene's test
+    (found 2.2 % there): the reference's noise (≈ 1.2 %), rows cut at 1 %, level-3
+    leaves and the coarse frame grid; the blend is the same function in both (bilinear
+    weights of one texture). Then the unblended scene in the same work directory is
+    fresh: a blend re-bakes nothing."""
     from test_triple_method import camera_hits, render, sky, triple_scene
 
     png(tmp_path / "checker.png", np.indices((4, 4)).sum(0) % 2)
@@ -314,4 +315,9 @@ def test_triple_renders_a_blended_floor_as_the_reference(tmp_path):
                                                           max_spp=2048), quiet=True).image.mean
     surface = camera_hits(scene, workdir)
     error = np.linalg.norm((frame.rgb - ref)[surface]) / np.linalg.norm(ref[surface])
-    assert error < 0.05, error
+    record_property("rel_rmse", float(error))
+    assert error < 0.04, error
+    plain = load_scene(scene.path.with_name("scene.yaml"))  # the same scene, no blend
+    states = {p.spec.name: p.state
+              for p in job.status(plain, job.workdir_for(plain, tmp_path / "w"))}
+    assert set(states.values()) == {"fresh"}, states  # the blend is baked into nothing
