@@ -135,7 +135,8 @@ def test_glossy_material_without_gamma_range(tmp_path):
 
 @pytest.mark.parametrize("model", list(MATERIAL_PARAMETERS))
 def test_material_keys_are_the_models_declared_parameters(tmp_path, model):
-    """A material accepts exactly the parameters its BRDF model declares; the filled
+    """A material accepts exactly the parameters its BRDF model declares (and the
+    surface detail keys every material takes, ``blend`` and ``bump``); the filled
     defaults are in the loaded material, the others only when given."""
     declared = MATERIAL_PARAMETERS[model]
     doc = small_scene_dict()
@@ -148,7 +149,7 @@ def test_material_keys_are_the_models_declared_parameters(tmp_path, model):
     filled = {p.name for p in declared.params if p.filled} - {"albedo"}
     assert set(material.params) == set(spec) - {"model"} | filled
     doc["materials"]["grey"]["nonsense"] = 1
-    allowed = ", ".join(sorted({"model", *declared.names}))
+    allowed = ", ".join(sorted({"model", "blend", "bump", *declared.names}))
     with pytest.raises(PrtError, match=rf"materials\.grey: unknown key 'nonsense' "
                        rf"\(allowed: {allowed}\)"):
         load_scene(write_scene(tmp_path, doc))

@@ -321,3 +321,19 @@ def test_triple_renders_a_blended_floor_as_the_reference(tmp_path, record_proper
     states = {p.spec.name: p.state
               for p in job.status(plain, job.workdir_for(plain, tmp_path / "w"))}
     assert set(states.values()) == {"fresh"}, states  # the blend is baked into nothing
+
+
+def test_the_grazing_view_row_of_a_ward_table_is_finite():
+    """Anisotropic Ward (paper 004 Fig. 11: αx 0.1, αy 1.0) has 1/√(N·L N·V), infinite at
+    the view grid's grazing row (N·V = 0): that row is sampled half a θ step inside, so
+    its mean stays of the order of the row one step above (measured 1.6e5 × before; the
+    bound 3 allows the growth of 1/√cos θ_o over half a step, √2 at the horizon)."""
+    from pipeline.math.frame_grids import ViewGrid
+    from pipeline.stages.brdf_tables import view_leaf_means
+
+    grid = ViewGrid(8, 16)
+    params = BrdfParams("ward_anisotropic", (0, 0, 0), (1, 1, 1), gamma=0.1, alpha_ratio=10.0)
+    means = view_leaf_means(params, grid, 2, 1).reshape(grid.n_phi, grid.n_theta, -1)
+    row_mean = means.mean(axis=2)
+    assert np.isfinite(means).all()
+    assert (row_mean[:, -1] < 3 * row_mean[:, -2]).all(), row_mean[:, -2:]

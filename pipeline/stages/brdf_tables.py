@@ -73,10 +73,29 @@ def kernel_leaf_means(params: BrdfParams, views: np.ndarray, leaf_level: int,
     return out
 
 
+GRAZING_INSET = 0.5  # θ steps inside the horizon at which the grazing row is sampled
+
+
+def sampled_views(grid: ViewGrid) -> np.ndarray:
+    """The local views (grid.size, 3) at which the rows are sampled: the grid's
+    directions, except that the grazing row (θ_o = π/2, N·V = 0) is sampled
+    ``GRAZING_INSET`` θ steps inside the horizon. At N·V = 0 the Ward models'
+    1/√(N·L N·V) is infinite (measured: the row's mean 1.6e5 against 0.0098 one step
+    above, Ward αx 0.1, αy 1; Blinn-Phong 0.0076 against 0.0090), and the views the
+    renderer interpolates towards that row lie between the last two rows."""
+    views = grid.directions().reshape(grid.n_phi, grid.n_theta, 3)
+    theta = 0.5 * np.pi * (1.0 - GRAZING_INSET / (grid.n_theta - 1))
+    phi = 2 * np.pi * np.arange(grid.n_phi) / grid.n_phi
+    views[:, -1] = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                             np.full_like(phi, np.cos(theta))], -1)
+    return views.reshape(-1, 3)
+
+
 def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
                     refine: int) -> np.ndarray:
-    """Leaf means (grid.size, N) float32 of ρ̃_g for every view of ``grid``, evaluating
-    only the views with φ_o ∈ [0, π/2] when n_φ is a multiple of 4.
+    """Leaf means (grid.size, N) float32 of ρ̃_g for every view of ``grid`` (at
+    :func:`sampled_views`), evaluating only the views with φ_o ∈ [0, π/2] when n_φ is a
+    multiple of 4.
 
     Every model here is unchanged when ω_i and ω_o are reflected together in the
     planes x = 0 or y = 0 (it reads them through n·ω, ω_i·ω_o and s_x², s_y² of
@@ -84,9 +103,9 @@ def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
     g_{−φ}(ω) = g_φ(M_y ω) and g_{φ+π}(ω) = g_φ(M_x M_y ω), and their leaf means are
     g_φ's permuted (:func:`pipeline.math.wavelet_rows.leaf_permutation`)."""
     if grid.n_phi % 4:
-        return kernel_leaf_means(params, grid.directions(), leaf_level, refine)
+        return kernel_leaf_means(params, sampled_views(grid), leaf_level, refine)
     quarter = grid.n_phi // 4
-    views = grid.directions().reshape(grid.n_phi, grid.n_theta, 3)
+    views = sampled_views(grid).reshape(grid.n_phi, grid.n_theta, 3)
     base = kernel_leaf_means(params, views[:quarter + 1].reshape(-1, 3), leaf_level, refine)
     base = base.reshape(quarter + 1, grid.n_theta, -1)
     out = np.empty((grid.n_phi, *base.shape[1:]), np.float32)
