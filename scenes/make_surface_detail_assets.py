@@ -5,10 +5,11 @@ sbrdf_bump.yaml); run from anywhere: ``python scenes/make_surface_detail_assets.
   32 rings. u = φ/2π (φ the azimuth about +y from +x towards −z), v = 1 − θ/π (θ from
   +y): dP/du, the tangent every renderer uses (pipeline/raytrace.py ``Surface.tangent``),
   follows the circles of latitude eastwards (the anisotropic Ward's αx axis), dP/dv the
-  meridians north. The seam (u = 0 = 1) is split (its vertices doubled) and faces −z…
-  +x, away from the scenes' cameras; each pole is one vertex per segment (at that
-  segment's mid u). Vertex normals are computed by the geometry stage from the faces
-  (exact to ≈ 1.4° at the seam and poles, where a vertex sees faces on one side only).
+  meridians north. The seam (u = 0 = 1, the +x meridian) is split (its vertices
+  doubled); the scenes' cameras on +z see it edge-on at the sphere's right silhouette.
+  Each pole is one vertex per segment (at that segment's mid u). Vertex normals are
+  computed by the geometry stage from the faces: 0.16° (median) off the true normal,
+  3.0° at worst at the seam and the poles, where a vertex sees faces on one side only.
 * ``textures/checker.png``: 64 × 64 8-bit grey, 8 × 8 checks of 0 and 255 (a blend's
   weight: 0 = the material itself, 1 = the one it blends with).
 * ``textures/ridges.png``: 256 × 16 8-bit grey, h = ½ + ½ sin(2π · 16 u) (16 vertical
