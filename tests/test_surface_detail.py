@@ -337,3 +337,16 @@ def test_the_grazing_view_row_of_a_ward_table_is_finite():
     row_mean = means.mean(axis=2)
     assert np.isfinite(means).all()
     assert (row_mean[:, -1] < 3 * row_mean[:, -2]).all(), row_mean[:, -2:]
+
+
+def test_run_time_material_edits_keep_the_blend_and_the_bump(tmp_path):
+    """`--set` re-validates the edited material alone: its blend and bump survive."""
+    from pipeline.scene_edits import with_material_edits
+
+    png(tmp_path / "t.png", np.zeros((2, 2)))
+    scene = detail_scene(tmp_path, blend={"material": "shiny", "texture": "t.png"},
+                         bump={"texture": "t.png", "height": 0.1})
+    edited = with_material_edits(scene, ["grey.albedo=0.3"])
+    assert edited.materials["grey"].albedo == (0.3, 0.3, 0.3)
+    assert edited.materials["grey"].blend == scene.materials["grey"].blend
+    assert edited.materials["grey"].bump == scene.materials["grey"].bump
