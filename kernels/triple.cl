@@ -1,20 +1,65 @@
 /* Method triple (paper 004): per pixel, the triple product ∫ L V ρ̃ dω_i in the pixel's
- * local frame, from interpolated sparse wavelet rows (sphwavelet.h):
+ * local frame, from interpolated wavelet rows (sphwavelet.h):
  *   L  the environment map resampled in the nearest frames of the rotation grid
  *      (TRIPLE_LIGHT_ROWS rows, RGB values, trilinear weights),
  *   V  the visibility of the nearest texels of the object's visibility texture
  *      (TRIPLE_VIS_ROWS rows, grey values, bilinear weights),
- *   ρ̃  kd · (cos θ_i / π) + ρs · f_g(ω_i, ω_o) cos θ_i: the material's diffuse row
- *      weighted by kd and its glossy rows at the nearest local views weighted by
- *      ρs × the bilinear weights (TRIPLE_BRDF_ROWS rows, grey values, RGB weights).
- * Rows and weights per pixel come from the host (pipeline/render/triple.py, whose NumPy
- * twin computes the same sums); a pixel with no rows (a miss) gets 0. */
+ *   ρ̃  kd · (cos θ_i / π) + ρs · f_g(ω_i, ω_o) cos θ_i: the diffuse row weighted by kd
+ *      and the glossy rows at the nearest local views weighted by ρs × the bilinear
+ *      weights, for a blend of two materials (TRIPLE_BRDF_ROWS rows, grey values, RGB
+ *      weights).
+ * Rows and weights come from the G-buffer (triple_lookup.h; `triple_lookups` writes
+ * them out for the sparse path and the tests); pipeline/render/triple.py and
+ * triple_dense.py hold the NumPy twins. */
+#define SW_ROWS 9
+#ifndef TRIPLE_T
+#define TRIPLE_T 20  /* triangles of the dense path (-D TRIPLE_T=20·4^k); 20 when unused */
+#endif
 #include "sphwavelet.h"
+#include "triple_lookup.h"
+#include "envmap.h"
 
-#define TRIPLE_LIGHT_ROWS 8
-#define TRIPLE_VIS_ROWS 4
-#define TRIPLE_BRDF_ROWS 5
+#define TRIPLE_GBUFFER_ARGS                                                              \
+    __global const float *normal, __global const float *tangent,                         \
+    __global const float *view, __global const float *texel_xy,                          \
+    __global const int *object, __global const int *material_a,                          \
+    __global const int *material_b, __global const float *blend,                         \
+    __global const int *object_texture, __global const int *texel_row,                   \
+    __global const int *glossy_base, __global const int *diffuse_row,                    \
+    __global const float *kd, __global const float *rho_s, const int n_phi,              \
+    const int n_theta, const int n_psi, const int view_phi, const int view_theta,        \
+    const float turn
+#define TRIPLE_LOOKUP(i, g, look)                                                        \
+    triple_grids g = {n_phi, n_theta, n_psi, view_phi, view_theta, turn};                \
+    triple_lookup look;                                                                  \
+    triple_lookups_of(i, normal, tangent, view, texel_xy, object, material_a, material_b, \
+                      blend, object_texture, texel_row, glossy_base, diffuse_row, kd,    \
+                      rho_s, &g, &look)
 
+/* The rows and weights of every G-buffer pixel (for the sparse path and the tests). */
+__kernel void triple_lookups(TRIPLE_GBUFFER_ARGS, const int n,
+                             __global uint* light_rows, __global float* light_weight,
+                             __global uint* vis_rows, __global float* vis_weight,
+                             __global uint* brdf_rows, __global float* brdf_weight)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    TRIPLE_LOOKUP(i, g, look);
+    for (int r = 0; r < TRIPLE_LIGHT_ROWS; ++r) {
+        light_rows[TRIPLE_LIGHT_ROWS * i + r] = look.light_rows[r];
+        light_weight[TRIPLE_LIGHT_ROWS * i + r] = look.light_weight[r];
+    }
+    for (int r = 0; r < TRIPLE_VIS_ROWS; ++r) {
+        vis_rows[TRIPLE_VIS_ROWS * i + r] = look.vis_rows[r];
+        vis_weight[TRIPLE_VIS_ROWS * i + r] = look.vis_weight[r];
+    }
+    for (int r = 0; r < TRIPLE_BRDF_ROWS; ++r) {
+        brdf_rows[TRIPLE_BRDF_ROWS * i + r] = look.brdf_rows[r];
+        vstore3(look.brdf_weight[r], TRIPLE_BRDF_ROWS * i + r, brdf_weight);
+    }
+}
+
+/* General path: sparse rows of any selection and budget, merged on the fly. */
 __kernel void triple_shade(__global const uint* light_start, __global const ushort* light_index,
                            __global const float* light_value,
                            __global const uint* vis_start, __global const ushort* vis_index,
@@ -25,8 +70,8 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
                            __global const float* light_weight, /* n * 8 */
                            __global const uint* vis_rows,      /* n * 4 */
                            __global const float* vis_weight,   /* n * 4 */
-                           __global const uint* brdf_rows,     /* n * 5 */
-                           __global const float* brdf_weight,  /* n * 5 * 3 */
+                           __global const uint* brdf_rows,     /* n * 9 */
+                           __global const float* brdf_weight,  /* n * 9 * 3 */
                            __global const float* root_area,
                            __global const float* wavelet,
                            __global const float* tensor,
@@ -63,4 +108,64 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
     }
     src[2] = sw_open(brdf_start, brdf_index, brdf_value, 1, rows, w, k);
     vstore3(sw_triple(src, root_area, wavelet, tensor), i, out);
+}
+
+/* Dense top-only path (build with -D TRIPLE_T=20·4^k): a top-only budget ≤ 20·4^k is a
+ * function constant on the T level-k triangles, so the triple product is
+ *     Σ_t area_t L_t V_t ρ̃_t
+ * with per-triangle values (triple_dense.py): light (rows · T · 3, × area_t), visibility
+ * and BRDF (rows · T). The interpolation weights sum the rows triangle by triangle. */
+__kernel void triple_shade_dense(__global const float* light, __global const float* vis,
+                                 __global const float* brdf, TRIPLE_GBUFFER_ARGS,
+                                 const int n, __global float* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    TRIPLE_LOOKUP(i, g, look);
+    __global const float* lrow[TRIPLE_LIGHT_ROWS];
+    __global const float* vrow[TRIPLE_VIS_ROWS];
+    __global const float* brow[TRIPLE_BRDF_ROWS];
+    float lw[TRIPLE_LIGHT_ROWS], vw[TRIPLE_VIS_ROWS];
+    float3 bw[TRIPLE_BRDF_ROWS];
+    int nl = 0, nv = 0, nb = 0;
+    for (int r = 0; r < TRIPLE_LIGHT_ROWS; ++r)
+        if (look.light_weight[r] != 0.0f) {
+            lrow[nl] = light + (size_t)look.light_rows[r] * (3 * TRIPLE_T);
+            lw[nl++] = look.light_weight[r];
+        }
+    for (int r = 0; r < TRIPLE_VIS_ROWS; ++r)
+        if (look.vis_weight[r] != 0.0f) {
+            vrow[nv] = vis + (size_t)look.vis_rows[r] * TRIPLE_T;
+            vw[nv++] = look.vis_weight[r];
+        }
+    for (int r = 0; r < TRIPLE_BRDF_ROWS; ++r) {
+        float3 x = look.brdf_weight[r];
+        if (x.x != 0.0f || x.y != 0.0f || x.z != 0.0f) {
+            brow[nb] = brdf + (size_t)look.brdf_rows[r] * TRIPLE_T;
+            bw[nb++] = x;
+        }
+    }
+    float3 total = (float3)(0.0f);
+    for (int t = 0; t < TRIPLE_T; ++t) {
+        float v = 0.0f;
+        for (int r = 0; r < nv; ++r) v += vw[r] * vrow[r][t];
+        if (v == 0.0f) continue;  /* occluded (or empty): no light, no BRDF to read */
+        float3 l = (float3)(0.0f), b = (float3)(0.0f);
+        for (int r = 0; r < nl; ++r) l += lw[r] * vload3(t, lrow[r]);
+        for (int r = 0; r < nb; ++r) b += bw[r] * brow[r][t];
+        total += v * l * b;
+    }
+    vstore3(total, i, out);
+}
+
+/* Background of the pixels that miss: the environment map (rotated by turn about +y,
+ * × scale) in their world directions (n · 3). */
+__kernel void triple_background(__global const float* rgb, const int width, const int height,
+                                __global const float* direction, const float turn,
+                                const float scale, const int n, __global float* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float3 d = envmap_from_world(vload3(i, direction), cos(turn), sin(turn));
+    vstore3(scale * envmap_radiance(rgb, width, height, d), i, out);
 }

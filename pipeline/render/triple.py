@@ -40,9 +40,8 @@ import numpy as np
 from pipeline import cl
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
-from pipeline.math.brdf import scene_brdfs, to_local
+from pipeline.math.brdf import scene_brdfs
 from pipeline.math.camera import camera_rays
-from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.sphwavelet import (
     WaveletBasis,
@@ -53,11 +52,18 @@ from pipeline.math.sphwavelet import (
 )
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
 from pipeline.render import Frame
+from pipeline.render.triple_dense import DenseTables, dense_level
+from pipeline.render.triple_gbuffer import (
+    GBuffer,
+    LookupTables,
+    device_lookups,
+    kernel_arguments,
+)
 from pipeline.scene import Light, Scene
 from pipeline.stages.brdf_tables import SHAPE_KEYS, glossy_rows
 from pipeline.store import Artifact
 
-LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 5  # as kernels/triple.cl
+LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 9  # as kernels/triple_lookup.h
 SELECTIONS = ("top-only", "adaptive")  # run-time cuts of the stored rows (WaveletRows.truncated)
 
 
@@ -166,8 +172,8 @@ class TripleTables:
 class PixelLookups:
     """Per shaded pixel (P of them): the rows and weights of its three functions, as
     kernels/triple.cl reads them: ``light_rows``/``light_weight`` (P, 8),
-    ``vis_rows``/``vis_weight`` (P, 4), ``brdf_rows`` (P, 5) and ``brdf_weight``
-    (P, 5, 3) (row 0: the diffuse row × kd; rows 1–4: glossy rows × ρs × bilinear)."""
+    ``vis_rows``/``vis_weight`` (P, 4), ``brdf_rows`` (P, 9) and ``brdf_weight``
+    (P, 9, 3) (:func:`brdf_lookups`)."""
 
     light_rows: np.ndarray
     light_weight: np.ndarray
@@ -206,19 +212,26 @@ def texel_lookups(texel_xy: np.ndarray, size: np.ndarray, offset: np.ndarray,
 
 
 def brdf_lookups(tables: TripleTables, material: np.ndarray, wo_local: np.ndarray,
-                 kd: np.ndarray, rho_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """BRDF rows (P, 5) and RGB weights (P, 5, 3) for materials ``material`` (P,) seen
+                 kd: np.ndarray, rho_s: np.ndarray, material_b: np.ndarray | None = None,
+                 blend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """BRDF rows (P, 9) and RGB weights (P, 9, 3) for materials ``material`` (P,) seen
     from local ``wo_local`` (P, 3), with per-material diffuse albedo ``kd`` and ``rho_s``
-    (materials, 3)."""
+    (materials, 3), blended with ``material_b`` (P,) by ``blend`` t (P,) ∈ [0, 1]
+    (default: none): row 0 the diffuse row × ((1 − t)·kd_a + t·kd_b), rows 1–4 a's glossy
+    rows × (1 − t)·ρs_a × bilinear, rows 5–8 b's × t·ρs_b (row 0, weight 0 where a
+    material has no glossy rows)."""
+    material_b = material if material_b is None else np.asarray(material_b)
+    t = np.zeros(len(material)) if blend is None else np.asarray(blend, np.float64)
     entries, weights = tables.views.weights(wo_local)
-    base = tables.glossy_base[material]
-    glossy = base >= 0
-    rows = np.concatenate([tables.diffuse_row[material][:, None],
-                           np.where(glossy[:, None], base[:, None] + entries, 0)], 1)
-    weight = np.concatenate([kd[material][:, None, :],
-                             (weights * glossy[:, None])[:, :, None]
-                             * rho_s[material][:, None, :]], 1)
-    return rows, weight
+    rows, weight = [tables.diffuse_row[material][:, None]], \
+        [((1 - t)[:, None] * kd[material] + t[:, None] * kd[material_b])[:, None, :]]
+    for m, share in ((material, 1 - t), (material_b, t)):
+        base = tables.glossy_base[m]
+        glossy = base >= 0
+        rows.append(np.where(glossy[:, None], base[:, None] + entries, 0))
+        weight.append((weights * (glossy * share)[:, None])[:, :, None]
+                      * rho_s[m][:, None, :])
+    return np.concatenate(rows, 1), np.concatenate(weight, 1)
 
 
 def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, float, int]:
@@ -236,6 +249,41 @@ def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, floa
     ms = cl.run(kernel, max(n, 1), *args, np.int32(n), out=out)
     moved = sum(a.nbytes for a in (*table_arrays, *lookups.arrays(), out))
     return out[:n], ms, moved
+
+
+def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuffer,
+                  lookup: LookupTables, turn: float, static: dict[str, Any]
+                  ) -> tuple[np.ndarray, dict[str, float], int]:
+    """Radiance (P, 3) float32 of the G-buffer's pixels, with the lookups on the device:
+    the dense top-only kernel (lookups fused) where ``dense`` is given, else
+    ``triple_lookups`` then the sparse ``triple_shade``. Also the kernels' milliseconds
+    (``lookup_ms``: 0 when fused, ``kernel_ms``) and the bytes they read and wrote (the
+    tables once, the G-buffer, the lookups where they go through memory, the output)."""
+    n = gbuffer.count
+    out = np.empty((max(n, 1), 3), np.float32)
+    args = kernel_arguments(gbuffer, tables, lookup, turn, static)
+    gbuffer_bytes = sum(getattr(gbuffer, a).nbytes for a in (
+        "normal", "tangent", "view", "texel_xy", "object", "material_a", "material_b",
+        "blend"))
+    if dense is not None:
+        kernel = cl.kernel("triple.cl", "triple_shade_dense",
+                           {"SW_LEVELS": tables.basis.leaf_level,
+                            "TRIPLE_T": dense.triangles})
+        ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out)
+        moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf, out))
+        return out[:n], {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
+    buffers, lookup_ms = device_lookups(gbuffer, tables, lookup, turn, static)
+    basis = kernel_tables(tables.basis)
+    kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level})
+    table_args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
+    ms = cl.run(kernel, max(n, 1), *table_args, *buffers,
+                *(cl.read_only_buffer(basis[k]) for k in ("root_area", "wavelet", "tensor")),
+                np.int32(n), out=out)
+    lookup_bytes = n * 4 * (2 * LIGHT_ROWS + 2 * VIS_ROWS + 4 * BRDF_ROWS)
+    moved = sum(a.nbytes for t in (tables.light, tables.visibility, tables.brdf)
+                for a in (t.start, t.index, t.value))
+    return out[:n], {"lookup_ms": lookup_ms, "kernel_ms": ms}, \
+        moved + gbuffer_bytes + 2 * lookup_bytes + out.nbytes
 
 
 def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
@@ -288,14 +336,37 @@ class Atlas:
     filled: np.ndarray
     row: np.ndarray
 
+    def texel_xy(self, surface: Surface) -> np.ndarray:
+        """Continuous texel coordinates (P, 2) of surface hits in their object's texture:
+        the barycentric blend of the face's atlas corners."""
+        u, v = surface.hits.u.astype(np.float64), surface.hits.v.astype(np.float64)
+        corners = self.face_uv[surface.face].astype(np.float64)
+        return (1.0 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1] \
+            + v[:, None] * corners[:, 2]
+
     def lookups(self, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
         """Visibility rows and bilinear weights (P, 4) at surface hits."""
-        w = np.stack([1.0 - surface.hits.u - surface.hits.v, surface.hits.u, surface.hits.v],
-                     1)
-        texel_xy = np.einsum("pc,pcd->pd", w, self.face_uv[surface.face])
         obj = surface.object_id
-        texels, weight = texel_lookups(texel_xy, self.size[obj], self.offset[obj], self.filled)
+        texels, weight = texel_lookups(self.texel_xy(surface), self.size[obj],
+                                       self.offset[obj], self.filled)
         return self.row[texels], weight
+
+
+def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, cam: Any) -> GBuffer:
+    """The G-buffer of camera ``cam`` (pipeline/render/triple_gbuffer.py): camera rays
+    traced, surface attributes at the hits (shading frame = the interpolated normal and
+    the uv tangent; one material, no blend)."""
+    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                      cam.width, cam.height)
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    hits = tracer.intersect(origins, directions)
+    hit = hits.prim >= 0
+    d = directions[hit].astype(np.float64)
+    surface = surface_at(mesh, hits.select(hit), origins[hit].astype(np.float64), d)
+    material = surface.material_id
+    return GBuffer(cam.width, cam.height, np.flatnonzero(hit), surface.normal,
+                   surface.tangent, -d, atlas.texel_xy(surface), surface.object_id, material,
+                   material, np.zeros(len(material)), np.flatnonzero(~hit), directions[~hit])
 
 
 def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str]
@@ -358,10 +429,12 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     baked_shapes = {n: _shape(scene, n) for n in material_names}
     resampled: dict[tuple, WaveletRows] = {}
 
+    spliced: dict[tuple, WaveletRows] = {}  # the last edited table, reused while unchanged
+
     def current_brdf(scene: Scene) -> WaveletRows:
         """The BRDF rows, with the glossy rows of every material whose shape (γ, ...)
         differs from the bake re-sampled as the stage samples them."""
-        rows = tables.brdf
+        edits = []
         for m, name in enumerate(material_names):
             shape = _shape(scene, name)
             if tables.glossy_base[m] < 0 or shape == baked_shapes[name]:
@@ -377,54 +450,83 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                                               fresh["value"][:, 0])
                 resampled[key] = new.truncated(tables.basis, selection, budget) \
                     if budget > 0 else new
-            rows = rows.with_rows(int(tables.glossy_base[m]), resampled[key])
-        return rows
+            edits.append((m, key))
+        if not edits:
+            return tables.brdf
+        if tuple(edits) not in spliced:
+            rows = tables.brdf
+            for m, key in edits:
+                rows = rows.with_rows(int(tables.glossy_base[m]), resampled[key])
+            spliced.clear()
+            spliced[tuple(edits)] = rows
+        return spliced[tuple(edits)]
 
     arrays = {n: geo.read(n) for n in
               ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
     tracer = RayTracer(arrays["vertices"], arrays["faces"])
     mesh = Mesh.from_arrays(arrays)
-    env_map = read_environment(environment_of(scene).params["file"])
-    backgrounds: dict[tuple[float, float], EnvironmentMap] = {}
+    env_map = np.ascontiguousarray(read_environment(environment_of(scene).params["file"]),
+                                   np.float32)
+    level = dense_level(selection, budget)
+    dense = {} if level is None else {id(tables.brdf): DenseTables.from_tables(tables, level)}
+    static: dict[str, Any] = {}  # device buffers kept across frames (atlas, map)
+    cached: dict[tuple, GBuffer] = {}  # the last camera's G-buffer
+
+    def dense_of(brdf: WaveletRows) -> DenseTables | None:
+        """The dense tables for these BRDF rows (converted once per edited table)."""
+        if level is None:
+            return None
+        if id(brdf) not in dense:
+            base = dense[id(tables.brdf)]
+            dense.clear()
+            dense[id(tables.brdf)] = base
+            dense[id(brdf)] = base.with_brdf(brdf, tables.basis)
+        return dense[id(brdf)]
 
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
         cam = scene.camera
-        origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                          cam.width, cam.height)
-        origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
-        hits = tracer.intersect(origins, directions)
-        hit = hits.prim >= 0
-        d = directions[hit].astype(np.float64)
-        surface = surface_at(mesh, hits.select(hit), origins[hit].astype(np.float64), d)
+        key = (tuple(cam.position), tuple(cam.look_at), tuple(cam.up), cam.fov, cam.width,
+               cam.height)
+        was_cached = key in cached
+        if not was_cached:  # a new camera: trace it (the previous one is dropped)
+            cached.clear()
+            cached[key] = camera_gbuffer(tracer, mesh, atlas, cam)
+        gbuffer = cached[key]
         t1 = time.perf_counter()
         frame_tables = dataclasses.replace(tables, brdf=current_brdf(scene))
+        frame_dense = dense_of(frame_tables.brdf)
         t_resample = time.perf_counter()
         light = environment_of(scene).params
-        turn = np.radians(light.get("rotation", 0.0))
-        light_rows, light_weight = tables.frames.weights(surface.normal, surface.tangent, turn)
-        vis_rows, vis_weight = atlas.lookups(surface)
+        turn = float(np.radians(light.get("rotation", 0.0)))
         brdfs = scene_brdfs(scene, material_names)
-        kd = np.array([b.albedo for b in brdfs])
-        rho_s = np.array([b.specular for b in brdfs])
-        wo = to_local(-d, surface.normal, surface.tangent)
-        brdf_rows, brdf_weight = brdf_lookups(tables, surface.material_id, wo, kd, rho_s)
-        lookups = PixelLookups(light_rows, light_weight, vis_rows, vis_weight, brdf_rows,
-                               brdf_weight)
-        t2 = time.perf_counter()
-        shaded, kernel_ms, moved = shade(frame_tables, lookups)
-        scale = light.get("scale", 1.0)
-        rgb = np.empty((len(hit), 3), np.float32)
-        rgb[hit] = shaded * scale
-        pose = (light.get("rotation", 0.0), scale)
-        if pose not in backgrounds:
-            backgrounds[pose] = EnvironmentMap(env_map, *pose)
-        rgb[~hit] = backgrounds[pose].radiance(directions[~hit].astype(np.float64))
+        lookup = LookupTables.of(frame_tables, atlas, np.array([b.albedo for b in brdfs]),
+                                 np.array([b.specular for b in brdfs]))
+        shaded, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
+                                                    lookup, turn, static)
+        scale = float(light.get("scale", 1.0))
+        rgb = np.empty((cam.width * cam.height, 3), np.float32)
+        rgb[gbuffer.pixel] = shaded * scale
+        background_ms = 0.0
+        if len(gbuffer.miss_pixel):
+            if "map" not in static:
+                static["map"] = cl.read_only_buffer(env_map)
+            miss = np.empty((len(gbuffer.miss_pixel), 3), np.float32)
+            kernel = cl.kernel("triple.cl", "triple_background",
+                               {"SW_LEVELS": tables.basis.leaf_level})
+            background_ms = cl.run(kernel, len(miss), static["map"], np.int32(env_map.shape[1]),
+                                   np.int32(env_map.shape[0]), gbuffer.miss_device,
+                                   np.float32(turn), np.float32(scale), np.int32(len(miss)),
+                                   out=miss)
+            rgb[gbuffer.miss_pixel] = miss
         t3 = time.perf_counter()
-        timings = {"trace_ms": (t1 - t0) * 1e3, "resample_ms": (t_resample - t1) * 1e3,
-                   "lookup_ms": (t2 - t_resample) * 1e3,
-                   "kernel_ms": kernel_ms, "counted_kernel_ms": kernel_ms,
-                   "setup_ms": (t2 - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
+        shading_ms = kernel_times["lookup_ms"] + kernel_times["kernel_ms"]
+        timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
+                   "resample_ms": (t_resample - t1) * 1e3,
+                   "lookup_ms": kernel_times["lookup_ms"],
+                   "shade_ms": kernel_times["kernel_ms"], "background_ms": background_ms,
+                   "kernel_ms": shading_ms + background_ms, "counted_kernel_ms": shading_ms,
+                   "setup_ms": (t_resample - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
         return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved)
 
     return frame
