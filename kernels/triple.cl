@@ -12,8 +12,11 @@
  * them out for the sparse path and the tests); pipeline/render/triple.py and
  * triple_dense.py hold the NumPy twins. */
 #define SW_ROWS 9
-#ifndef TRIPLE_T
-#define TRIPLE_T 20  /* triangles of the dense path (-D TRIPLE_T=20·4^k); 20 when unused */
+#ifndef TRIPLE_T  /* triangles and vector width of the dense path; defaults when unused */
+#define TRIPLE_T 20
+#endif
+#ifndef TRIPLE_W
+#define TRIPLE_W 4
 #endif
 #include "sphwavelet.h"
 #include "triple_lookup.h"
@@ -110,11 +113,27 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
     vstore3(sw_triple(src, root_area, wavelet, tensor), i, out);
 }
 
-/* Dense top-only path (build with -D TRIPLE_T=20·4^k): a top-only budget ≤ 20·4^k is a
- * function constant on the T level-k triangles, so the triple product is
- *     Σ_t area_t L_t V_t ρ̃_t
- * with per-triangle values (triple_dense.py): light (rows · T · 3, × area_t), visibility
- * and BRDF (rows · T). The interpolation weights sum the rows triangle by triangle. */
+/* Dense top-only path (build with -D TRIPLE_T=20·4^k, -D TRIPLE_W=4 or 8 dividing it): a
+ * top-only budget ≤ 20·4^k is a function constant on the T level-k triangles, so the
+ * triple product is
+ *     Σ_t A_t L_t V_t ρ̃_t
+ * with per-triangle values (triple_dense.py): light (rows · 3 · T, planar R, G, B rows,
+ * × A_t), visibility and BRDF (rows · T). The interpolation weights sum the rows W
+ * triangles at a time (vector loads, no gathers); a block where V is 0 reads no light
+ * or BRDF. */
+#if TRIPLE_W == 8
+typedef float8 triple_vec;
+#define TRIPLE_VLOAD vload8
+inline float triple_hsum(float8 x) {
+    float4 a = x.lo + x.hi;
+    return a.x + a.y + a.z + a.w;
+}
+#else
+typedef float4 triple_vec;
+#define TRIPLE_VLOAD vload4
+inline float triple_hsum(float4 x) { return x.x + x.y + x.z + x.w; }
+#endif
+
 __kernel void triple_shade_dense(__global const float* light, __global const float* vis,
                                  __global const float* brdf, TRIPLE_GBUFFER_ARGS,
                                  const int n, __global float* out)
@@ -127,7 +146,7 @@ __kernel void triple_shade_dense(__global const float* light, __global const flo
     __global const float* brow[TRIPLE_BRDF_ROWS];
     float lw[TRIPLE_LIGHT_ROWS], vw[TRIPLE_VIS_ROWS];
     float3 bw[TRIPLE_BRDF_ROWS];
-    int nl = 0, nv = 0, nb = 0;
+    int nl = 0, nv = 0, nb = 0;  /* rows of non-zero weight */
     for (int r = 0; r < TRIPLE_LIGHT_ROWS; ++r)
         if (look.light_weight[r] != 0.0f) {
             lrow[nl] = light + (size_t)look.light_rows[r] * (3 * TRIPLE_T);
@@ -145,17 +164,29 @@ __kernel void triple_shade_dense(__global const float* light, __global const flo
             bw[nb++] = x;
         }
     }
-    float3 total = (float3)(0.0f);
-    for (int t = 0; t < TRIPLE_T; ++t) {
-        float v = 0.0f;
-        for (int r = 0; r < nv; ++r) v += vw[r] * vrow[r][t];
-        if (v == 0.0f) continue;  /* occluded (or empty): no light, no BRDF to read */
-        float3 l = (float3)(0.0f), b = (float3)(0.0f);
-        for (int r = 0; r < nl; ++r) l += lw[r] * vload3(t, lrow[r]);
-        for (int r = 0; r < nb; ++r) b += bw[r] * brow[r][t];
-        total += v * l * b;
+    triple_vec sr = (triple_vec)(0.0f), sg = (triple_vec)(0.0f), sb = (triple_vec)(0.0f);
+    for (int q = 0; q < TRIPLE_T / TRIPLE_W; ++q) {
+        triple_vec v = (triple_vec)(0.0f);
+        for (int r = 0; r < nv; ++r) v += vw[r] * TRIPLE_VLOAD(q, vrow[r]);
+        if (!any(v != (triple_vec)(0.0f))) continue;  /* occluded: nothing to read */
+        triple_vec lr = (triple_vec)(0.0f), lg = (triple_vec)(0.0f), lb = (triple_vec)(0.0f);
+        for (int r = 0; r < nl; ++r) {
+            lr += lw[r] * TRIPLE_VLOAD(q, lrow[r]);
+            lg += lw[r] * TRIPLE_VLOAD(q, lrow[r] + TRIPLE_T);
+            lb += lw[r] * TRIPLE_VLOAD(q, lrow[r] + 2 * TRIPLE_T);
+        }
+        triple_vec br = (triple_vec)(0.0f), bg = (triple_vec)(0.0f), bb = (triple_vec)(0.0f);
+        for (int r = 0; r < nb; ++r) {
+            triple_vec x = TRIPLE_VLOAD(q, brow[r]);
+            br += bw[r].x * x;
+            bg += bw[r].y * x;
+            bb += bw[r].z * x;
+        }
+        sr += v * lr * br;
+        sg += v * lg * bg;
+        sb += v * lb * bb;
     }
-    vstore3(total, i, out);
+    vstore3((float3)(triple_hsum(sr), triple_hsum(sg), triple_hsum(sb)), i, out);
 }
 
 /* Background of the pixels that miss: the environment map (rotated by turn about +y,

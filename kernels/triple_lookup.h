@@ -69,11 +69,14 @@ inline float triple_wrap_angle(float a) {
 inline void triple_frame_weights(float3 n, float3 t, const triple_grids* g, uint* rows,
                                  float* weight) {
     float3 np = (float3)(n.z, n.x, n.y), tp = (float3)(t.z, t.x, t.y);
-    float theta = acos(clamp(np.z, -1.0f, 1.0f));
-    int at_pole = hypot(np.x, np.y) < 1e-9f;
+    float cos_theta = clamp(np.z, -1.0f, 1.0f), sin_theta = hypot(np.x, np.y);
+    float theta = acos(cos_theta);
+    int at_pole = sin_theta < 1e-9f;
     float phi = at_pole ? 0.0f : triple_wrap_angle(atan2(np.y, np.x));
-    float cp = cos(phi), sp = sin(phi), ct = cos(theta), st = sin(theta);
-    float3 ref_t = (float3)(cp * ct, sp * ct, -st), ref_b = (float3)(-sp, cp, 0.0f);
+    /* the reference frame Rz(φ) Ry(θ): cos, sin of φ and θ from n' itself (no trig) */
+    float cp = at_pole ? 1.0f : np.x / sin_theta, sp = at_pole ? 0.0f : np.y / sin_theta;
+    float3 ref_t = (float3)(cp * cos_theta, sp * cos_theta, -sin_theta);
+    float3 ref_b = (float3)(-sp, cp, 0.0f);
     float psi = triple_wrap_angle(atan2(dot(tp, ref_b), dot(tp, ref_t)));
     phi -= g->turn;
     int j[2], i[2], k[2];

@@ -268,7 +268,7 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
     if dense is not None:
         kernel = cl.kernel("triple.cl", "triple_shade_dense",
                            {"SW_LEVELS": tables.basis.leaf_level,
-                            "TRIPLE_T": dense.triangles})
+                            "TRIPLE_T": dense.triangles, "TRIPLE_W": dense.vector_width})
         ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out)
         moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf, out))
         return out[:n], {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes

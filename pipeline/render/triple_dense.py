@@ -85,8 +85,9 @@ def triangle_values(rows: WaveletRows, basis: WaveletBasis, level: int) -> np.nd
 
 @dataclass
 class DenseTables:
-    """Per-triangle tables of one level: ``light`` (rows, T, 3) × the triangles' solid
-    angles, ``visibility`` (rows, T), ``brdf`` (rows, T), float32."""
+    """Per-triangle tables of one level, float32: ``light`` (rows, 3, T) × the
+    triangles' solid angles (channels planar: the kernel loads W triangles of a channel
+    at once), ``visibility`` (rows, T), ``brdf`` (rows, T)."""
 
     level: int
     light: np.ndarray
@@ -95,7 +96,12 @@ class DenseTables:
 
     @property
     def triangles(self) -> int:
-        return self.light.shape[1]
+        return self.light.shape[2]
+
+    @property
+    def vector_width(self) -> int:
+        """Triangles the kernel sums at a time (TRIPLE_W): 8 where T allows (20: 4)."""
+        return 8 if self.triangles % 8 == 0 else 4
 
     @cached_property
     def device(self) -> list[Any]:
@@ -107,7 +113,7 @@ class DenseTables:
         """The per-triangle values of ``tables`` (rows cut top-only to ≤ 20·4^level)."""
         _, area = _level_matrix(tables.basis.leaf_level, level)
         light = triangle_values(tables.light, tables.basis, level) * area[:, None]
-        return cls(level, np.ascontiguousarray(light, np.float32),
+        return cls(level, np.ascontiguousarray(light.transpose(0, 2, 1), np.float32),
                    triangle_values(tables.visibility, tables.basis, level),
                    triangle_values(tables.brdf, tables.basis, level))
 
@@ -120,7 +126,7 @@ class DenseTables:
 def shade_dense_numpy(dense: DenseTables, lookups: PixelLookups) -> np.ndarray:
     """The dense kernel's sums Σ_t (A_t L_t) V_t ρ̃_t (P, 3) in float64 for host lookups
     (:class:`~pipeline.render.triple.PixelLookups`): the NumPy twin."""
-    light = np.einsum("pr,prtc->ptc", lookups.light_weight,
+    light = np.einsum("pr,prct->ptc", lookups.light_weight,
                       dense.light[lookups.light_rows].astype(np.float64))
     vis = np.einsum("pr,prt->pt", lookups.vis_weight,
                     dense.visibility[lookups.vis_rows].astype(np.float64))
