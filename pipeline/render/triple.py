@@ -54,6 +54,7 @@ from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
 from pipeline.render import Frame
 from pipeline.render.triple_dense import DenseTables, dense_level
 from pipeline.render.triple_gbuffer import (
+    WORK_GROUP,
     GBuffer,
     LookupTables,
     device_lookups,
@@ -269,7 +270,8 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
         kernel = cl.kernel("triple.cl", "triple_shade_dense",
                            {"SW_LEVELS": tables.basis.leaf_level,
                             "TRIPLE_T": dense.triangles, "TRIPLE_W": dense.vector_width})
-        ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out)
+        ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out,
+                    local=WORK_GROUP)
         moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf, out))
         return out[:n], {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
     buffers, lookup_ms = device_lookups(gbuffer, tables, lookup, turn, static)
@@ -278,7 +280,7 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
     table_args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
     ms = cl.run(kernel, max(n, 1), *table_args, *buffers,
                 *(cl.read_only_buffer(basis[k]) for k in ("root_area", "wavelet", "tensor")),
-                np.int32(n), out=out)
+                np.int32(n), out=out, local=WORK_GROUP)
     lookup_bytes = n * 4 * (2 * LIGHT_ROWS + 2 * VIS_ROWS + 4 * BRDF_ROWS)
     moved = sum(a.nbytes for t in (tables.light, tables.visibility, tables.brdf)
                 for a in (t.start, t.index, t.value))
@@ -517,7 +519,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
             background_ms = cl.run(kernel, len(miss), static["map"], np.int32(env_map.shape[1]),
                                    np.int32(env_map.shape[0]), gbuffer.miss_device,
                                    np.float32(turn), np.float32(scale), np.int32(len(miss)),
-                                   out=miss)
+                                   out=miss, local=WORK_GROUP)
             rgb[gbuffer.miss_pixel] = miss
         t3 = time.perf_counter()
         shading_ms = kernel_times["lookup_ms"] + kernel_times["kernel_ms"]

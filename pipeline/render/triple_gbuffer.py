@@ -37,6 +37,8 @@ from pipeline import cl
 if TYPE_CHECKING:
     from pipeline.render.triple import Atlas, PixelLookups, TripleTables
 
+WORK_GROUP = 64  # work-items per group of the per-pixel kernels (pipeline.cl.run's local)
+
 
 @dataclass
 class GBuffer:
@@ -162,7 +164,8 @@ def device_lookups(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
     kernel = cl.kernel("triple.cl", "triple_lookups",
                        {"SW_LEVELS": tables.basis.leaf_level})
     args = kernel_arguments(gbuffer, tables, lookup, turn, {} if static is None else static)
-    event = kernel(cl.queue(), (n,), None, *args, np.int32(gbuffer.count), *out)
+    event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *args,
+                   np.int32(gbuffer.count), *out)
     return out, cl.event_ms(event)
 
 
