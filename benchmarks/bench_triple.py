@@ -35,6 +35,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import statistics
 import time
 from pathlib import Path
@@ -51,13 +52,22 @@ def median(values: list[float]) -> float:
     return float(statistics.median(values))
 
 
+def cpu_ms() -> float:
+    """CPU time of this process so far (all threads: Embree's, PoCL's), ms. On a
+    contended machine it tells the work apart from the waiting."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return (usage.ru_utime + usage.ru_stime) * 1e3
+
+
 def frame_series(renderer: Any, scenes: list[Any]) -> dict[str, Any]:
-    """Timings of frames rendered in order: per key the median and every value."""
+    """Timings of frames rendered in order: per key the median and every value
+    (``cpu_ms``: the process's CPU time over the frame)."""
     rows = []
     for scene in scenes:
+        c0 = cpu_ms()
         frame = renderer(scene)
-        rows.append({**frame.timings, "kernel_bytes": frame.kernel_bytes,
-                     "load": os.getloadavg()[0]})
+        rows.append({**frame.timings, "cpu_ms": cpu_ms() - c0,
+                     "kernel_bytes": frame.kernel_bytes, "load": os.getloadavg()[0]})
     keys = [k for k in rows[0] if k != "load"]
     return {"median": {k: median([r[k] for r in rows]) for k in keys},
             "frames": rows, "load_average": [r["load"] for r in rows]}
@@ -103,6 +113,31 @@ def touched_bytes(dense: Any, lookups: Any) -> int:
         distinct = np.unique(rows[weight != 0])
         total += len(distinct) * table[0].nbytes
     return int(total)
+
+
+def kernel_only(tables: Any, dense: Any, gbuffer: Any, lookup: Any, repeats: int
+                ) -> dict[str, Any]:
+    """The dense kernel (lookups fused) and, apart, the lookups kernel alone, launched
+    back to back on a cached G-buffer: median device ms and process CPU ms."""
+    from pipeline.render.triple import shade_gbuffer
+    from pipeline.render.triple_gbuffer import device_lookups
+
+    static: dict[str, Any] = {}
+    shade_gbuffer(tables, dense, gbuffer, lookup, 0.3, static)  # warm-up
+    device_lookups(gbuffer, tables, lookup, 0.3, static)
+    out: dict[str, list[float]] = {k: [] for k in ("kernel_ms", "kernel_cpu_ms",
+                                                   "lookups_ms", "lookups_cpu_ms", "load")}
+    for _ in range(repeats):
+        c0 = cpu_ms()
+        _, times, _ = shade_gbuffer(tables, dense, gbuffer, lookup, 0.3, static)
+        c1 = cpu_ms()
+        _, ms = device_lookups(gbuffer, tables, lookup, 0.3, static)
+        out["kernel_ms"].append(times["kernel_ms"])
+        out["kernel_cpu_ms"].append(c1 - c0)
+        out["lookups_ms"].append(ms)
+        out["lookups_cpu_ms"].append(cpu_ms() - c1)
+        out["load"].append(os.getloadavg()[0])
+    return {**{k: median(v) for k, v in out.items() if k != "load"}, "all": out}
 
 
 def sparse_estimate(tables: Any, gbuffer: Any, lookup: Any, turn: float, stride: int,
@@ -250,6 +285,7 @@ def main() -> None:
                     "normal", "tangent", "view", "texel_xy", "object", "material_a",
                     "material_b", "blend")) + 12 * gbuffer.count
             shade_ms = entry["rotation"]["median"]["shade_ms"]
+            entry["kernel_only"] = kernel_only(tables, dense, gbuffer, lookup, args.frames)
             entry["dense"] = {"level": level, "triangles": dense.triangles,
                               "table_mb": (dense.light.nbytes + dense.visibility.nbytes
                                            + dense.brdf.nbytes) / 1e6,

@@ -363,8 +363,8 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, cam: Any) -> GBu
     origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
-    d = directions[hit].astype(np.float64)
-    surface = surface_at(mesh, hits.select(hit), origins[hit].astype(np.float64), d)
+    d = directions[hit]  # float32, as the G-buffer keeps it (normals blended in float32)
+    surface = surface_at(mesh, hits.select(hit), origins[hit], d, normal_dtype=np.float32)
     material = surface.material_id
     return GBuffer(cam.width, cam.height, np.flatnonzero(hit), surface.normal,
                    surface.tangent, -d, atlas.texel_xy(surface), surface.object_id, material,
