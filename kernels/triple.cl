@@ -23,8 +23,8 @@
 #include "envmap.h"
 
 #define TRIPLE_GBUFFER_ARGS                                                              \
-    __global const float *normal, __global const float *tangent,                         \
-    __global const float *view, __global const float *texel_xy,                          \
+    __global const float *frame_coords, __global const float *view_coords,               \
+    __global const float *texel_xy,                                                      \
     __global const int *object, __global const int *material_a,                          \
     __global const int *material_b, __global const float *blend,                         \
     __global const int *object_texture, __global const int *texel_row,                   \
@@ -35,9 +35,27 @@
 #define TRIPLE_LOOKUP(i, g, look)                                                        \
     triple_grids g = {n_phi, n_theta, n_psi, view_phi, view_theta, turn};                \
     triple_lookup look;                                                                  \
-    triple_lookups_of(i, normal, tangent, view, texel_xy, object, material_a, material_b, \
+    triple_lookups_of(i, frame_coords, view_coords, texel_xy, object, material_a, material_b, \
                       blend, object_texture, texel_row, glossy_base, diffuse_row, kd,    \
                       rho_s, &g, &look)
+
+/* Per camera: the grid coordinates of every G-buffer pixel's shading frame (P·3) and
+ * local view (P·2): the lookups' trigonometry, done once while the camera stays. */
+__kernel void triple_angles(__global const float* normal, __global const float* tangent,
+                            __global const float* view, const int n_phi, const int n_theta,
+                            const int n_psi, const int view_phi, const int view_theta,
+                            const int n, __global float* frame_coords,
+                            __global float* view_coords)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    triple_grids g = {n_phi, n_theta, n_psi, view_phi, view_theta, 0.0f};
+    float3 frame;
+    float2 v;
+    triple_angles_of(i, normal, tangent, view, &g, &frame, &v);
+    vstore3(frame, i, frame_coords);
+    vstore2(v, i, view_coords);
+}
 
 /* The rows and weights of every G-buffer pixel (for the sparse path and the tests). */
 __kernel void triple_lookups(TRIPLE_GBUFFER_ARGS, const int n,

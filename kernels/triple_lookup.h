@@ -13,7 +13,11 @@
  *               row (row −1) left out and the others renormalised;
  *   BRDF        9 rows: a's diffuse row × ((1 − t_b) kd_a + t_b kd_b), a's 4 glossy rows
  *               at the nearest local views × (1 − t_b) ρs_a × bilinear, b's × t_b ρs_b
- *               (glossy_base −1: a Lambertian material, weight 0). */
+ *               (glossy_base −1: a Lambertian material, weight 0).
+ *
+ * The trigonometry (the frame's Euler angles, the local view's angles) depends on the
+ * camera only: triple_angles_of runs once per camera and stores grid coordinates; the
+ * per-frame part (triple_lookups_of) applies the map's turn and the materials. */
 #ifndef PRT_TRIPLE_LOOKUP_H
 #define PRT_TRIPLE_LOOKUP_H
 
@@ -80,10 +84,10 @@ inline float triple_wrap_angle(float a) {
     return a >= TRIPLE_TWO_PI ? 0.0f : a;
 }
 
-/* FrameGrid.weights of the frame (t, n × t, n): euler_angles in the pole basis
- * [A | B | P] = [+z | +x | +y], i.e. n' = (n.z, n.x, n.y). */
-inline void triple_frame_weights(float3 n, float3 t, const triple_grids* g, uint* rows,
-                                 float* weight) {
+/* The frame's grid coordinates (φ, θ, ψ in units of the grid steps; φ before the map's
+ * turn) of the frame (t, n × t, n): euler_angles in the pole basis [A | B | P] =
+ * [+z | +x | +y], i.e. n' = (n.z, n.x, n.y). Per camera (kernel triple_angles). */
+inline float3 triple_frame_coords(float3 n, float3 t, const triple_grids* g) {
     float3 np = (float3)(n.z, n.x, n.y), tp = (float3)(t.z, t.x, t.y);
     float cos_theta = clamp(np.z, -1.0f, 1.0f), sin_theta = sqrt(np.x * np.x + np.y * np.y);
     float theta = triple_atan2(sin_theta, cos_theta);  /* arccos(n'_z), sharper at poles */
@@ -94,38 +98,50 @@ inline void triple_frame_weights(float3 n, float3 t, const triple_grids* g, uint
     float3 ref_t = (float3)(cp * cos_theta, sp * cos_theta, -sin_theta);
     float3 ref_b = (float3)(-sp, cp, 0.0f);
     float psi = triple_wrap_angle(triple_atan2(dot(tp, ref_b), dot(tp, ref_t)));
-    phi -= g->turn;
+    return (float3)(phi * g->n_phi / TRIPLE_TWO_PI, theta * (g->n_theta - 1) / TRIPLE_PI,
+                    psi * g->n_psi / TRIPLE_TWO_PI);
+}
+
+/* FrameGrid.weights from the grid coordinates x, the map turned by g->turn (φ − turn):
+ * the 8 entries (j·n_θ + i)·n_ψ + k around it and their trilinear weights. Per frame. */
+inline void triple_frame_rows(float3 x, const triple_grids* g, uint* rows, float* weight) {
     int j[2], i[2], k[2];
     float wj, wi, wk;
-    triple_linear(phi * g->n_phi / TRIPLE_TWO_PI, g->n_phi, 1, &j[0], &j[1], &wj);
-    triple_linear(theta * (g->n_theta - 1) / TRIPLE_PI, g->n_theta, 0, &i[0], &i[1], &wi);
-    triple_linear(psi * g->n_psi / TRIPLE_TWO_PI, g->n_psi, 1, &k[0], &k[1], &wk);
+    triple_linear(x.x - g->turn * g->n_phi / TRIPLE_TWO_PI, g->n_phi, 1, &j[0], &j[1], &wj);
+    triple_linear(x.y, g->n_theta, 0, &i[0], &i[1], &wi);
+    triple_linear(x.z, g->n_psi, 1, &k[0], &k[1], &wk);
     float a[2] = {1.0f - wj, wj}, b[2] = {1.0f - wi, wi}, c[2] = {1.0f - wk, wk};
     int e = 0;
-    for (int x = 0; x < 2; ++x)
-        for (int y = 0; y < 2; ++y)
-            for (int z = 0; z < 2; ++z, ++e) {
-                rows[e] = (uint)((j[x] * g->n_theta + i[y]) * g->n_psi + k[z]);
-                weight[e] = a[x] * b[y] * c[z];
+    for (int p = 0; p < 2; ++p)
+        for (int q = 0; q < 2; ++q)
+            for (int r = 0; r < 2; ++r, ++e) {
+                rows[e] = (uint)((j[p] * g->n_theta + i[q]) * g->n_psi + k[r]);
+                weight[e] = a[p] * b[q] * c[r];
             }
 }
 
-/* ViewGrid.weights of the local view wo (below the horizon: clamped to grazing). */
-inline void triple_view_weights(float3 wo, const triple_grids* g, int* entries,
-                                float* weight) {
-    /* arccos(clamp(wo_z, 0, 1)): π/2 at and below the horizon */
-    float theta = wo.z > 0.0f ? triple_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z) : 0.5f * TRIPLE_PI;
+/* The view grid coordinates (φ_o, θ_o in grid steps) of the local view wo (below the
+ * horizon: clamped to grazing, θ_o = π/2). Per camera. */
+inline float2 triple_view_coords(float3 wo, const triple_grids* g) {
+    float theta = wo.z > 0.0f ? triple_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z)
+                              : 0.5f * TRIPLE_PI;
     float phi = triple_wrap_angle(triple_atan2(wo.y, wo.x));
+    return (float2)(phi * g->view_phi / TRIPLE_TWO_PI,
+                    theta * (g->view_theta - 1) / (0.5f * TRIPLE_PI));
+}
+
+/* ViewGrid.weights from the view grid coordinates: entries j·n_θ + i and bilinear
+ * weights. */
+inline void triple_view_rows(float2 x, const triple_grids* g, int* entries, float* weight) {
     int j[2], i[2];
     float wj, wi;
-    triple_linear(phi * g->view_phi / TRIPLE_TWO_PI, g->view_phi, 1, &j[0], &j[1], &wj);
-    triple_linear(theta * (g->view_theta - 1) / (0.5f * TRIPLE_PI), g->view_theta, 0,
-                  &i[0], &i[1], &wi);
+    triple_linear(x.x, g->view_phi, 1, &j[0], &j[1], &wj);
+    triple_linear(x.y, g->view_theta, 0, &i[0], &i[1], &wi);
     float a[2] = {1.0f - wj, wj}, b[2] = {1.0f - wi, wi};
-    for (int x = 0; x < 2; ++x)
-        for (int y = 0; y < 2; ++y) {
-            entries[2 * x + y] = j[x] * g->view_theta + i[y];
-            weight[2 * x + y] = a[x] * b[y];
+    for (int p = 0; p < 2; ++p)
+        for (int q = 0; q < 2; ++q) {
+            entries[2 * p + q] = j[p] * g->view_theta + i[q];
+            weight[2 * p + q] = a[p] * b[q];
         }
 }
 
@@ -152,13 +168,24 @@ inline void triple_texel_weights(float2 xy, int height, int width, int offset,
     for (int r = 0; r < 4; ++r) weight[r] = total > 0.0f ? w[r] / total : 0.0f;
 }
 
-/* All of pixel i's rows and weights from the G-buffer (arrays as triple_gbuffer.py's
- * GBuffer.device: normal, tangent, view (P·3), texel_xy (P·2), object, material_a,
- * material_b (P), blend (P)); per object its texture (height, width, offset) in
- * object_texture (objects·3); per material glossy_base, diffuse_row (int) and kd, rho_s
- * (materials·3). */
-inline void triple_lookups_of(int i, __global const float* normal,
-                              __global const float* tangent, __global const float* view,
+/* The camera's part of pixel i's lookups (kernel triple_angles, once per camera): the
+ * grid coordinates of its shading frame and of its local view ω_o in (t, n × t, n), as
+ * brdf.to_local. G-buffer arrays as triple_gbuffer.py's GBuffer. */
+inline void triple_angles_of(int i, __global const float* normal,
+                             __global const float* tangent, __global const float* view,
+                             const triple_grids* g, float3* frame, float2* view_coords) {
+    float3 n = vload3(i, normal), t = vload3(i, tangent), v = vload3(i, view);
+    *frame = triple_frame_coords(n, t, g);
+    *view_coords = triple_view_coords((float3)(dot(v, t), dot(v, cross(n, t)), dot(v, n)), g);
+}
+
+/* All of pixel i's rows and weights, per frame: from the camera's grid coordinates
+ * (frame_coords P·3, view_coords P·2) and the G-buffer's texel_xy (P·2), object,
+ * material_a, material_b (P), blend (P); per object its texture (height, width, offset)
+ * in object_texture (objects·3); per material glossy_base, diffuse_row (int) and kd,
+ * rho_s (materials·3). */
+inline void triple_lookups_of(int i, __global const float* frame_coords,
+                              __global const float* view_coords,
                               __global const float* texel_xy, __global const int* object,
                               __global const int* material_a, __global const int* material_b,
                               __global const float* blend,
@@ -168,17 +195,14 @@ inline void triple_lookups_of(int i, __global const float* normal,
                               __global const int* diffuse_row,
                               __global const float* kd, __global const float* rho_s,
                               const triple_grids* g, triple_lookup* out) {
-    float3 n = vload3(i, normal), t = vload3(i, tangent), v = vload3(i, view);
-    triple_frame_weights(n, t, g, out->light_rows, out->light_weight);
+    triple_frame_rows(vload3(i, frame_coords), g, out->light_rows, out->light_weight);
     int o = object[i];
     triple_texel_weights(vload2(i, texel_xy), object_texture[3 * o], object_texture[3 * o + 1],
                          object_texture[3 * o + 2], texel_row, out->vis_rows,
                          out->vis_weight);
-    /* local view in (t, n × t, n), as brdf.to_local */
-    float3 wo = (float3)(dot(v, t), dot(v, cross(n, t)), dot(v, n));
     int entries[4];
     float w[4];
-    triple_view_weights(wo, g, entries, w);
+    triple_view_rows(vload2(i, view_coords), g, entries, w);
     int ma = material_a[i], mb = material_b[i];
     float tb = blend[i];
     out->brdf_rows[0] = (uint)diffuse_row[ma];

@@ -17,6 +17,8 @@ shaded pixel (P of them, the pixels whose ray hits a surface, in image order):
 Plus ``pixel`` (P,), each shaded pixel's flat index in the image, and ``miss`` (M, 3),
 the world directions of the pixels that see the environment (``miss_pixel`` (M,)).
 Floats are float32 (what the device reads; the NumPy twins read the same values).
+:meth:`GBuffer.angles` turns the shading frames and views into grid coordinates once per
+camera (the lookups' trigonometry); every frame's lookups start from them.
 
 :func:`lookups_numpy` is the host twin of the kernels' lookups
 (pipeline.math.frame_grids, pipeline.render.triple.texel_lookups / brdf_lookups);
@@ -33,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pipeline import cl
+from pipeline.math.frame_grids import FrameGrid, ViewGrid
 
 if TYPE_CHECKING:
     from pipeline.render.triple import Atlas, PixelLookups, TripleTables
@@ -71,11 +74,31 @@ class GBuffer:
 
     @cached_property
     def device(self) -> list[Any]:
-        """The per-pixel arrays as device buffers in the kernels' order (normal, tangent,
-        view, texel_xy, object, material_a, material_b, blend), uploaded once per camera."""
+        """The per-frame arrays as device buffers in the kernels' order (texel_xy, object,
+        material_a, material_b, blend), uploaded once per camera."""
         return [cl.read_only_buffer(a) for a in (
-            self.normal, self.tangent, self.view, self.texel_xy, self.object,
-            self.material_a, self.material_b, self.blend)]
+            self.texel_xy, self.object, self.material_a, self.material_b, self.blend)]
+
+    def angles(self, frames: FrameGrid, views: ViewGrid) -> tuple[list[Any], float]:
+        """Device buffers of every pixel's frame-grid (P, 3) and view-grid (P, 2)
+        coordinates (kernel ``triple_angles``: the lookups' trigonometry, run once per
+        camera and grids) and the milliseconds that took (0 once cached)."""
+        import pyopencl as pcl
+
+        key = ("angles", frames, views)
+        if key in self.__dict__:
+            return self.__dict__[key], 0.0
+        n = max(self.count, 1)
+        out = [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * 4) for k in (3, 2)]
+        inputs = [cl.read_only_buffer(a) for a in (self.normal, self.tangent, self.view)]
+        kernel = cl.kernel("triple.cl", "triple_angles", {"SW_LEVELS": 1})
+        event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
+                       *inputs, *(np.int32(x) for x in (frames.n_phi, frames.n_theta,
+                                                         frames.n_psi, views.n_phi,
+                                                         views.n_theta)),
+                       np.int32(self.count), *out)
+        self.__dict__[key] = out
+        return out, cl.event_ms(event)
 
     @cached_property
     def miss_device(self) -> Any:
@@ -108,17 +131,18 @@ class LookupTables:
 
 def kernel_arguments(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
                      turn: float, static: dict[str, Any]) -> list[Any]:
-    """The kernels' TRIPLE_GBUFFER_ARGS (kernels/triple.cl): G-buffer buffers, the
-    lookup tables (``static`` caches the atlas's buffers across frames) and the grids."""
+    """The kernels' TRIPLE_GBUFFER_ARGS (kernels/triple.cl): the camera's grid
+    coordinates (:meth:`GBuffer.angles`), the G-buffer's per-frame buffers, the lookup
+    tables (``static`` caches the atlas's buffers across frames) and the grids."""
     if "texture" not in static:
         static["texture"] = cl.read_only_buffer(lookup.object_texture)
         static["texel_row"] = cl.read_only_buffer(lookup.texel_row)
         static["glossy_base"] = cl.read_only_buffer(lookup.glossy_base)
         static["diffuse_row"] = cl.read_only_buffer(lookup.diffuse_row)
     f, v = tables.frames, tables.views
-    return [*gbuffer.device, static["texture"], static["texel_row"], static["glossy_base"],
-            static["diffuse_row"], cl.read_only_buffer(lookup.kd),
-            cl.read_only_buffer(lookup.rho_s),
+    return [*gbuffer.angles(f, v)[0], *gbuffer.device, static["texture"],
+            static["texel_row"], static["glossy_base"], static["diffuse_row"],
+            cl.read_only_buffer(lookup.kd), cl.read_only_buffer(lookup.rho_s),
             *(np.int32(x) for x in (f.n_phi, f.n_theta, f.n_psi, v.n_phi, v.n_theta)),
             np.float32(turn)]
 
