@@ -20,10 +20,14 @@ with every factor a spherical Haar wavelet expansion over local directions ω
   nothing; a γ (or other shape) edit at run time re-samples that material's glossy rows
   as the ``triple.brdf_tables`` stage does (``resample_ms``, once per edited value).
 
-Camera rays are traced per frame (any camera; pipeline/raytrace.py): pixels that miss
-see the environment map itself. This module keeps the tables as :class:`WaveletRows`
-and computes per-pixel rows and weights on the host (:class:`PixelLookups`); the kernel
-sums the triple products; :func:`shade_numpy` is its NumPy twin.
+Camera rays are traced once per camera (any camera; pipeline/raytrace.py) into a
+G-buffer (pipeline/render/triple_gbuffer.py) that frames reuse while the camera stays:
+pixels that miss see the environment map itself (kernel ``triple_background``). This
+module keeps the tables as :class:`WaveletRows`; the kernels compute every pixel's rows
+and weights from the G-buffer (kernels/triple_lookup.h; twins :func:`texel_lookups`,
+:func:`brdf_lookups`, FrameGrid/ViewGrid.weights) and sum the triple products: top-only
+budgets ≤ 320 by the dense path (pipeline/render/triple_dense.py), the rest by the
+sparse merge; :func:`shade_numpy` is the sums' NumPy twin.
 """
 
 from __future__ import annotations
