@@ -350,13 +350,6 @@ class Atlas:
         return (1.0 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1] \
             + v[:, None] * corners[:, 2]
 
-    def lookups(self, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
-        """Visibility rows and bilinear weights (P, 4) at surface hits."""
-        obj = surface.object_id
-        texels, weight = texel_lookups(self.texel_xy(surface), self.size[obj],
-                                       self.offset[obj], self.filled)
-        return self.row[texels], weight
-
 
 def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, cam: Any) -> GBuffer:
     """The G-buffer of camera ``cam`` (pipeline/render/triple_gbuffer.py): camera rays
