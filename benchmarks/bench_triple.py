@@ -143,7 +143,8 @@ def kernel_only(tables: Any, dense: Any, gbuffer: Any, lookup: Any, repeats: int
 def sparse_estimate(tables: Any, gbuffer: Any, lookup: Any, turn: float, stride: int,
                     repeats: int) -> dict[str, Any]:
     """The general sparse path (device lookups + merge kernel) on every ``stride``-th
-    shaded pixel: median milliseconds and that × stride (an estimate of the frame)."""
+    shaded pixel: median milliseconds (device; ``cpu_ms`` the process's CPU time, the
+    angles included) and those × shaded / timed pixels (an estimate of the frame)."""
     import dataclasses
 
     from pipeline.render.triple import shade_gbuffer
@@ -155,9 +156,11 @@ def sparse_estimate(tables: Any, gbuffer: Any, lookup: Any, turn: float, stride:
             "normal", "tangent", "view", "texel_xy", "object", "material_a",
             "material_b", "blend")})
     sub.__dict__.pop("device", None)
-    lookup_ms, kernel_ms, loads = [], [], []
+    lookup_ms, kernel_ms, cpu, loads = [], [], [], []
     for _ in range(repeats):
+        c0 = cpu_ms()
         _, times, _ = shade_gbuffer(tables, None, sub, lookup, turn, {})
+        cpu.append(cpu_ms() - c0)
         lookup_ms.append(times["lookup_ms"])
         kernel_ms.append(times["kernel_ms"])
         loads.append(os.getloadavg()[0])
@@ -165,6 +168,8 @@ def sparse_estimate(tables: Any, gbuffer: Any, lookup: Any, turn: float, stride:
             "lookup_ms": median(lookup_ms), "kernel_ms": median(kernel_ms),
             "estimated_frame_kernel_ms": median(kernel_ms) * gbuffer.count / len(pick),
             "estimated_frame_lookup_ms": median(lookup_ms) * gbuffer.count / len(pick),
+            "cpu_ms": median(cpu),
+            "estimated_frame_cpu_ms": median(cpu) * gbuffer.count / len(pick),
             "kernel_ms_all": kernel_ms, "load_average": loads}
 
 
@@ -209,7 +214,7 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=1024)
     parser.add_argument("--height", type=int, default=768)
     parser.add_argument("--frames", type=int, default=5)
-    parser.add_argument("--budgets", default="20,80,320")
+    parser.add_argument("--budgets", default="20,80,320,0")
     parser.add_argument("--stride", type=int, default=16,
                         help="sparse path: time every N-th pixel")
     parser.add_argument("--workdir", type=Path, default=ROOT / ".prt" / "bench_triple")
