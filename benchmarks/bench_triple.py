@@ -155,7 +155,6 @@ def sparse_estimate(tables: Any, gbuffer: Any, lookup: Any, turn: float, stride:
         **{k: getattr(gbuffer, k)[pick] for k in (
             "normal", "tangent", "view", "texel_xy", "object", "material_a",
             "material_b", "blend")})
-    sub.__dict__.pop("device", None)
     lookup_ms, kernel_ms, cpu, loads = [], [], [], []
     for _ in range(repeats):
         c0 = cpu_ms()

@@ -28,7 +28,7 @@ sparse path keeps them on the device).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -60,6 +60,8 @@ class GBuffer:
     blend: np.ndarray
     miss_pixel: np.ndarray
     miss: np.ndarray
+    _angles: dict[tuple[FrameGrid, ViewGrid], list[Any]] = field(
+        init=False, default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("normal", "tangent", "view", "texel_xy", "blend", "miss"):
@@ -85,9 +87,8 @@ class GBuffer:
         camera and grids) and the milliseconds that took (0 once cached)."""
         import pyopencl as pcl
 
-        key = ("angles", frames, views)
-        if key in self.__dict__:
-            return self.__dict__[key], 0.0
+        if (frames, views) in self._angles:
+            return self._angles[frames, views], 0.0
         n = max(self.count, 1)
         out = [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * 4) for k in (3, 2)]
         inputs = [cl.read_only_buffer(a) for a in (self.normal, self.tangent, self.view)]
@@ -97,7 +98,7 @@ class GBuffer:
                                                          frames.n_psi, views.n_phi,
                                                          views.n_theta)),
                        np.int32(self.count), *out)
-        self.__dict__[key] = out
+        self._angles[frames, views] = out
         return out, cl.event_ms(event)
 
     @cached_property
