@@ -467,20 +467,18 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     env_map = np.ascontiguousarray(read_environment(environment_of(scene).params["file"]),
                                    np.float32)
     level = dense_level(selection, budget)
-    dense = {} if level is None else {id(tables.brdf): DenseTables.from_tables(tables, level)}
+    base_dense = None if level is None else DenseTables.from_tables(tables, level)
+    edited: list[tuple[WaveletRows, DenseTables]] = []  # the last edited BRDF table's
     static: dict[str, Any] = {}  # device buffers kept across frames (atlas, map)
     cached: dict[tuple, GBuffer] = {}  # the last camera's G-buffer
 
     def dense_of(brdf: WaveletRows) -> DenseTables | None:
         """The dense tables for these BRDF rows (converted once per edited table)."""
-        if level is None:
-            return None
-        if id(brdf) not in dense:
-            base = dense[id(tables.brdf)]
-            dense.clear()
-            dense[id(tables.brdf)] = base
-            dense[id(brdf)] = base.with_brdf(brdf, tables.basis)
-        return dense[id(brdf)]
+        if base_dense is None or brdf is tables.brdf:
+            return base_dense
+        if not edited or edited[0][0] is not brdf:
+            edited[:] = [(brdf, base_dense.with_brdf(brdf, tables.basis))]
+        return edited[0][1]
 
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
