@@ -126,15 +126,20 @@ def kernel(file: str, name: str, defines: dict[str, Any] | None = None) -> Any:
     return _KERNELS[key]
 
 
-def run(kernel: Any, size: int, *args: Any, out: Any, out_buffer: Any | None = None) -> float:
+def run(kernel: Any, size: int, *args: Any, out: Any, out_buffer: Any | None = None,
+        local: int | None = None) -> float:
     """One launch of ``kernel`` over ``size`` work-items with ``args`` and, last, the
     output buffer (``out_buffer``, or a new write-only one of ``out``'s size); the output
-    is copied into the host array ``out``. Returns the kernel's milliseconds."""
+    is copied into the host array ``out``. Returns the kernel's milliseconds. With
+    ``local``, work-groups of that size (the global size rounded up: the kernel skips
+    the extra items): PoCL builds a kernel once per work-group size, so a size that
+    changes from frame to frame (pixels seen) would otherwise re-build it (seconds)."""
     import pyopencl as cl
 
     if out_buffer is None:
         out_buffer = cl.Buffer(context(), cl.mem_flags.WRITE_ONLY, out.nbytes)
-    event = kernel(queue(), (size,), None, *args, out_buffer)
+    shape = (size,) if local is None else (-(-size // local) * local,)
+    event = kernel(queue(), shape, None if local is None else (local,), *args, out_buffer)
     cl.enqueue_copy(queue(), out, out_buffer, wait_for=[event])
     return event_ms(event)
 

@@ -26,10 +26,14 @@ Bump maps (paper 004 §4.2, pipeline/surface_detail.py): the lighting lookup (th
 F) and ω_o use the bumped shading frame, the visibility stays in the texel's geometric
 frame — "not physically correct", the paper's approximation.
 
-Camera rays are traced per frame (any camera; pipeline/raytrace.py): pixels that miss
-see the environment map itself. This module keeps the tables as :class:`WaveletRows`
-and computes per-pixel rows and weights on the host (:class:`PixelLookups`); the kernel
-sums the triple products; :func:`shade_numpy` is its NumPy twin.
+Camera rays are traced once per camera (any camera; pipeline/raytrace.py) into a
+G-buffer (pipeline/render/triple_gbuffer.py) that frames reuse while the camera stays:
+pixels that miss see the environment map itself (kernel ``triple_background``). This
+module keeps the tables as :class:`WaveletRows`; the kernels compute every pixel's rows
+and weights from the G-buffer (kernels/triple_lookup.h; twins :func:`texel_lookups`,
+:func:`brdf_lookups`, FrameGrid/ViewGrid.weights) and sum the triple products: top-only
+budgets ≤ 320 by the dense path (pipeline/render/triple_dense.py), the rest by the
+sparse merge; :func:`shade_numpy` is the sums' NumPy twin.
 """
 
 from __future__ import annotations
@@ -46,9 +50,8 @@ import numpy as np
 from pipeline import cl
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
-from pipeline.math.brdf import scene_brdfs, to_local
+from pipeline.math.brdf import scene_brdfs
 from pipeline.math.camera import camera_rays
-from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.sphwavelet import (
     WaveletBasis,
@@ -59,12 +62,20 @@ from pipeline.math.sphwavelet import (
 )
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
 from pipeline.render import Frame
+from pipeline.render.triple_dense import DenseTables, dense_level
+from pipeline.render.triple_gbuffer import (
+    WORK_GROUP,
+    GBuffer,
+    LookupTables,
+    device_lookups,
+    kernel_arguments,
+)
 from pipeline.scene import Light, Scene
 from pipeline.stages.brdf_tables import SHAPE_KEYS, glossy_rows
 from pipeline.store import Artifact
 from pipeline.surface_detail import SceneDetail
 
-LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 9  # as kernels/triple.cl
+LIGHT_ROWS, VIS_ROWS, BRDF_ROWS = 8, 4, 9  # as kernels/triple_lookup.h
 SELECTIONS = ("top-only", "adaptive")  # run-time cuts of the stored rows (WaveletRows.truncated)
 
 
@@ -260,6 +271,42 @@ def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, floa
     return out[:n], ms, moved
 
 
+def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuffer,
+                  lookup: LookupTables, turn: float, static: dict[str, Any]
+                  ) -> tuple[np.ndarray, dict[str, float], int]:
+    """Radiance (P, 3) float32 of the G-buffer's pixels, with the lookups on the device:
+    the dense top-only kernel (lookups fused) where ``dense`` is given, else
+    ``triple_lookups`` then the sparse ``triple_shade``. Also the kernels' milliseconds
+    (``lookup_ms``: 0 when fused, ``kernel_ms``) and the bytes they read and wrote (the
+    tables once, the G-buffer, the lookups where they go through memory, the output)."""
+    n = gbuffer.count
+    out = np.empty((max(n, 1), 3), np.float32)
+    args = kernel_arguments(gbuffer, tables, lookup, turn, static)
+    gbuffer_bytes = sum(getattr(gbuffer, a).nbytes for a in (
+        "normal", "tangent", "view", "texel_xy", "object", "material_a", "material_b",
+        "blend"))
+    if dense is not None:
+        kernel = cl.kernel("triple.cl", "triple_shade_dense",
+                           {"SW_LEVELS": tables.basis.leaf_level,
+                            "TRIPLE_T": dense.triangles, "TRIPLE_W": dense.vector_width})
+        ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out,
+                    local=WORK_GROUP)
+        moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf, out))
+        return out[:n], {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
+    buffers, lookup_ms = device_lookups(gbuffer, tables, lookup, turn, static)
+    basis = kernel_tables(tables.basis)
+    kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level})
+    table_args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
+    ms = cl.run(kernel, max(n, 1), *table_args, *buffers,
+                *(cl.read_only_buffer(basis[k]) for k in ("root_area", "wavelet", "tensor")),
+                np.int32(n), out=out, local=WORK_GROUP)
+    lookup_bytes = n * 4 * (2 * LIGHT_ROWS + 2 * VIS_ROWS + 4 * BRDF_ROWS)
+    moved = sum(a.nbytes for t in (tables.light, tables.visibility, tables.brdf)
+                for a in (t.start, t.index, t.value))
+    return out[:n], {"lookup_ms": lookup_ms, "kernel_ms": ms}, \
+        moved + gbuffer_bytes + 2 * lookup_bytes + out.nbytes
+
+
 def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
                 ) -> np.ndarray:
     """The kernel's sums for the lookups' rows ``pixels`` (K,), in float64 with
@@ -310,14 +357,34 @@ class Atlas:
     filled: np.ndarray
     row: np.ndarray
 
-    def lookups(self, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
-        """Visibility rows and bilinear weights (P, 4) at surface hits."""
-        w = np.stack([1.0 - surface.hits.u - surface.hits.v, surface.hits.u, surface.hits.v],
-                     1)
-        texel_xy = np.einsum("pc,pcd->pd", w, self.face_uv[surface.face])
-        obj = surface.object_id
-        texels, weight = texel_lookups(texel_xy, self.size[obj], self.offset[obj], self.filled)
-        return self.row[texels], weight
+    def texel_xy(self, surface: Surface) -> np.ndarray:
+        """Continuous texel coordinates (P, 2) of surface hits in their object's texture:
+        the barycentric blend of the face's atlas corners."""
+        u, v = surface.hits.u.astype(np.float64), surface.hits.v.astype(np.float64)
+        corners = self.face_uv[surface.face].astype(np.float64)
+        return (1.0 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1] \
+            + v[:, None] * corners[:, 2]
+
+
+def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
+                   cam: Any) -> GBuffer:
+    """The G-buffer of camera ``cam`` (pipeline/render/triple_gbuffer.py): camera rays
+    traced, surface attributes at the hits: the shading frame (the interpolated normal
+    and the uv tangent, turned by a bump map) and the materials' blends from ``detail``
+    (pipeline/surface_detail.py); the texel coordinates stay with the geometric hit (the
+    visibility is the unbumped texel's, paper 004 §4.2)."""
+    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                      cam.width, cam.height)
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    hits = tracer.intersect(origins, directions)
+    hit = hits.prim >= 0
+    d = directions[hit]  # float32, as the G-buffer keeps it (normals blended in float32)
+    surface = surface_at(mesh, hits.select(hit), origins[hit], d, normal_dtype=np.float32)
+    shading = detail.at(surface)
+    return GBuffer(cam.width, cam.height, np.flatnonzero(hit),
+                   shading.normal.astype(np.float32), shading.tangent.astype(np.float32), -d,
+                   atlas.texel_xy(surface), surface.object_id, shading.material_a,
+                   shading.material_b, shading.blend, np.flatnonzero(~hit), directions[~hit])
 
 
 def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str]
@@ -380,10 +447,12 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     baked_shapes = {n: _shape(scene, n) for n in material_names}
     resampled: dict[tuple, WaveletRows] = {}
 
+    spliced: dict[tuple, WaveletRows] = {}  # the last edited table, reused while unchanged
+
     def current_brdf(scene: Scene) -> WaveletRows:
         """The BRDF rows, with the glossy rows of every material whose shape (γ, ...)
         differs from the bake re-sampled as the stage samples them."""
-        rows = tables.brdf
+        edits = []
         for m, name in enumerate(material_names):
             shape = _shape(scene, name)
             if tables.glossy_base[m] < 0 or shape == baked_shapes[name]:
@@ -399,57 +468,84 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                                               fresh["value"][:, 0])
                 resampled[key] = new.truncated(tables.basis, selection, budget) \
                     if budget > 0 else new
-            rows = rows.with_rows(int(tables.glossy_base[m]), resampled[key])
-        return rows
+            edits.append((m, key))
+        if not edits:
+            return tables.brdf
+        if tuple(edits) not in spliced:
+            rows = tables.brdf
+            for m, key in edits:
+                rows = rows.with_rows(int(tables.glossy_base[m]), resampled[key])
+            spliced.clear()
+            spliced[tuple(edits)] = rows
+        return spliced[tuple(edits)]
 
     arrays = {n: geo.read(n) for n in
               ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
     tracer = RayTracer(arrays["vertices"], arrays["faces"])
     mesh = Mesh.from_arrays(arrays)
-    env_map = read_environment(environment_of(scene).params["file"])
     detail = SceneDetail(scene, material_names)
-    backgrounds: dict[tuple[float, float], EnvironmentMap] = {}
+    env_map = np.ascontiguousarray(read_environment(environment_of(scene).params["file"]),
+                                   np.float32)
+    level = dense_level(selection, budget)
+    base_dense = None if level is None else DenseTables.from_tables(tables, level)
+    edited: list[tuple[WaveletRows, DenseTables]] = []  # the last edited BRDF table's
+    static: dict[str, Any] = {}  # device buffers kept across frames (atlas, map)
+    cached: dict[tuple, GBuffer] = {}  # the last camera's G-buffer
+
+    def dense_of(brdf: WaveletRows) -> DenseTables | None:
+        """The dense tables for these BRDF rows (converted once per edited table)."""
+        if base_dense is None or brdf is tables.brdf:
+            return base_dense
+        if not edited or edited[0][0] is not brdf:
+            edited[:] = [(brdf, base_dense.with_brdf(brdf, tables.basis))]
+        return edited[0][1]
 
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
         cam = scene.camera
-        origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                          cam.width, cam.height)
-        origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
-        hits = tracer.intersect(origins, directions)
-        hit = hits.prim >= 0
-        d = directions[hit].astype(np.float64)
-        surface = surface_at(mesh, hits.select(hit), origins[hit].astype(np.float64), d)
+        key = (tuple(cam.position), tuple(cam.look_at), tuple(cam.up), cam.fov, cam.width,
+               cam.height)
+        was_cached = key in cached
+        if not was_cached:  # a new camera: trace it (the previous one is dropped)
+            cached.clear()
+            cached[key] = camera_gbuffer(tracer, mesh, atlas, detail, cam)
+        gbuffer = cached[key]
+        _, angles_ms = gbuffer.angles(tables.frames, tables.views)  # 0 ms once cached
         t1 = time.perf_counter()
         frame_tables = dataclasses.replace(tables, brdf=current_brdf(scene))
+        frame_dense = dense_of(frame_tables.brdf)
         t_resample = time.perf_counter()
         light = environment_of(scene).params
-        turn = np.radians(light.get("rotation", 0.0))
-        shading = detail.at(surface)  # blend and bumped frame; visibility stays geometric
-        light_rows, light_weight = tables.frames.weights(shading.normal, shading.tangent, turn)
-        vis_rows, vis_weight = atlas.lookups(surface)
+        turn = float(np.radians(light.get("rotation", 0.0)))
         brdfs = scene_brdfs(scene, material_names)
-        kd = np.array([b.albedo for b in brdfs])
-        rho_s = np.array([b.specular for b in brdfs])
-        wo = to_local(-d, shading.normal, shading.tangent)
-        brdf_rows, brdf_weight = brdf_lookups(tables, shading.material_a, wo, kd, rho_s,
-                                              shading.material_b, shading.blend)
-        lookups = PixelLookups(light_rows, light_weight, vis_rows, vis_weight, brdf_rows,
-                               brdf_weight)
-        t2 = time.perf_counter()
-        shaded, kernel_ms, moved = shade(frame_tables, lookups)
-        scale = light.get("scale", 1.0)
-        rgb = np.empty((len(hit), 3), np.float32)
-        rgb[hit] = shaded * scale
-        pose = (light.get("rotation", 0.0), scale)
-        if pose not in backgrounds:
-            backgrounds[pose] = EnvironmentMap(env_map, *pose)
-        rgb[~hit] = backgrounds[pose].radiance(directions[~hit].astype(np.float64))
+        lookup = LookupTables.of(frame_tables, atlas, np.array([b.albedo for b in brdfs]),
+                                 np.array([b.specular for b in brdfs]))
+        shaded, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
+                                                    lookup, turn, static)
+        scale = float(light.get("scale", 1.0))
+        rgb = np.empty((cam.width * cam.height, 3), np.float32)
+        rgb[gbuffer.pixel] = shaded * scale
+        background_ms = 0.0
+        if len(gbuffer.miss_pixel):
+            if "map" not in static:
+                static["map"] = cl.read_only_buffer(env_map)
+            miss = np.empty((len(gbuffer.miss_pixel), 3), np.float32)
+            kernel = cl.kernel("triple.cl", "triple_background",
+                               {"SW_LEVELS": tables.basis.leaf_level})
+            background_ms = cl.run(kernel, len(miss), static["map"], np.int32(env_map.shape[1]),
+                                   np.int32(env_map.shape[0]), gbuffer.miss_device,
+                                   np.float32(turn), np.float32(scale), np.int32(len(miss)),
+                                   out=miss, local=WORK_GROUP)
+            rgb[gbuffer.miss_pixel] = miss
         t3 = time.perf_counter()
-        timings = {"trace_ms": (t1 - t0) * 1e3, "resample_ms": (t_resample - t1) * 1e3,
-                   "lookup_ms": (t2 - t_resample) * 1e3,
-                   "kernel_ms": kernel_ms, "counted_kernel_ms": kernel_ms,
-                   "setup_ms": (t2 - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
+        shading_ms = kernel_times["lookup_ms"] + kernel_times["kernel_ms"]
+        timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
+                   "angles_ms": angles_ms,
+                   "resample_ms": (t_resample - t1) * 1e3,
+                   "lookup_ms": kernel_times["lookup_ms"],
+                   "shade_ms": kernel_times["kernel_ms"], "background_ms": background_ms,
+                   "kernel_ms": shading_ms + background_ms, "counted_kernel_ms": shading_ms,
+                   "setup_ms": (t_resample - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
         return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved)
 
     return frame
