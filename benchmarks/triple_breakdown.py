@@ -406,8 +406,8 @@ def _grazing(out: Path, workdir: Path, size: int, spp: int) -> None:
             masks[f"θo {lo}–{hi}°"] = px["hit"] & (px["theta_o"] >= lo) & (px["theta_o"] < hi)
         rows.append({"gamma": gamma, "load_average": load, "errors": _errors(image, ref, masks),
                      "table_vs_true_brdf": _table_rows(gamma)})
-        _pictures(out, f"triple_breakdown_grazing_{gamma}", image, ref)
-        write_png(out / f"triple_breakdown_grazing_{gamma}_reference.png", ref.mean)
+        _pictures(out, f"triple_breakdown_grazing_{gamma}", image, ref, exposure=8.0)
+        write_png(out / f"triple_breakdown_grazing_{gamma}_reference.png", ref.mean, 8.0)
     _write(out, "grazing", {"size": size, "spp": spp, "rows": rows})
 
 
