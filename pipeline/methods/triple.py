@@ -38,6 +38,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from pipeline.errors import PrtError
+from pipeline.images import read_environment
 from pipeline.method import Method, Option
 from pipeline.scene import Scene
 from pipeline.scene_edits import (
@@ -74,11 +75,14 @@ SEQUENCE_KINDS = ("rotate", "orbit", "gamma")
 
 
 def check_scene(scene: Scene) -> None:
-    """Exactly one environment light."""
+    """Exactly one environment light, whose map reads as a valid latitude-longitude map
+    (checked here, before anything is baked: the lighting stage would refuse it only
+    after the geometry stage has run)."""
     count = sum(light.type == "environment" for light in scene.lights)
     if count != 1:
         raise PrtError(scene.path, f"lights: method triple renders exactly one environment "
                        f"light; the scene has {count}")
+    read_environment(scene.environment_file())
 
 
 def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
