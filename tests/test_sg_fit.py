@@ -44,7 +44,7 @@ def test_jacobian_and_normal_equations_match_finite_differences():
     targets = sg_fit.FitTargets(mean=mean + 0.1, sigma=sigma * 1.2,
                                 neighbour_means=mean[:, None, ::-1])
     options = sg_fit.FitOptions(lobes=2, mean_weight=0.3, sigma_weight=2.0, spatial_weight=5.0)
-    problem, x, _ = sg_fit._setup(DIRECTIONS, SOLID_ANGLES, values, options, targets, None)
+    problem, x = sg_fit._setup(DIRECTIONS, SOLID_ANGLES, values, options, targets, None)
     x = x + np.random.default_rng(0).normal(size=x.shape) * 0.05
     r, jac = sg_fit._dense_jacobian(problem, x)
     assert len(r) == len(DIRECTIONS) * 3 + 6 + 2 + 1

@@ -24,12 +24,14 @@ lobes (pipeline/math/sg.py) sharing mean and sharpness across channels:
   μ_n,k2 the difference of the means of an already fitted neighbour n (vertex flood
   fill): positive when the lobes' arrangement agrees, penalised when it is flipped.
 
-Only D is exercised by the tests of this first session; β, γ, δ default to 0.
+β, γ, δ default to 0. The tests check all four terms' Jacobians and that β and γ place
+an occluded view's lobes; fits of real data so far use D alone.
 
 **Parameters and bounds** (DESIGN §7: bounded parameters keep batched fits stable and
 lobes from swapping). Lobe k moves in a chart around its initial mean m_k:
 μ_k = (m_k + a_k t_k + b_k b̂_k)/‖·‖ with (t_k, b̂_k) a tangent basis of m_k and
-|a_k|, |b_k| ≤ tan(max_shift); ρ_k = log λ_k ∈ [log λ_min, log λ_max]; w_k ≥ 0. The
+|a_k|, |b_k| ≤ tan(max_shift); ρ_k = log λ_k between log(1/σ_max²) and
+log(1/σ_floor²) (σ_floor: ``_sigma_floor``, half a grid step by default); w_k ≥ 0. The
 vector of a function is x = (a_1, b_1, ρ_1, …, a_N, b_N, ρ_N, w_1, …, w_N), P = N(3 + C).
 
 **Jacobian.** With E_k(s) = √Ω_s G_k(ω_s) and the data residuals
@@ -358,8 +360,8 @@ def _sigma_floor(options: FitOptions, samples: int) -> float:
 
 def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
            options: FitOptions, targets: FitTargets | None,
-           default_mean: np.ndarray | None) -> tuple[_Problem, np.ndarray, np.ndarray]:
-    """The problem, the initial x (F, P) and which functions are zero (F,)."""
+           default_mean: np.ndarray | None) -> tuple[_Problem, np.ndarray]:
+    """The problem and the initial x (F, P)."""
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
@@ -384,7 +386,7 @@ def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
     theta[..., 2] = np.log(lam)
     w = _least_squares_weights(problem, theta)
     w[zero] = 0.0
-    return problem, np.concatenate([theta.reshape(f, -1), w.reshape(f, -1)], axis=1), zero
+    return problem, np.concatenate([theta.reshape(f, -1), w.reshape(f, -1)], axis=1)
 
 
 def _result(problem: _Problem, x: np.ndarray, energy: np.ndarray, iterations: np.ndarray,
@@ -452,9 +454,9 @@ def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
         t = targets or FitTargets()
         t = FitTargets(*(None if a is None else np.asarray(a)[part]
                          for a in (t.mean, t.sigma, t.neighbour_means)))
-        dm = None if default_mean is None or np.ndim(default_mean) == 1 else default_mean[part]
-        problem, x, _ = _setup(directions, solid_angles, values[part], options, t,
-                               default_mean if dm is None else dm)
+        dm = (default_mean if default_mean is None or np.ndim(default_mean) == 1
+              else np.asarray(default_mean)[part])
+        problem, x = _setup(directions, solid_angles, values[part], options, t, dm)
         pieces.append(_result(problem, *_lm(problem, x)))
     return SGFit(*(np.concatenate([getattr(p, name) for p in pieces])
                    for name in ("mean", "sharpness", "weight", "energy", "iterations",
@@ -474,8 +476,7 @@ def fit_trf(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
-    problem, x0, _ = _setup(directions, solid_angles, values, options, targets,
-                            default_mean)
+    problem, x0 = _setup(directions, solid_angles, values, options, targets, default_mean)
     x = x0.copy()
     energy = np.zeros(len(values))
     iterations = np.zeros(len(values), np.int64)
