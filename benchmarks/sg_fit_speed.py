@@ -1,8 +1,9 @@
 """Benchmark: batched Levenberg–Marquardt SG fits against scipy's trust-region-reflective
 path on the same energy (pipeline/math/sg_fit.py; groundwork of issue 17).
 
-Run from the project root:  python benchmarks/sg_fit_speed.py [--quick]
-Writes benchmarks/results/sg_fit_speed.json.
+Run from the project root:  python benchmarks/sg_fit_speed.py [--quick | --small]
+Writes benchmarks/results/sg_fit_speed.json (--small: 184 functions, subset 5; for a
+busy machine).
 
 Data: synthetic transport-like functions on a 55 × 110 lat-long grid (6050 directions,
 the size of the paper's 6 × 32² cubemaps): N true lobes (σ 8–20°, ≥ 50° apart, RGB
@@ -34,8 +35,9 @@ from pipeline.math import sg, sg_fit
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICK = "--quick" in sys.argv
-BATCH = 92 if QUICK else 460
-SUBSET = 3 if QUICK else 10
+SMALL = "--small" in sys.argv
+BATCH = 92 if QUICK else 184 if SMALL else 460
+SUBSET = 3 if QUICK else 5 if SMALL else 10
 REPEATS = 1 if QUICK else 3
 VIEWS = 92
 
@@ -109,6 +111,7 @@ def main() -> None:
                     "numpy": np.__version__},
         "grid_directions": len(directions),
         "quick": QUICK,
+        "small": SMALL,
         "runs": [run(lobes, directions, omega) for lobes in (1, 2, 3)],
     }
     out = ROOT / "benchmarks" / "results" / "sg_fit_speed.json"
