@@ -96,7 +96,7 @@ class FitOptions:
     grid_sigma: float = 0.5        # σ ≥ this × the grid's step √(4π/S): see _setup
     sigma_max: float = 4.0         # radians (λ ≥ 1/16)
     max_iterations: int = 200
-    tolerance: float = 1e-8        # relative energy decrease that ends a fit (both paths)
+    tolerance: float = 1e-6        # relative energy decrease that ends a fit (both paths)
     zero_energy: float = 0.0       # ∫T² dω at or below which a function counts as zero
     default_sigma: float = 0.5     # σ of the lobes of a zero function (radians)
     batch: int = 256               # functions per batched step (memory: batch · 4N · S)
