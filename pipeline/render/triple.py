@@ -154,6 +154,11 @@ class TripleTables:
     glossy_base: np.ndarray
     diffuse_row: np.ndarray
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the three tables' rows as held (what a frame reads of them)."""
+        return self.light.nbytes + self.visibility.nbytes + self.brdf.nbytes
+
     def truncated(self, selection: str, budget: int) -> TripleTables:
         """The tables with every row cut to the run-time budget."""
         cut = [t.truncated(self.basis, selection, budget)
@@ -287,6 +292,11 @@ class Atlas:
     offset: np.ndarray
     filled: np.ndarray
     row: np.ndarray
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.face_uv, self.size, self.offset, self.filled,
+                                      self.row))
 
     def lookups(self, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
         """Visibility rows and bilinear weights (P, 4) at surface hits."""
@@ -425,6 +435,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                    "lookup_ms": (t2 - t_resample) * 1e3,
                    "kernel_ms": kernel_ms, "counted_kernel_ms": kernel_ms,
                    "setup_ms": (t2 - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
-        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved)
+        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved,
+                     read_bytes=frame_tables.nbytes + atlas.nbytes)
 
     return frame
