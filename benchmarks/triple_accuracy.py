@@ -9,7 +9,9 @@ renders every variant's frame and compares it with one env-direct reference
 * per region (``bunny``, ``ground``, ``shadowed ground``: ground pixels whose cosine-
   weighted hemisphere the bunny blocks by ≥ ``SHADOW_BLOCKED``, ``shadow edges``: ground
   pixels where the noise-free default frame changes by ≥ ``EDGE_RATIO`` within their
-  3×3 neighbourhood, ``ground, no edge``: the rest of the ground): the relative RMSE
+  3×3 neighbourhood, ``ground, no edge``: the rest of the ground; ``turned normals``:
+  pixels whose shading normal faces away from the camera on a face that faces it, which
+  Surface.normal turns round, and ``surfaces, no turned normal``): the relative RMSE
   ‖I − R‖/‖R‖ (``raw``), the reference's own estimated error √(Σ var)/‖R‖ (``noise``),
   the noise-corrected error √(‖I − R‖² − Σ var)/‖R‖ (``corrected``: the estimate of the
   error against the converged answer, as benchmarks/d2i_accuracy.py does) and the mean
@@ -25,8 +27,9 @@ renders every variant's frame and compares it with one env-direct reference
 Mixed variants (``light only``, ...) take one stage's artifact from a variant and the
 others from the default bake: they split a variant that changes several stages.
 
-Writes ``OUT/results.json``, the default frame, the reference, heat maps of the default's
-error against the reference (``error_default.png``, 0–20 %), of each variant's change
+Writes ``OUT/results.json`` (a later run with other ``--variants`` adds to it), the
+default frame, the reference, heat maps of the default's error against the reference
+(``error_default.png``, 0–20 %), of each variant's change
 (``change_<variant>.png``, 0–10 %), the region masks (``regions.png``) and a bar chart
 of the corrected error per variant and region (``breakdown.png``).
 
@@ -101,6 +104,13 @@ def regions(scene, wd: Workdir, default: np.ndarray) -> dict[str, np.ndarray]:
     surface = surface_at(Mesh.from_arrays(arrays), hits.select(hit),
                          o[hit].astype(np.float64), d[hit].astype(np.float64))
     obj[hit] = surface.object_id
+    # pixels whose blended shading normal faces away from the camera on a face that faces
+    # it: Surface.normal turns such a normal round (into the object), the texels' frames
+    # keep it outward, so the frame's visibility and lighting frames disagree
+    blend = np.sum(surface._weights * surface.mesh.normals[surface.mesh.faces[surface.face]], 1)
+    turned = np.zeros(len(o), bool)
+    turned[hit] = (np.sum(blend * d[hit], 1) > 0) \
+        & (np.sum(surface.mesh.face_normal[surface.face] * d[hit], 1) < 0)
     ground = obj == names.index("ground")
     # cosine-weighted visibility of the ground points (stratified, fixed seed)
     g = np.flatnonzero(ground)
@@ -128,7 +138,9 @@ def regions(scene, wd: Workdir, default: np.ndarray) -> dict[str, np.ndarray]:
     edges = ground2 & all_ground & (ratio >= EDGE_RATIO)
     return {"surfaces": hit.reshape(shape), "bunny": (obj == names.index("bunny")).reshape(shape),
             "ground": ground2, "shadowed ground": shadowed.reshape(shape),
-            "shadow edges": edges, "ground, no edge": ground2 & ~edges}
+            "shadow edges": edges, "ground, no edge": ground2 & ~edges,
+            "turned normals": turned.reshape(shape),
+            "surfaces, no turned normal": (hit & ~turned).reshape(shape)}
 
 
 def split(image: np.ndarray, ref, masks: dict[str, np.ndarray],
@@ -182,8 +194,15 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, out):
     wd = _workdir(scene, base_root)
     t = time.perf_counter()
     job.bake(scene, wd, quiet=True, methods=[method])
+    previous = out / "results.json"  # earlier runs' variants and cuts are kept
+    kept = json.loads(previous.read_text()) if previous.exists() else {}
+    if (kept.get("size"), kept.get("spp")) != (size, spp):
+        kept = {}
     result: dict[str, Any] = {"size": size, "spp": spp, "loadavg_start": os.getloadavg(),
-                              "default_bake_s": time.perf_counter() - t}
+                              "default_bake_s": time.perf_counter() - t,
+                              "variants": kept.get("variants", {})}
+    if "budgets" in kept:
+        result["budgets"] = kept["budgets"]
     ref = job.reference(scene, Workdir(reference_dir), ReferenceSettings(
         "env-direct", tolerance=0.0, min_spp=spp, max_spp=spp), quiet=True).image
     base_artifacts = job.method_artifacts(method, wd)
@@ -198,6 +217,8 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, out):
             "relative error per pixel, |I - R| / |R|",
             f"triple as stored against env-direct {spp} spp", percent=True)
     _regions_png(out / "regions.png", masks)
+    if check_spp or "noise_check" in kept:
+        result["noise_check"] = kept.get("noise_check")
     if check_spp:
         other = job.reference(scene, Workdir(reference_dir), ReferenceSettings(
             "env-direct", tolerance=0.0, min_spp=check_spp, max_spp=check_spp, seed=1),
@@ -224,7 +245,6 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, out):
     names = list(VARIANTS) if variants == "all" else \
         [] if variants == "none" else variants.split(",")
     images = {}
-    result.setdefault("variants", {})
     for name in names:
         settings = VARIANTS[name]
         root = workdir / _slug(name)

@@ -458,9 +458,10 @@ def emitter_pixels(scene: Scene, workdir: Workdir) -> np.ndarray:
     ``rel_rmse_surfaces`` over the other pixels."""
     from pipeline.store import open_artifact
 
+    objects = [light.params["object"] for light in scene.lights
+               if light.type == "quad" and "object" in light.params]
+    if not objects:  # nothing emits (and methods like triple bake no G-buffer)
+        return np.zeros((scene.camera.height, scene.camera.width), bool)
     gbuffer = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
-    geometry = open_artifact(workdir.artifact("geometry"), "geometry")
-    names = geometry.attrs["object_names"]
-    emitters = [names.index(light.params["object"]) for light in scene.lights
-                if light.type == "quad" and "object" in light.params]
-    return np.isin(gbuffer.read("object_id"), emitters)
+    names = open_artifact(workdir.artifact("geometry"), "geometry").attrs["object_names"]
+    return np.isin(gbuffer.read("object_id"), [names.index(o) for o in objects])

@@ -188,3 +188,27 @@ def test_a_run_time_budget_reports_the_bytes_of_the_rows_it_keeps(tmp_path):
         read[tuple(options.values())] = frame.read_bytes
     assert read[()] > read[(80,)] > read[(20,)]
     assert read[(20, "adaptive")] <= read[(80,)]
+
+
+def test_evaluate_triple_charts_what_each_cut_reads(tmp_path):
+    """`prt evaluate --method triple` over run-time budgets of one bake (a scene with no
+    emitting object: no G-buffer is needed): each record's storage is the bytes of the
+    rows its cut keeps (fewer coefficients, fewer bytes), the files on disk are the same
+    for every budget (``artifact_bytes``)."""
+    import json
+
+    scene = triple_scene(tmp_path, sky(tmp_path / "sky.exr"))
+    out = tmp_path / "eval"
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline", "evaluate", str(scene.path), "--method", "triple",
+         "--sweep", "render.budget=20,80", "--repeats", "1", "--reference-max-spp", "64",
+         "--workdir", str(tmp_path / "w"), "--out", str(out), "-q"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    records = {r["budget"]["render.budget"]: r
+               for r in json.loads((out / "results.json").read_text())}
+    assert sorted(records) == [0, 20, 80]
+    assert records[20]["storage_bytes"] < records[80]["storage_bytes"] \
+        < records[0]["storage_bytes"]
+    assert len({r["artifact_bytes"] for r in records.values()}) == 1
+    assert all(0 < r["rel_rmse_surfaces"] < 1 for r in records.values())
