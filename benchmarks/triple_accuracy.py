@@ -24,6 +24,10 @@ renders every variant's frame and compares it with one env-direct reference
 * per run-time cut (``--budgets``: top-only and adaptive at 20, 80, 320 of the default
   bake), the same split plus the bytes of the rows that cut keeps (``rows_bytes``).
 
+``--spp 0`` renders no reference: every error is then against the as-stored frame (the
+cuts' errors are their changes; no noise). ``--env FILE`` lights the scene with another
+map (a new lighting bake only).
+
 Mixed variants (``light only``, ...) take one stage's artifact from a variant and the
 others from the default bake: they split a variant that changes several stages.
 
@@ -45,6 +49,7 @@ import os
 import shutil
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import click
@@ -58,6 +63,7 @@ from pipeline.method import get_method
 from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.reference import ReferenceSettings
 from pipeline.render.triple import load_tables
+from pipeline.scene_edits import with_environment_file
 from pipeline.store import Workdir, open_artifact
 
 SCENE = "scenes/bunny_grace.yaml"
@@ -185,11 +191,15 @@ def _render(scene, artifacts, options: dict[str, Any]) -> tuple[np.ndarray, floa
 @click.option("--variants", default="all", show_default=True,
               help="Comma-separated VARIANTS names (or 'all', or 'none').")
 @click.option("--budgets/--no-budgets", default=True, show_default=True)
+@click.option("--env", "env_file", type=click.Path(path_type=Path),
+              help="Another environment map for the scene (e.g. venice_sunset's sun).")
 @click.option("--out", type=click.Path(path_type=Path), required=True)
-def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, out):
+def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_file, out):
     out.mkdir(parents=True, exist_ok=True)
     method = get_method("triple")
     scene = job.open_scene(SCENE, (size, size))
+    if env_file:
+        scene = with_environment_file(scene, env_file)
     base_root = workdir / "default"
     wd = _workdir(scene, base_root)
     t = time.perf_counter()
@@ -203,10 +213,13 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, out):
                               "variants": kept.get("variants", {})}
     if "budgets" in kept:
         result["budgets"] = kept["budgets"]
-    ref = job.reference(scene, Workdir(reference_dir), ReferenceSettings(
-        "env-direct", tolerance=0.0, min_spp=spp, max_spp=spp), quiet=True).image
     base_artifacts = job.method_artifacts(method, wd)
     default, ms = _render(scene, base_artifacts, {})
+    if spp:
+        ref = job.reference(scene, Workdir(reference_dir), ReferenceSettings(
+            "env-direct", tolerance=0.0, min_spp=spp, max_spp=spp), quiet=True).image
+    else:  # no reference: errors against the as-stored frame (noise free)
+        ref = SimpleNamespace(mean=default, variance=np.zeros_like(default))
     masks = regions(scene, wd, default)
     stored = load_tables(base_artifacts, _materials(base_artifacts))[0]
     result["default"] = {"regions": split(default, ref, masks), "frame_ms": ms,
