@@ -31,7 +31,7 @@ import numpy as np
 from pipeline.errors import PrtError
 
 CHARTS = (("frame_ms", "frame time (ms, median)", "error_vs_frame_time.png"),
-          ("storage_bytes", "storage of the artifacts a frame reads (MB)",
+          ("storage_bytes", "storage a frame reads (MB; on disk, or as held where cut at run time)",
            "error_vs_storage.png"),
           ("bake_s", "bake time (s)", "error_vs_bake_time.png"))
 

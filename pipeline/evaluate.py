@@ -8,7 +8,10 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
 * ``frame_ms``, ``kernel_ms``, ``setup_ms``: medians over full frames of one renderer
   (artifacts loaded once, before the warm-up frame; setup = everything but the OpenCL
   kernels: shadow rays, host work, transfers);
-* ``storage_bytes``: bytes on disk of the artifacts a frame reads; ``bake_stages``: per
+* ``storage_bytes``: bytes on disk of the artifacts a frame reads, or, where the
+  renderer cuts them at run time (``Frame.read_bytes``: triple's ``render.budget``, rows
+  cut on loading), the bytes of what the frame reads, uncompressed
+  (``artifact_bytes``: on disk, always); ``bake_stages``: per
   stage of the chain that made them, its artifact key, compute seconds (summed over its
   chunks) and whether this budget's bake ran it; ``bake_s``: their sum;
 * ``rel_rmse`` (headline), ``psnr_db``, ``flip`` against the reference renderer's image
@@ -349,7 +352,8 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
         "width": sc.camera.width, "height": sc.camera.height,
         "frame_ms": median("total_ms"), "kernel_ms": kernel_ms,
         "setup_ms": median("total_ms") - kernel_ms, "repeats": settings.repeats,
-        "storage_bytes": storage,
+        "storage_bytes": storage if frame.read_bytes is None else frame.read_bytes,
+        "artifact_bytes": storage,
         "bake_s": sum(v["seconds"] for v in bake_stages.values()), "bake_stages": bake_stages,
         **errors,
         "rel_rmse_surfaces": surface_error,
@@ -454,9 +458,10 @@ def emitter_pixels(scene: Scene, workdir: Workdir) -> np.ndarray:
     ``rel_rmse_surfaces`` over the other pixels."""
     from pipeline.store import open_artifact
 
+    objects = [light.params["object"] for light in scene.lights
+               if light.type == "quad" and "object" in light.params]
+    if not objects:  # nothing emits (and methods like triple bake no G-buffer)
+        return np.zeros((scene.camera.height, scene.camera.width), bool)
     gbuffer = open_artifact(workdir.artifact("gbuffer"), "gbuffer")
-    geometry = open_artifact(workdir.artifact("geometry"), "geometry")
-    names = geometry.attrs["object_names"]
-    emitters = [names.index(light.params["object"]) for light in scene.lights
-                if light.type == "quad" and "object" in light.params]
-    return np.isin(gbuffer.read("object_id"), emitters)
+    names = open_artifact(workdir.artifact("geometry"), "geometry").attrs["object_names"]
+    return np.isin(gbuffer.read("object_id"), [names.index(o) for o in objects])

@@ -18,6 +18,7 @@ from pipeline.math.camera import camera_rays
 from pipeline.method import get_method
 from pipeline.raytrace import RayTracer
 from pipeline.reference import ReferenceSettings
+from pipeline.render.triple import load_tables
 from pipeline.scene import load_scene
 from pipeline.scene_edits import with_environment_rotation, with_material_edits
 
@@ -167,3 +168,47 @@ def test_env_and_env_rotate_at_run_time(tmp_path):
                   tmp_path / "w", "--out", tmp_path / "x.exr", "-q")
     assert missing.returncode == 2
     assert f"{tmp_path / 'no.exr'}: environment map not found" in missing.stderr
+
+
+def test_a_run_time_budget_reports_the_bytes_of_the_rows_it_keeps(tmp_path):
+    """``Frame.read_bytes`` (what ``prt evaluate`` charts as a budget's storage): as stored
+    it is the three tables' rows and the atlas lookups as held; a run-time cut reports
+    the bytes of the rows it keeps (fewer for fewer coefficients), not the files."""
+    scene = triple_scene(tmp_path, sky(tmp_path / "sky.exr"))
+    workdir = job.workdir_for(scene, tmp_path / "w")
+    job.bake(scene, workdir, quiet=True, methods=[get_method("triple")])
+    artifacts = job.method_artifacts(get_method("triple"), workdir)
+    stored, atlas = load_tables(artifacts, list(artifacts["geometry"].attrs["material_names"]))
+    read = {}
+    for options in ({}, {"budget": 80}, {"budget": 20}, {"budget": 20, "selection": "adaptive"}):
+        frame = job.frame_renderer(scene, workdir, "triple", options)(scene)
+        tables = stored.truncated(options.get("selection", "top-only"), options["budget"]) \
+            if options else stored
+        assert frame.read_bytes == tables.nbytes + atlas.nbytes
+        read[tuple(options.values())] = frame.read_bytes
+    assert read[()] > read[(80,)] > read[(20,)]
+    assert read[(20, "adaptive")] <= read[(80,)]
+
+
+def test_evaluate_triple_charts_what_each_cut_reads(tmp_path):
+    """`prt evaluate --method triple` over run-time budgets of one bake (a scene with no
+    emitting object: no G-buffer is needed): each record's storage is the bytes of the
+    rows its cut keeps (fewer coefficients, fewer bytes), the files on disk are the same
+    for every budget (``artifact_bytes``)."""
+    import json
+
+    scene = triple_scene(tmp_path, sky(tmp_path / "sky.exr"))
+    out = tmp_path / "eval"
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline", "evaluate", str(scene.path), "--method", "triple",
+         "--sweep", "render.budget=20,80", "--repeats", "1", "--reference-max-spp", "64",
+         "--workdir", str(tmp_path / "w"), "--out", str(out), "-q"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    records = {r["budget"]["render.budget"]: r
+               for r in json.loads((out / "results.json").read_text())}
+    assert sorted(records) == [0, 20, 80]
+    assert records[20]["storage_bytes"] < records[80]["storage_bytes"] \
+        < records[0]["storage_bytes"]
+    assert len({r["artifact_bytes"] for r in records.values()}) == 1
+    assert all(0 < r["rel_rmse_surfaces"] < 1 for r in records.values())

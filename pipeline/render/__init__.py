@@ -15,13 +15,16 @@ class Frame:
     of the frame's kernels read and write, with ``timings["counted_kernel_ms"]`` the
     time of exactly those kernels: their effective bandwidth is ``kernel_bytes`` /
     ``counted_kernel_ms``. Each renderer says which kernels it counts (direct: its one
-    kernel; d2i: the sparse-row products)."""
+    kernel; d2i: the sparse-row products). ``read_bytes``: where a renderer cuts its
+    stored data at run time (triple's ``budget``), the bytes of what this frame reads, as
+    held (uncompressed); None: the frame reads its artifacts whole."""
 
     method: str
     rgb: np.ndarray
     timings: dict[str, float]
     notes: list[str] = field(default_factory=list)
     kernel_bytes: int = 0
+    read_bytes: int | None = None
 
     @property
     def height(self) -> int:

@@ -172,6 +172,11 @@ class TripleTables:
     glossy_base: np.ndarray
     diffuse_row: np.ndarray
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the three tables' rows as held (what a frame reads of them)."""
+        return self.light.nbytes + self.visibility.nbytes + self.brdf.nbytes
+
     def truncated(self, selection: str, budget: int) -> TripleTables:
         """The tables with every row cut to the run-time budget."""
         cut = [t.truncated(self.basis, selection, budget)
@@ -356,6 +361,11 @@ class Atlas:
     offset: np.ndarray
     filled: np.ndarray
     row: np.ndarray
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.face_uv, self.size, self.offset, self.filled,
+                                      self.row))
 
     def texel_xy(self, surface: Surface) -> np.ndarray:
         """Continuous texel coordinates (P, 2) of surface hits in their object's texture:
@@ -546,6 +556,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                    "shade_ms": kernel_times["kernel_ms"], "background_ms": background_ms,
                    "kernel_ms": shading_ms + background_ms, "counted_kernel_ms": shading_ms,
                    "setup_ms": (t_resample - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
-        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved)
+        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved,
+                     read_bytes=frame_tables.nbytes + atlas.nbytes)
 
     return frame
