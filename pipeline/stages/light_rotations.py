@@ -7,8 +7,9 @@ means of L_local(ω) = L(R ω) over the level-L leaves (``triple.leaf_level``), 
 4^r samples per leaf (``triple.light_refine``) of the map prefiltered to their spacing
 (pipeline/math/light_grid.py), computed in OpenCL (kernels/light_rotations.cl),
 transformed there too (kernels/wavelet_forward.cl, pipeline/sphwavelet_cl.py) and
-truncated with one index set for the three channels (luminance-weighted energy,
-pipeline/math/wavelet_rows.py). The map's
+truncated there with one index set for the three channels (luminance-weighted energy,
+pipeline/math/wavelet_rows.py, kernels/wavelet_select.cl), values stored as float16
+with a float32 scale per row (wavelet_rows.to_half). The map's
 rotation and scale are applied by the renderer: the key holds the map file's bytes
 (scene section ``environment.file``) and the params only.
 """
@@ -24,10 +25,11 @@ from pipeline.errors import PrtError
 from pipeline.math.envmap import LUMINANCE
 from pipeline.math.frame_grids import FrameGrid, euler_frame
 from pipeline.math.light_grid import prefilter, prefiltered_width, sample_spacing
-from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, to_half
 from pipeline.rows import ROW_CHUNKS
-from pipeline.sphwavelet_cl import forward_buffer
+from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
+from pipeline.wavelet_select_cl import select_rows_buffer
 
 
 def frame_grid(params: dict[str, Any]) -> FrameGrid:
@@ -103,16 +105,16 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     rgb = prefiltered_map(ctx.environment, ctx.params)
     phis = phi_end - phi_first
     means = leaf_means_buffer(rgb, grid, phi_first, phis, level, refine)
-    coefficients = forward_buffer(means, phis * per_phi * 3, level)
-    coefficients = coefficients.reshape(phis * per_phi, 3, -1)[start - phi_first * per_phi:
-                                                               end - phi_first * per_phi]
-    rows = select_rows(coefficients, level, int(ctx.params["triple.store_budget"]),
-                       float(ctx.params["triple.store_tolerance"]),
-                       int(ctx.params["triple.store_top"]), LUMINANCE)
+    coefficients = forward_device(means, phis * per_phi * 3, level)  # (rows, 3, N)
+    rows = select_rows_buffer(coefficients, start - phi_first * per_phi, end - start, 3,
+                              level, int(ctx.params["triple.store_budget"]),
+                              float(ctx.params["triple.store_tolerance"]),
+                              int(ctx.params["triple.store_top"]), LUMINANCE)
     ctx.meta.update(map_width=int(ctx.environment.shape[1]),
                     worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
-    return rows
+    value, scale = to_half(rows["count"], rows["value"])
+    return {**rows, "value": value, "scale": scale}
 
 
 def layout(ctx: AssembleContext) -> Layout:
