@@ -16,6 +16,7 @@ rotation and scale are applied by the renderer: the key holds the map file's byt
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -37,11 +38,37 @@ def frame_grid(params: dict[str, Any]) -> FrameGrid:
     return FrameGrid(*(int(n) for n in params["triple.frame_grid"]))
 
 
-def _rgbx(rgb: np.ndarray) -> np.ndarray:
-    """(H, W, 3) as (H, W, 4) float32 (the kernel's aligned texels; the 4th unused)."""
-    out = np.zeros((*rgb.shape[:2], 4), np.float32)
-    out[..., :3] = rgb
-    return out
+def _phi_major(rgb: np.ndarray, n_phi: int) -> np.ndarray:
+    """(H, W, 3) as the kernel's float4 texels (RGB and an unused fourth), phi-major:
+    (H, W / n_phi, n_phi, 4), texel (y, k · W / n_phi + m) at [y, m, k]."""
+    height, width = rgb.shape[:2]
+    out = np.zeros((height, n_phi, width // n_phi, 4), np.float32)
+    out[..., :3] = rgb.reshape(height, n_phi, width // n_phi, 3)
+    return np.ascontiguousarray(out.transpose(0, 2, 1, 3))
+
+
+@lru_cache(maxsize=1)
+def _sample_coords(grid: FrameGrid, leaf_level: int, refine: int, width: int,
+                   height: int) -> tuple[Any, int]:
+    """A device buffer of the texel coordinates (frames, N · 4^r) float2 of every leaf
+    sample in the grid's frames at φ = 0 that the kernel is given (ψ < π for an even
+    n_ψ), and that count of frames; kept for the next chunk (the trigonometry costs
+    as much as several φ steps of lookups)."""
+    import pyopencl as cl_
+
+    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi  # the kernel's
+    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)        # half turns
+    psi = 2 * np.pi * np.arange(psi_given) / grid.n_psi
+    t, p = (g.reshape(-1) for g in np.meshgrid(theta, psi, indexing="ij"))
+    frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
+    fine, _ = leaf_samples(leaf_level, refine)
+    coords = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(frames) * len(fine) * 8)
+    cl.kernel("light_rotations.cl", "light_sample_coords", {"SAMPLES": 4 ** refine})(
+        cl.queue(), (len(fine), len(frames)), None,
+        cl.read_only_buffer(frames.reshape(-1, 9).astype(np.float32)),
+        cl.read_only_buffer(fine.astype(np.float32)), np.int32(width), np.int32(height),
+        np.int32(len(frames)), np.int32(len(fine)), coords)
+    return coords, len(frames)
 
 
 def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_count: int,
@@ -54,22 +81,19 @@ def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_coun
     height, width = rgb.shape[:2]
     if width % grid.n_phi:
         raise ValueError(f"map width {width} is not a multiple of n_phi {grid.n_phi}")
-    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi  # the kernel's
-    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)        # half turns
-    psi = 2 * np.pi * np.arange(psi_given) / grid.n_psi
-    t, p = (g.reshape(-1) for g in np.meshgrid(theta, psi, indexing="ij"))
-    frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
-    fine, weights = leaf_samples(leaf_level, refine)
-    leaves = len(fine) // 4 ** refine
+    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi
+    coords, frames = _sample_coords(grid, leaf_level, refine, width, height)
+    _, weights = leaf_samples(leaf_level, refine)
+    leaves = 20 * 4 ** leaf_level
     kernel = cl.kernel("light_rotations.cl", "light_leaf_means", {"SAMPLES": 4 ** refine})
-    buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
-               (frames.reshape(-1, 9), fine, weights, _rgbx(rgb))]
     partner = cl.read_only_buffer(leaf_permutation(leaf_level, (-1, -1, 1)).astype(np.int32))
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
                         phi_count * grid.n_theta * grid.n_psi * 3 * leaves * 4)
-    kernel(cl.queue(), (leaves, len(frames)), None, *buffers, np.int32(width),
-           np.int32(height), np.int32(len(frames)), np.int32(leaves), np.int32(phi_first),
-           np.int32(phi_count), np.int32(width // grid.n_phi), np.int32(psi_given),
+    kernel(cl.queue(), (leaves, frames), None, coords,
+           cl.read_only_buffer(weights.astype(np.float32)),
+           cl.read_only_buffer(_phi_major(rgb, grid.n_phi)), np.int32(width),
+           np.int32(height), np.int32(frames), np.int32(leaves), np.int32(phi_first),
+           np.int32(phi_count), np.int32(grid.n_phi), np.int32(psi_given),
            np.int32(grid.n_psi), partner, result)
     return result
 
