@@ -57,9 +57,8 @@ __kernel void light_leaf_means(__global const float2* coords,  /* n_frames * n_l
 {
     int n = get_global_id(0), b = get_global_id(1);
     if (n >= n_leaves || b >= n_frames) return;
-    int columns = width / n_phi;  /* P */
     /* per sample and corner: the texel of phi step 0 is at map[base + k], that of step
-     * j at map[base + (k - j) mod n_phi] */
+     * j at map[base + (k - j) mod n_phi]; COLUMNS = P (a constant: no division) */
     int base00[SAMPLES], base01[SAMPLES], base10[SAMPLES], base11[SAMPLES];
     int k0[SAMPLES], k1[SAMPLES];
     float fx[SAMPLES], fy[SAMPLES], w[SAMPLES];
@@ -69,14 +68,18 @@ __kernel void light_leaf_means(__global const float2* coords,  /* n_frames * n_l
         float xf = floor(xy.x), yf = floor(xy.y);
         int y = (int)yf, x0 = (int)xf;  /* x0 in [-1, W - 1] */
         if (x0 < 0) x0 += width;
-        int x1 = x0 + 1 == width ? 0 : x0 + 1;
-        int row0 = y * columns, row1 = min(y + 1, height - 1) * columns;
-        base00[s] = (row0 + x0 % columns) * n_phi;
-        base01[s] = (row0 + x1 % columns) * n_phi;
-        base10[s] = (row1 + x0 % columns) * n_phi;
-        base11[s] = (row1 + x1 % columns) * n_phi;
-        k0[s] = x0 / columns;
-        k1[s] = x1 / columns;
+        int m0 = x0 % COLUMNS, m1 = m0 + 1;  /* x0 = k0 P + m0; x1 = x0 + 1, wrapping */
+        k0[s] = x0 / COLUMNS;
+        k1[s] = k0[s];
+        if (m1 == COLUMNS) {
+            m1 = 0;
+            k1[s] = k0[s] + 1 == n_phi ? 0 : k0[s] + 1;
+        }
+        int row0 = y * COLUMNS, row1 = min(y + 1, height - 1) * COLUMNS;
+        base00[s] = (row0 + m0) * n_phi;
+        base01[s] = (row0 + m1) * n_phi;
+        base10[s] = (row1 + m0) * n_phi;
+        base11[s] = (row1 + m1) * n_phi;
         fx[s] = xy.x - xf;
         fy[s] = xy.y - yf;
         w[s] = weight[n * SAMPLES + s];

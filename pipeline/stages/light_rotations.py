@@ -47,6 +47,12 @@ def _phi_major(rgb: np.ndarray, n_phi: int) -> np.ndarray:
     return np.ascontiguousarray(out.transpose(0, 2, 1, 3))
 
 
+def _defines(refine: int, width: int, n_phi: int) -> dict[str, int]:
+    """kernels/light_rotations.cl's build constants: samples per leaf, map columns per
+    φ step."""
+    return {"SAMPLES": 4 ** refine, "COLUMNS": width // n_phi}
+
+
 @lru_cache(maxsize=1)
 def _sample_coords(grid: FrameGrid, leaf_level: int, refine: int, width: int,
                    height: int) -> tuple[Any, int]:
@@ -63,7 +69,8 @@ def _sample_coords(grid: FrameGrid, leaf_level: int, refine: int, width: int,
     frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
     fine, _ = leaf_samples(leaf_level, refine)
     coords = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(frames) * len(fine) * 8)
-    cl.kernel("light_rotations.cl", "light_sample_coords", {"SAMPLES": 4 ** refine})(
+    cl.kernel("light_rotations.cl", "light_sample_coords",
+              _defines(refine, width, grid.n_phi))(
         cl.queue(), (len(fine), len(frames)), None,
         cl.read_only_buffer(frames.reshape(-1, 9).astype(np.float32)),
         cl.read_only_buffer(fine.astype(np.float32)), np.int32(width), np.int32(height),
@@ -85,7 +92,8 @@ def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_coun
     coords, frames = _sample_coords(grid, leaf_level, refine, width, height)
     _, weights = leaf_samples(leaf_level, refine)
     leaves = 20 * 4 ** leaf_level
-    kernel = cl.kernel("light_rotations.cl", "light_leaf_means", {"SAMPLES": 4 ** refine})
+    kernel = cl.kernel("light_rotations.cl", "light_leaf_means",
+                       _defines(refine, width, grid.n_phi))
     partner = cl.read_only_buffer(leaf_permutation(leaf_level, (-1, -1, 1)).astype(np.int32))
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
                         phi_count * grid.n_theta * grid.n_psi * 3 * leaves * 4)
