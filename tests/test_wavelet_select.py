@@ -74,6 +74,9 @@ def test_half_storage_is_within_float16_rounding_of_each_value_and_never_overflo
     bound = np.maximum(2.0 ** -11 * np.abs(value), 2.0 ** -25 * row_max) * (1 + 1e-6)
     assert np.all(np.abs(back - value) <= bound)
     assert np.all(back[7:] == 0.0)
+    again, again_scale = to_half(count, back)  # what the stage stores of rounded rows
+    np.testing.assert_array_equal(again, half)
+    np.testing.assert_array_equal(again_scale, scale)
 
 
 def _light_ctx(rgb: np.ndarray, params: dict, span: tuple[int, int]) -> ChunkContext:

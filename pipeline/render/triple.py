@@ -274,7 +274,7 @@ def _rows(artifact: Artifact) -> WaveletRows:
     back to back); float16 values with a per-row ``scale`` (triple_lighting and
     triple_brdf v2) are expanded to float32."""
     count, value = artifact.read("count"), artifact.read("value")
-    if "scale" in artifact.names():
+    if "scale" in artifact.names:
         value = from_half(count, value, artifact.read("scale"))
     return WaveletRows.from_counts(count, artifact.read("index"), value)
 

@@ -28,7 +28,13 @@ from pipeline.math.brdf import BrdfParams, pack_materials
 from pipeline.math.brdf_tables import diffuse_leaf_means
 from pipeline.math.frame_grids import ViewGrid
 from pipeline.math.sphwavelet import wavelet_basis
-from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows, to_half
+from pipeline.math.wavelet_rows import (
+    from_half,
+    leaf_permutation,
+    leaf_samples,
+    select_rows,
+    to_half,
+)
 from pipeline.rows import ROW_CHUNKS
 from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
@@ -110,11 +116,13 @@ def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
 def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, refine: int,
                 budget: int, tolerance: float, top: int) -> dict[str, np.ndarray]:
     """The stored glossy rows of a material (one per view of ``grid``; CSR as
-    :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1)): what a chunk
-    stores, and what the renderer re-samples for a γ edit at run time."""
+    :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1) float32 rounded as
+    stored: float16 over the row's scale): what a chunk stores, and what the renderer
+    re-samples for a γ edit at run time (so that it equals a fresh bake)."""
     means = view_leaf_means(glossy_params(model, shape), grid, level, refine)
     glossy = forward_device(cl.read_only_buffer(means), len(means), level)
-    return select_rows_buffer(glossy, 0, len(means), 1, level, budget, tolerance, top)
+    rows = select_rows_buffer(glossy, 0, len(means), 1, level, budget, tolerance, top)
+    return {**rows, "value": from_half(rows["count"], *to_half(rows["count"], rows["value"]))}
 
 
 def _section(ctx: AssembleContext, name: str, key: str) -> Any:
