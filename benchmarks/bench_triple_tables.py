@@ -1,7 +1,7 @@
 """Benchmark: method triple's lighting rotation grid and BRDF tables (issue 16).
 
 Run from the project root:
-  python benchmarks/bench_triple_tables.py [--quick] [--compare REV]
+  python benchmarks/bench_triple_tables.py [--quick] [--defaults] [--compare REV]
 Writes benchmarks/results/triple_tables.json and triple_storage.png. Scene:
 scenes/bunny_grace.yaml (the Grace map, the bunny's Blinn-Phong material, the Lambertian
 ground); settings the stage defaults of stages.yaml unless a sweep says otherwise; times
@@ -58,7 +58,7 @@ from pipeline.math.envmap import LUMINANCE
 from pipeline.math.geodesic import geodesic_levels
 from pipeline.math.light_grid import frame_leaf_means
 from pipeline.math.wavelet_rows import to_half
-from pipeline.scene import load_scene
+from pipeline.scene import load_scene, shared_data_dir
 from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import ChunkContext
 from pipeline.stages import brdf_tables as brdf_stage
@@ -273,7 +273,8 @@ def compare(rev: str) -> dict[str, Any]:
         trees = {"before": Path(tmp), "after": ROOT}
         for _ in range(ROUNDS):
             for label, tree in trees.items():
-                env = {**os.environ, "PYTHONPATH": str(tree)}
+                env = {**os.environ, "PYTHONPATH": str(tree),
+                       "PRT_DATA": str(shared_data_dir())}  # REV's tree is elsewhere
                 out = subprocess.run([sys.executable, str(driver)], cwd=tree, env=env,
                                      check=True, capture_output=True, text=True).stdout
                 runs[label].append(json.loads(out.strip().splitlines()[-1]))
@@ -298,6 +299,10 @@ def main() -> None:
         print(json.dumps(result["compare"], indent=1))
         return
     refines = [0, 1] if QUICK else [0, 1, 2]
+    light_refines = brdf_refines = refines
+    if "--defaults" in sys.argv:  # the stages' default refinements only
+        light_refines = [int(params["triple.light_refine"])]
+        brdf_refines = [int(params["triple.brdf_refine"])]
     result: dict[str, Any] = {
         "machine": {"cpu_count": os.cpu_count(), "processor": platform.processor(),
                     "device": cl.device().name, "python": platform.python_version(),
@@ -306,9 +311,9 @@ def main() -> None:
         "settings": {k: v for k, v in PARAMS.items() if k.startswith("triple.")},
         "targets": {"light_rebuild_s": 2.0, "brdf_table_s": 0.5, "paper_MB": PAPER_MB},
         "light": {}, "brdf": {}}
-    result["light_accuracy"] = light_accuracy(rgb, params, refines)
+    result["light_accuracy"] = light_accuracy(rgb, params, light_refines)
     light_rows = None
-    for refine in refines:
+    for refine in light_refines:
         p = {**params, "triple.light_refine": refine}
         light_stage.leaf_means_buffer(light_stage.prefiltered_map(rgb, p),
                                       light_stage.frame_grid(p), 0, 1, 4, refine)  # build
@@ -320,14 +325,14 @@ def main() -> None:
         if refine == params["triple.light_refine"]:
             light_rows = rows
         print(f"light rebuild r={refine}: {result['light'][str(refine)]}")
-    for refine in refines:
+    for refine in brdf_refines:
         p = {**params, "triple.brdf_refine": refine}
         brdf_table(scene, "bunny", p)  # build the kernels
         runs = [brdf_table(scene, "bunny", p) for _ in range(REPEATS + 2)]
         result["brdf"][str(refine)] = {"seconds_median": _median([r[0] for r in runs]),
                                        "runs": len(runs)}
         print(f"brdf table r={refine}: {result['brdf'][str(refine)]}")
-    result["brdf_accuracy"] = brdf_accuracy(scene, "bunny", params, refines)
+    result["brdf_accuracy"] = brdf_accuracy(scene, "bunny", params, brdf_refines)
     _, bunny_rows = brdf_table(scene, "bunny", params)
     _, ground_rows = brdf_table(scene, "ground", params)
     result["storage"] = {"lighting": storage(light_rows, "lighting"),

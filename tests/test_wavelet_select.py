@@ -74,6 +74,8 @@ def test_half_storage_is_within_float16_rounding_of_each_value_and_never_overflo
     bound = np.maximum(2.0 ** -11 * np.abs(value), 2.0 ** -25 * row_max) * (1 + 1e-6)
     assert np.all(np.abs(back - value) <= bound)
     assert np.all(back[7:] == 0.0)
+    empty, empty_scale = to_half(np.zeros(2, np.int64), np.zeros((0, 1), np.float32))
+    assert empty.shape == (0, 1) and np.all(empty_scale == 1.0)  # a table of zero rows
     again, again_scale = to_half(count, back)  # what the stage stores of rounded rows
     np.testing.assert_array_equal(again, half)
     np.testing.assert_array_equal(again_scale, scale)

@@ -128,7 +128,7 @@ def to_half(count: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarra
     largest (subnormals) by ≤ 2^-25 of the row's largest."""
     value = np.asarray(value, np.float32)
     count = np.asarray(count, np.int64)
-    flat = np.abs(value).reshape(len(value), -1).max(axis=1, initial=0.0)
+    flat = np.abs(value).max(axis=tuple(range(1, value.ndim)), initial=0.0)  # (nnz,)
     scale = np.ones(len(count), np.float32)
     filled = count > 0
     starts = np.concatenate([[0], np.cumsum(count)[:-1]])[filled]
