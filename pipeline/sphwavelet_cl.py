@@ -27,9 +27,10 @@ def _root_areas(leaf_level: int) -> Any:
     return cl.read_only_buffer(wavelet_basis(leaf_level).root_areas.astype(np.float32))
 
 
-def forward_buffer(leaf_values: Any, rows: int, leaf_level: int) -> np.ndarray:
-    """Coefficients (rows, N) float32 of the ``rows`` functions whose leaf values
-    (rows, N) float32 are in the device buffer ``leaf_values`` (the buffer is reused)."""
+def forward_device(leaf_values: Any, rows: int, leaf_level: int) -> Any:
+    """A device buffer of the coefficients (rows, N) float32 of the ``rows`` functions
+    whose leaf values (rows, N) float32 are in the device buffer ``leaf_values`` (the
+    buffer is reused)."""
     import pyopencl as cl_
 
     size = coefficient_count(leaf_level)
@@ -48,12 +49,19 @@ def forward_buffer(leaf_values: Any, rows: int, leaf_level: int) -> np.ndarray:
         fine = coarse
     cl.kernel("wavelet_forward.cl", "wavelet_forward_roots")(
         cl.queue(), (20, rows), None, fine, _root_areas(leaf_level), np.int32(size), coeffs)
-    out = np.empty((rows, size), np.float32)
-    cl_.enqueue_copy(cl.queue(), out, coeffs)
+    return coeffs
+
+
+def forward_buffer(leaf_values: Any, rows: int, leaf_level: int) -> np.ndarray:
+    """The coefficients of :func:`forward_device` on the host."""
+    import pyopencl as cl_
+
+    out = np.empty((rows, coefficient_count(leaf_level)), np.float32)
+    cl_.enqueue_copy(cl.queue(), out, forward_device(leaf_values, rows, leaf_level))
     return out
 
 
-def forward(leaf_values: np.ndarray, leaf_level: int) -> np.ndarray:
+def forward(leaf_values: np.ndarray | Any, leaf_level: int) -> np.ndarray:
     """Coefficients (..., N) float32 of leaf values (..., N) on the device."""
     values = np.ascontiguousarray(leaf_values, np.float32)
     out = forward_buffer(cl.read_only_buffer(values), int(np.prod(values.shape[:-1])),

@@ -60,6 +60,7 @@ from pipeline.math.sphwavelet import (
     sparse_triple_product,
     wavelet_basis,
 )
+from pipeline.math.wavelet_rows import from_half
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
 from pipeline.render import Frame
 from pipeline.render.triple_dense import DenseTables, dense_level
@@ -344,9 +345,12 @@ def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
 
 def _rows(artifact: Artifact) -> WaveletRows:
     """The CSR rows of a triple artifact (``count``, ``index``, ``value``; rows stored
-    back to back)."""
-    return WaveletRows.from_counts(artifact.read("count"), artifact.read("index"),
-                                   artifact.read("value"))
+    back to back); float16 values with a per-row ``scale`` (triple_lighting and
+    triple_brdf v2) are expanded to float32."""
+    count, value = artifact.read("count"), artifact.read("value")
+    if "scale" in artifact.names:
+        value = from_half(count, value, artifact.read("scale"))
+    return WaveletRows.from_counts(count, artifact.read("index"), value)
 
 
 @dataclass

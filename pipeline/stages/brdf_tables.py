@@ -10,7 +10,9 @@ to ``triple.store_tolerance`` whatever ``triple.store_budget``: one row), then
 means of level ``triple.leaf_level`` from 4^r samples per leaf (``triple.brdf_refine``),
 f_g evaluated in OpenCL (kernels/brdf_tables.cl through kernels/brdf.h) for a quarter
 of the views and mirrored to the others (:func:`view_leaf_means`), transformed
-(kernels/wavelet_forward.cl) and truncated (pipeline/math/wavelet_rows.py). A chunk's
+(kernels/wavelet_forward.cl) and truncated (pipeline/math/wavelet_rows.py; on the
+device, kernels/wavelet_select.cl); values stored as float16 with a float32 scale per
+row (wavelet_rows.to_half). A chunk's
 key holds only what shapes f_g (model, γ, alpha_ratio, cxy, cz, f0 or ior): editing the
 albedo or ρs re-bakes nothing, editing γ re-bakes that material's table only.
 """
@@ -26,10 +28,17 @@ from pipeline.math.brdf import BrdfParams, pack_materials
 from pipeline.math.brdf_tables import diffuse_leaf_means
 from pipeline.math.frame_grids import ViewGrid
 from pipeline.math.sphwavelet import wavelet_basis
-from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
+from pipeline.math.wavelet_rows import (
+    from_half,
+    leaf_permutation,
+    leaf_samples,
+    select_rows,
+    to_half,
+)
 from pipeline.rows import ROW_CHUNKS
-from pipeline.sphwavelet_cl import forward
+from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
+from pipeline.wavelet_select_cl import select_rows_buffer
 
 SHAPE_KEYS = ("gamma", "alpha_ratio", "cxy", "cz", "f0", "ior")  # what shapes f_g
 
@@ -126,10 +135,13 @@ def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
 def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, refine: int,
                 budget: int, tolerance: float, top: int) -> dict[str, np.ndarray]:
     """The stored glossy rows of a material (one per view of ``grid``; CSR as
-    :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1)): what a chunk
-    stores, and what the renderer re-samples for a γ edit at run time."""
-    glossy = forward(view_leaf_means(glossy_params(model, shape), grid, level, refine), level)
-    return select_rows(glossy[:, None], level, budget, tolerance, top)
+    :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1) float32 rounded as
+    stored: float16 over the row's scale): what a chunk stores, and what the renderer
+    re-samples for a γ edit at run time (so that it equals a fresh bake)."""
+    means = view_leaf_means(glossy_params(model, shape), grid, level, refine)
+    glossy = forward_device(cl.read_only_buffer(means), len(means), level)
+    rows = select_rows_buffer(glossy, 0, len(means), 1, level, budget, tolerance, top)
+    return {**rows, "value": from_half(rows["count"], *to_half(rows["count"], rows["value"]))}
 
 
 def _section(ctx: AssembleContext, name: str, key: str) -> Any:
@@ -154,7 +166,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     rows = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     ctx.meta.update(rows=len(rows["count"]), worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
-    return {**rows, "value": rows["value"][:, 0]}
+    value, scale = to_half(rows["count"], rows["value"][:, 0])
+    return {**rows, "value": value, "scale": scale}
 
 
 def layout(ctx: AssembleContext) -> Layout:

@@ -7,14 +7,16 @@ means of L_local(ω) = L(R ω) over the level-L leaves (``triple.leaf_level``), 
 4^r samples per leaf (``triple.light_refine``) of the map prefiltered to their spacing
 (pipeline/math/light_grid.py), computed in OpenCL (kernels/light_rotations.cl),
 transformed there too (kernels/wavelet_forward.cl, pipeline/sphwavelet_cl.py) and
-truncated with one index set for the three channels (luminance-weighted energy,
-pipeline/math/wavelet_rows.py). The map's
+truncated there with one index set for the three channels (luminance-weighted energy,
+pipeline/math/wavelet_rows.py, kernels/wavelet_select.cl), values stored as float16
+with a float32 scale per row (wavelet_rows.to_half). The map's
 rotation and scale are applied by the renderer: the key holds the map file's bytes
 (scene section ``environment.file``) and the params only.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -24,10 +26,11 @@ from pipeline.errors import PrtError
 from pipeline.math.envmap import LUMINANCE
 from pipeline.math.frame_grids import FrameGrid, euler_frame
 from pipeline.math.light_grid import prefilter, prefiltered_width, sample_spacing
-from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, select_rows
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, to_half
 from pipeline.rows import ROW_CHUNKS
-from pipeline.sphwavelet_cl import forward_buffer
+from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
+from pipeline.wavelet_select_cl import select_rows_buffer
 
 
 def frame_grid(params: dict[str, Any]) -> FrameGrid:
@@ -35,11 +38,44 @@ def frame_grid(params: dict[str, Any]) -> FrameGrid:
     return FrameGrid(*(int(n) for n in params["triple.frame_grid"]))
 
 
-def _rgbx(rgb: np.ndarray) -> np.ndarray:
-    """(H, W, 3) as (H, W, 4) float32 (the kernel's aligned texels; the 4th unused)."""
-    out = np.zeros((*rgb.shape[:2], 4), np.float32)
-    out[..., :3] = rgb
-    return out
+def _phi_major(rgb: np.ndarray, n_phi: int) -> np.ndarray:
+    """(H, W, 3) as the kernel's float4 texels (RGB and an unused fourth), phi-major:
+    (H, W / n_phi, n_phi, 4), texel (y, k · W / n_phi + m) at [y, m, k]."""
+    height, width = rgb.shape[:2]
+    out = np.zeros((height, n_phi, width // n_phi, 4), np.float32)
+    out[..., :3] = rgb.reshape(height, n_phi, width // n_phi, 3)
+    return np.ascontiguousarray(out.transpose(0, 2, 1, 3))
+
+
+def _defines(refine: int, width: int, n_phi: int) -> dict[str, int]:
+    """kernels/light_rotations.cl's build constants: samples per leaf, map columns per
+    φ step."""
+    return {"SAMPLES": 4 ** refine, "COLUMNS": width // n_phi}
+
+
+@lru_cache(maxsize=1)
+def _sample_coords(grid: FrameGrid, leaf_level: int, refine: int, width: int,
+                   height: int) -> tuple[Any, int]:
+    """A device buffer of the texel coordinates (frames, N · 4^r) float2 of every leaf
+    sample in the grid's frames at φ = 0 that the kernel is given (ψ < π for an even
+    n_ψ), and that count of frames; kept for the next chunk (the trigonometry costs
+    as much as several φ steps of lookups)."""
+    import pyopencl as cl_
+
+    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi  # the kernel's
+    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)        # half turns
+    psi = 2 * np.pi * np.arange(psi_given) / grid.n_psi
+    t, p = (g.reshape(-1) for g in np.meshgrid(theta, psi, indexing="ij"))
+    frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
+    fine, _ = leaf_samples(leaf_level, refine)
+    coords = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(frames) * len(fine) * 8)
+    cl.kernel("light_rotations.cl", "light_sample_coords",
+              _defines(refine, width, grid.n_phi))(
+        cl.queue(), (len(fine), len(frames)), None,
+        cl.read_only_buffer(frames.reshape(-1, 9).astype(np.float32)),
+        cl.read_only_buffer(fine.astype(np.float32)), np.int32(width), np.int32(height),
+        np.int32(len(frames)), np.int32(len(fine)), coords)
+    return coords, len(frames)
 
 
 def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_count: int,
@@ -52,22 +88,20 @@ def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_coun
     height, width = rgb.shape[:2]
     if width % grid.n_phi:
         raise ValueError(f"map width {width} is not a multiple of n_phi {grid.n_phi}")
-    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi  # the kernel's
-    theta = np.pi * np.arange(grid.n_theta) / (grid.n_theta - 1)        # half turns
-    psi = 2 * np.pi * np.arange(psi_given) / grid.n_psi
-    t, p = (g.reshape(-1) for g in np.meshgrid(theta, psi, indexing="ij"))
-    frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
-    fine, weights = leaf_samples(leaf_level, refine)
-    leaves = len(fine) // 4 ** refine
-    kernel = cl.kernel("light_rotations.cl", "light_leaf_means", {"SAMPLES": 4 ** refine})
-    buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
-               (frames.reshape(-1, 9), fine, weights, _rgbx(rgb))]
+    psi_given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi
+    coords, frames = _sample_coords(grid, leaf_level, refine, width, height)
+    _, weights = leaf_samples(leaf_level, refine)
+    leaves = 20 * 4 ** leaf_level
+    kernel = cl.kernel("light_rotations.cl", "light_leaf_means",
+                       _defines(refine, width, grid.n_phi))
     partner = cl.read_only_buffer(leaf_permutation(leaf_level, (-1, -1, 1)).astype(np.int32))
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
                         phi_count * grid.n_theta * grid.n_psi * 3 * leaves * 4)
-    kernel(cl.queue(), (leaves, len(frames)), None, *buffers, np.int32(width),
-           np.int32(height), np.int32(len(frames)), np.int32(leaves), np.int32(phi_first),
-           np.int32(phi_count), np.int32(width // grid.n_phi), np.int32(psi_given),
+    kernel(cl.queue(), (leaves, frames), None, coords,
+           cl.read_only_buffer(weights.astype(np.float32)),
+           cl.read_only_buffer(_phi_major(rgb, grid.n_phi)), np.int32(width),
+           np.int32(height), np.int32(frames), np.int32(leaves), np.int32(phi_first),
+           np.int32(phi_count), np.int32(grid.n_phi), np.int32(psi_given),
            np.int32(grid.n_psi), partner, result)
     return result
 
@@ -103,16 +137,16 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     rgb = prefiltered_map(ctx.environment, ctx.params)
     phis = phi_end - phi_first
     means = leaf_means_buffer(rgb, grid, phi_first, phis, level, refine)
-    coefficients = forward_buffer(means, phis * per_phi * 3, level)
-    coefficients = coefficients.reshape(phis * per_phi, 3, -1)[start - phi_first * per_phi:
-                                                               end - phi_first * per_phi]
-    rows = select_rows(coefficients, level, int(ctx.params["triple.store_budget"]),
-                       float(ctx.params["triple.store_tolerance"]),
-                       int(ctx.params["triple.store_top"]), LUMINANCE)
+    coefficients = forward_device(means, phis * per_phi * 3, level)  # (rows, 3, N)
+    rows = select_rows_buffer(coefficients, start - phi_first * per_phi, end - start, 3,
+                              level, int(ctx.params["triple.store_budget"]),
+                              float(ctx.params["triple.store_tolerance"]),
+                              int(ctx.params["triple.store_top"]), LUMINANCE)
     ctx.meta.update(map_width=int(ctx.environment.shape[1]),
                     worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
-    return rows
+    value, scale = to_half(rows["count"], rows["value"])
+    return {**rows, "value": value, "scale": scale}
 
 
 def layout(ctx: AssembleContext) -> Layout:
