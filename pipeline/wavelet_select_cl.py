@@ -4,9 +4,10 @@ rows at once (method triple's lighting and BRDF tables): the coefficients stay o
 device, and only the stored rows come back.
 
 The rule is select_rows' (its docstring); the kernel finds each row's energy threshold
-by a bisection on the float bit patterns with float32 work-group sums instead of a
-sorted float32 prefix sum, so a coefficient within float32 rounding of the tolerance
-may be kept by one and dropped by the other (tests/test_wavelet_select.py)."""
+by a radix select on the float bit patterns (four 256-bin histogram passes) with float32
+per-bin sums instead of a sorted float32 prefix sum, so a coefficient within float32
+rounding of the tolerance may be kept by one and dropped by the other
+(tests/test_wavelet_select.py)."""
 
 from __future__ import annotations
 

@@ -19,12 +19,13 @@ albedo or ρs re-bakes nothing, editing γ re-bakes that material's table only.
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Any
 
 import numpy as np
 
 from pipeline import cl
-from pipeline.math.brdf import BrdfParams, pack_materials
+from pipeline.math.brdf import MODEL_CODES, BrdfParams, pack_materials
 from pipeline.math.brdf_tables import diffuse_leaf_means
 from pipeline.math.frame_grids import ViewGrid
 from pipeline.math.sphwavelet import wavelet_basis
@@ -55,20 +56,49 @@ def glossy_params(model: str, shape: dict[str, Any]) -> BrdfParams:
     return BrdfParams.from_material(model, (0.0, 0.0, 0.0), {**given, "specular": (1, 1, 1)})
 
 
+LOCAL = 64  # work-group size of brdf_leaf_means (its sample arrays padded to a multiple)
+
+
+@cache
+def _upper_samples(leaf_level: int, refine: int) -> tuple[Any, Any, Any, int, int]:
+    """Device buffers of the samples of the K leaves with a sample above the horizon
+    (the others' means are 0), padded to P = K rounded up to :data:`LOCAL` with zero
+    directions and weights: coordinates (3, 4^r, P) and weights (4^r, P) sample-major,
+    leaf indices (P,); and K, P."""
+    fine, weights = leaf_samples(leaf_level, refine)
+    samples = 4 ** refine
+    upper = np.flatnonzero((fine[:, 2].reshape(-1, samples) > 0).any(axis=1))
+    padded = -(-len(upper) // LOCAL) * LOCAL
+    coords = np.zeros((3, samples, padded), np.float32)
+    coords[..., :len(upper)] = fine.reshape(-1, samples, 3)[upper].transpose(2, 1, 0)
+    weight = np.zeros((samples, padded), np.float32)
+    weight[:, :len(upper)] = weights.reshape(-1, samples)[upper].T
+    leaf = np.zeros(padded, np.int32)
+    leaf[:len(upper)] = upper
+    return (cl.read_only_buffer(coords), cl.read_only_buffer(weight),
+            cl.read_only_buffer(leaf), len(upper), padded)
+
+
+def _defines(params: BrdfParams, refine: int) -> dict[str, int]:
+    """Build constants of kernels/brdf_tables.cl (one program per model and r)."""
+    return {"SAMPLES": 4 ** refine, "BRDF_MODEL": MODEL_CODES[params.model]}
+
+
 def leaf_means_buffer(params: BrdfParams, views: np.ndarray, leaf_level: int,
                       refine: int) -> Any:
     """A device buffer of the leaf means (V, N) float32 of ρ̃_g for local views (V, 3)
-    (kernels/brdf_tables.cl)."""
+    (kernels/brdf_tables.cl, built for the material's model)."""
     import pyopencl as cl_
 
-    fine, weights = leaf_samples(leaf_level, refine)
-    leaves = len(fine) // 4 ** refine
-    kernel = cl.kernel("brdf_tables.cl", "brdf_leaf_means", {"SAMPLES": 4 ** refine})
-    buffers = [cl.read_only_buffer(np.asarray(a, np.float32)) for a in
-               (pack_materials([params])[0], views, fine, weights)]
+    leaves = 20 * 4 ** leaf_level
+    coords, weights, upper, n_upper, padded = _upper_samples(leaf_level, refine)
+    kernel = cl.kernel("brdf_tables.cl", "brdf_leaf_means", _defines(params, refine))
+    material = cl.read_only_buffer(pack_materials([params])[0])
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(views) * leaves * 4)
-    kernel(cl.queue(), (leaves, len(views)), None, *buffers, np.int32(len(views)),
-           np.int32(leaves), result)
+    cl_.enqueue_fill_buffer(cl.queue(), result, np.float32(0), 0, len(views) * leaves * 4)
+    kernel(cl.queue(), (padded, len(views)), (LOCAL, 1), material,
+           cl.read_only_buffer(np.asarray(views, np.float32)), coords, weights, upper,
+           np.int32(n_upper), np.int32(padded), np.int32(leaves), result)
     return result
 
 
@@ -100,36 +130,60 @@ def sampled_views(grid: ViewGrid) -> np.ndarray:
     return views.reshape(-1, 3)
 
 
-def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
-                    refine: int) -> np.ndarray:
-    """Leaf means (grid.size, N) float32 of ρ̃_g for every view of ``grid`` (at
-    :func:`sampled_views`), evaluating only the views with φ_o ∈ [0, π/2] when n_φ is a
-    multiple of 4.
+def mirror_sources(grid: ViewGrid, leaf_level: int) -> tuple[np.ndarray, np.ndarray]:
+    """For n_φ a multiple of 4, per φ index j of ``grid``: the φ index (≤ n_φ/4) whose
+    leaf means view j's are, permuted, and the permutation (n_φ, N) (see
+    :func:`view_leaf_means`)."""
+    quarter = grid.n_phi // 4
+    identity = np.arange(20 * 4 ** leaf_level)
+    mirror_x = leaf_permutation(leaf_level, (-1, 1, 1))
+    mirror_y = leaf_permutation(leaf_level, (1, -1, 1))
+    half_turn = leaf_permutation(leaf_level, (-1, -1, 1))
+    pairs = [(j, identity) if j <= quarter else
+             (2 * quarter - j, mirror_x) if j <= 2 * quarter else
+             (j - 2 * quarter, half_turn) if j <= 3 * quarter else
+             (4 * quarter - j, mirror_y) for j in range(grid.n_phi)]
+    return (np.asarray([j for j, _ in pairs], np.int32),
+            np.stack([perm for _, perm in pairs]).astype(np.int32))
+
+
+def view_leaf_means_buffer(params: BrdfParams, grid: ViewGrid, leaf_level: int,
+                           refine: int) -> Any:
+    """A device buffer of the leaf means (grid.size, N) float32 of ρ̃_g for every view of
+    ``grid`` (at :func:`sampled_views`), evaluating only the views with φ_o ∈ [0, π/2]
+    when n_φ is a multiple of 4 and mirroring them on the device
+    (kernels/brdf_tables.cl brdf_mirror_views).
 
     Every model here is unchanged when ω_i and ω_o are reflected together in the
     planes x = 0 or y = 0 (it reads them through n·ω, ω_i·ω_o and s_x², s_y² of
     s = ω_i + ω_o). So with g_φ(ω_i) = ρ̃_g(ω_i; ω_o(θ_o, φ)): g_{π−φ}(ω) = g_φ(M_x ω),
     g_{−φ}(ω) = g_φ(M_y ω) and g_{φ+π}(ω) = g_φ(M_x M_y ω), and their leaf means are
     g_φ's permuted (:func:`pipeline.math.wavelet_rows.leaf_permutation`)."""
+    import pyopencl as cl_
+
     if grid.n_phi % 4:
-        return kernel_leaf_means(params, sampled_views(grid), leaf_level, refine)
+        return leaf_means_buffer(params, sampled_views(grid), leaf_level, refine)
     quarter = grid.n_phi // 4
     views = sampled_views(grid).reshape(grid.n_phi, grid.n_theta, 3)
-    base = kernel_leaf_means(params, views[:quarter + 1].reshape(-1, 3), leaf_level, refine)
-    base = base.reshape(quarter + 1, grid.n_theta, -1)
-    out = np.empty((grid.n_phi, *base.shape[1:]), np.float32)
-    out[:quarter + 1] = base
-    mirror_x = leaf_permutation(leaf_level, (-1, 1, 1))
-    mirror_y = leaf_permutation(leaf_level, (1, -1, 1))
-    half_turn = leaf_permutation(leaf_level, (-1, -1, 1))
-    for j in range(quarter + 1, grid.n_phi):
-        if j <= 2 * quarter:
-            out[j] = base[2 * quarter - j][:, mirror_x]
-        elif j <= 3 * quarter:
-            out[j] = base[j - 2 * quarter][:, half_turn]
-        else:
-            out[j] = base[4 * quarter - j][:, mirror_y]
-    return out.reshape(grid.size, -1)
+    base = leaf_means_buffer(params, views[:quarter + 1].reshape(-1, 3), leaf_level, refine)
+    leaves = 20 * 4 ** leaf_level
+    source, perm = mirror_sources(grid, leaf_level)
+    out = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, grid.size * leaves * 4)
+    cl.kernel("brdf_tables.cl", "brdf_mirror_views", _defines(params, refine))(
+        cl.queue(), (leaves, grid.n_theta, grid.n_phi), None, base,
+        cl.read_only_buffer(source), cl.read_only_buffer(perm), np.int32(grid.n_theta),
+        np.int32(leaves), out)
+    return out
+
+
+def view_leaf_means(params: BrdfParams, grid: ViewGrid, leaf_level: int,
+                    refine: int) -> np.ndarray:
+    """The leaf means of :func:`view_leaf_means_buffer` on the host, (grid.size, N)."""
+    import pyopencl as cl_
+
+    out = np.empty((grid.size, 20 * 4 ** leaf_level), np.float32)
+    cl_.enqueue_copy(cl.queue(), out, view_leaf_means_buffer(params, grid, leaf_level, refine))
+    return out
 
 
 def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, refine: int,
@@ -138,9 +192,9 @@ def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, r
     :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1) float32 rounded as
     stored: float16 over the row's scale): what a chunk stores, and what the renderer
     re-samples for a γ edit at run time (so that it equals a fresh bake)."""
-    means = view_leaf_means(glossy_params(model, shape), grid, level, refine)
-    glossy = forward_device(cl.read_only_buffer(means), len(means), level)
-    rows = select_rows_buffer(glossy, 0, len(means), 1, level, budget, tolerance, top)
+    means = view_leaf_means_buffer(glossy_params(model, shape), grid, level, refine)
+    glossy = forward_device(means, grid.size, level)
+    rows = select_rows_buffer(glossy, 0, grid.size, 1, level, budget, tolerance, top)
     return {**rows, "value": from_half(rows["count"], *to_half(rows["count"], rows["value"]))}
 
 
