@@ -23,7 +23,10 @@
  * sqrt(dropped / E) of each row.
  * select_write, work-item r = row r: the kept entries in depth-first order
  * (order[p] = the coefficient at depth-first position p), at the row's offset:
- * index (nnz,) ushort and value (nnz, CHANNELS) float. */
+ * index (nnz,) ushort and value (nnz, CHANNELS) float; built with HALF, the values as
+ * stored instead (pipeline/math/wavelet_rows.py to_half, the same float32 division and
+ * round-to-nearest-even): value / scale as half, and scale (R,) = the row's largest
+ * kept |value| (1 if none). */
 #pragma OPENCL FP_CONTRACT OFF
 
 #define INF_BITS 0x7f800000u
@@ -146,7 +149,12 @@ __kernel void select_write(__global const float* coeffs,     /* (rows, CHANNELS,
                            __global const uint* offset,      /* (R,) first entry of each row */
                            __global const int* order,        /* (n,) depth-first order */
                            __global ushort* index,           /* (nnz,) out */
+#ifdef HALF
+                           __global half* value,             /* (nnz, CHANNELS) out */
+                           __global float* scale)            /* (R,) out */
+#else
                            __global float* value)            /* (nnz, CHANNELS) out */
+#endif
 {
     int r = get_global_id(0);
     if (r >= rows) return;
@@ -154,13 +162,28 @@ __kernel void select_write(__global const float* coeffs,     /* (rows, CHANNELS,
     __global const float* e = energy + (size_t)r * n;
     uint t = threshold[r];
     size_t at = offset[r];
+#ifdef HALF
+    /* the row's scale: its largest kept |value| (1 for a row with none or only zeros) */
+    float peak = 0.0f;
+    for (int i = 0; i < n; ++i) {
+        float v = e[i];
+        if (v > 0.0f && (i < keep_first || as_uint(v) >= t))
+            for (int ch = 0; ch < CHANNELS; ++ch) peak = fmax(peak, fabs(c[ch * n + i]));
+    }
+    float row_scale = peak > 0.0f ? peak : 1.0f;
+    scale[r] = row_scale;
+#endif
     for (int p = 0; p < n; ++p) {
         int i = order[p];
         float v = e[i];
         if (v > 0.0f && (i < keep_first || as_uint(v) >= t)) {
             index[at] = (ushort)i;
             for (int ch = 0; ch < CHANNELS; ++ch)
+#ifdef HALF
+                vstore_half_rte(c[ch * n + i] / row_scale, at * CHANNELS + ch, value);
+#else
                 value[at * CHANNELS + ch] = c[ch * n + i];
+#endif
             ++at;
         }
     }

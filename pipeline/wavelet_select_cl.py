@@ -21,15 +21,19 @@ from pipeline.math.wavelet_rows import depth_first_order
 
 def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: int,
                        leaf_level: int, budget: int, tolerance: float, keep_first: int,
-                       channel_weights: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                       channel_weights: np.ndarray | None = None,
+                       half: bool = False) -> dict[str, np.ndarray]:
     """Stored rows (``count``, ``residual``, ``index``, ``value`` as select_rows) of rows
     ``first_row`` .. ``first_row + rows − 1`` of the device buffer ``coefficients``
-    (rows, ``channels``, N) float32."""
+    (rows, ``channels``, N) float32. With ``half``, ``value`` and ``scale`` as
+    :func:`pipeline.math.wavelet_rows.to_half` makes them (float16 over a float32 scale
+    per row), converted on the device."""
     import pyopencl as cl_
 
     size = 20 * 4 ** leaf_level
     weights = np.ones(channels) if channel_weights is None else channel_weights
     defines = {"CHANNELS": channels}
+    write_defines = {**defines, "HALF": 1} if half else defines
     ctx, queue = cl.context(), cl.queue()
     flags = cl_.mem_flags.READ_WRITE
     energy = cl_.Buffer(ctx, flags, max(rows * size, 1) * 4)
@@ -49,19 +53,25 @@ def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: i
     offset = np.concatenate([[0], np.cumsum(count, dtype=np.int64)])
     entries = int(offset[-1])
     index = np.empty(entries, np.uint16)
-    value = np.empty((entries, channels), np.float32)
+    value = np.empty((entries, channels), np.float16 if half else np.float32)
+    scale = np.ones(rows, np.float32)
     if entries:
         index_buf = cl_.Buffer(ctx, flags, entries * 2)
-        value_buf = cl_.Buffer(ctx, flags, entries * channels * 4)
-        cl.kernel("wavelet_select.cl", "select_write", defines)(
+        value_buf = cl_.Buffer(ctx, flags, value.nbytes)
+        outputs = [index_buf, value_buf]
+        if half:
+            outputs.append(cl_.Buffer(ctx, flags, rows * 4))
+        cl.kernel("wavelet_select.cl", "select_write", write_defines)(
             queue, (rows,), None, coefficients, np.int32(first_row),
             np.int32(rows), np.int32(size), np.int32(min(keep_first, size)), energy, threshold,
             cl.read_only_buffer(offset[:-1].astype(np.uint32)),
-            cl.read_only_buffer(depth_first_order(leaf_level).astype(np.int32)),
-            index_buf, value_buf)
+            cl.read_only_buffer(depth_first_order(leaf_level).astype(np.int32)), *outputs)
         cl_.enqueue_copy(queue, index, index_buf)
         cl_.enqueue_copy(queue, value, value_buf)
-    return {"count": count, "residual": residual, "index": index, "value": value}
+        if half:
+            cl_.enqueue_copy(queue, scale, outputs[2])
+    rows_out = {"count": count, "residual": residual, "index": index, "value": value}
+    return {**rows_out, "scale": scale} if half else rows_out
 
 
 def select_rows(coefficients: np.ndarray, leaf_level: int, budget: int, tolerance: float,

@@ -141,3 +141,26 @@ def test_brdf_stage_rows_match_the_numpy_path():
     row_max = np.repeat(rows["scale"][1:], rows["count"][1:])
     bound = 2.0 ** -11 * np.abs(expected["value"][:, 0]) + 1e-7 * row_max
     assert np.all(np.abs(value - expected["value"][:, 0]) <= bound)
+
+
+@pytest.mark.parametrize("channels", [3, 1])
+def test_half_values_equal_to_half_of_the_float_rows(channels):
+    """select_rows_buffer(half=True) converts on the device what wavelet_rows.to_half
+    converts on the host: the same float32 division by the row's largest kept |value|
+    and float16 round-to-nearest-even, so bit for bit equal (incl. an all-zero row,
+    scale 1), over rows spanning 25 octaves."""
+    from pipeline import cl
+    from pipeline.wavelet_select_cl import select_rows_buffer
+
+    rng = np.random.default_rng(5)
+    coefficients = (rng.standard_normal((60, channels, 320))
+                    * np.exp(rng.uniform(-12, 5, (60, 1, 320)))).astype(np.float32)
+    coefficients[4] = 0.0
+    buffer = cl.read_only_buffer(coefficients)
+    weights = LUMINANCE if channels == 3 else None
+    rows = select_rows_buffer(buffer, 0, 60, channels, 2, 120, 0.01, 40, weights)
+    half = select_rows_buffer(buffer, 0, 60, channels, 2, 120, 0.01, 40, weights, half=True)
+    value, scale = to_half(rows["count"], rows["value"])
+    assert np.array_equal(half["value"].view(np.uint16), value.view(np.uint16))
+    assert np.array_equal(half["scale"], scale)
+    assert half["scale"][4] == 1.0 and rows["count"][4] == 0

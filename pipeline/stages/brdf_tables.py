@@ -194,8 +194,10 @@ def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, r
     re-samples for a γ edit at run time (so that it equals a fresh bake)."""
     means = view_leaf_means_buffer(glossy_params(model, shape), grid, level, refine)
     glossy = forward_device(means, grid.size, level)
-    rows = select_rows_buffer(glossy, 0, grid.size, 1, level, budget, tolerance, top)
-    return {**rows, "value": from_half(rows["count"], *to_half(rows["count"], rows["value"]))}
+    rows = select_rows_buffer(glossy, 0, grid.size, 1, level, budget, tolerance, top,
+                              half=True)
+    scale = rows.pop("scale")
+    return {**rows, "value": from_half(rows["count"], rows["value"], scale)}
 
 
 def _section(ctx: AssembleContext, name: str, key: str) -> Any:

@@ -9,7 +9,7 @@ means of L_local(ω) = L(R ω) over the level-L leaves (``triple.leaf_level``), 
 transformed there too (kernels/wavelet_forward.cl, pipeline/sphwavelet_cl.py) and
 truncated there with one index set for the three channels (luminance-weighted energy,
 pipeline/math/wavelet_rows.py, kernels/wavelet_select.cl), values stored as float16
-with a float32 scale per row (wavelet_rows.to_half). The map's
+with a float32 scale per row (wavelet_rows.to_half, on the device). The map's
 rotation and scale are applied by the renderer: the key holds the map file's bytes
 (scene section ``environment.file``) and the params only.
 """
@@ -26,7 +26,7 @@ from pipeline.errors import PrtError
 from pipeline.math.envmap import LUMINANCE
 from pipeline.math.frame_grids import FrameGrid, euler_frame
 from pipeline.math.light_grid import prefilter, prefiltered_width, sample_spacing
-from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples, to_half
+from pipeline.math.wavelet_rows import leaf_permutation, leaf_samples
 from pipeline.rows import ROW_CHUNKS
 from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
@@ -141,12 +141,11 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     rows = select_rows_buffer(coefficients, start - phi_first * per_phi, end - start, 3,
                               level, int(ctx.params["triple.store_budget"]),
                               float(ctx.params["triple.store_tolerance"]),
-                              int(ctx.params["triple.store_top"]), LUMINANCE)
+                              int(ctx.params["triple.store_top"]), LUMINANCE, half=True)
     ctx.meta.update(map_width=int(ctx.environment.shape[1]),
                     worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
-    value, scale = to_half(rows["count"], rows["value"])
-    return {**rows, "value": value, "scale": scale}
+    return rows
 
 
 def layout(ctx: AssembleContext) -> Layout:
