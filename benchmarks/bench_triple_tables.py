@@ -12,15 +12,16 @@ average.
 * ``light``: the rebuild of the whole rotation grid (every chunk of
   triple.light_rotations, as the stage computes it, without the zarr writes) per
   refinement r, split into the samples' texel coordinates (once per process),
-  prefilter, leaf-mean kernel, forward transform, row selection (on the device) and
-  the float16 conversion; aim ≤ 2 s.
+  prefilter, leaf-mean kernel, forward transform, row selection with the float16
+  conversion (both on the device); aim ≤ 2 s.
 * ``light_accuracy``: leaf means of a few grid frames against a reference of 4^5
   samples per leaf on the unfiltered map (NumPy), with and without the prefilter, per r:
   luminance-weighted relative L2 over the leaves, and the worst leaf's error relative
   to the brightest leaf.
 * ``brdf``: one material's table (what a γ edit re-bakes) per r: the stage's
   run_chunk (total) and its steps timed apart (leaf means of a quarter of the views
-  mirrored to all, forward transform, selection, float16 conversion);
+  mirrored to all, forward transform, selection with the float16 conversion, all on
+  the device; the total also has the diffuse row, NumPy);
   aim ≤ 0.5 s (paper 004: 2–3 s); accuracy against 4^4 samples per leaf.
 * ``storage``: bytes of the stored rows at top-only 80 / 320 and as stored at the
   tolerance (each entry: uint16 index + float16 value per channel, 8 B lighting / 4 B
@@ -57,7 +58,6 @@ from pipeline.math.brdf_tables import glossy_leaf_means
 from pipeline.math.envmap import LUMINANCE
 from pipeline.math.geodesic import geodesic_levels
 from pipeline.math.light_grid import frame_leaf_means
-from pipeline.math.wavelet_rows import to_half
 from pipeline.scene import load_scene, shared_data_dir
 from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import ChunkContext
@@ -103,7 +103,7 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
     per_phi = grid.n_theta * grid.n_psi
     block = params["triple.light_block"]
     times = {"coords": 0.0, "prefilter": 0.0, "leaf_means": 0.0, "forward": 0.0,
-             "select": 0.0, "half": 0.0}
+             "select": 0.0}
     parts = []
     light_stage._sample_coords.cache_clear()
     total, cpu = time.perf_counter(), time.process_time()
@@ -122,11 +122,9 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
         rows, t = _timed(select_rows_buffer, coefficients, start - phi_first * per_phi,
                          end - start, 3, level, params["triple.store_budget"],
                          params["triple.store_tolerance"], params["triple.store_top"],
-                         LUMINANCE)
+                         LUMINANCE, True)
         times["select"] += t
-        (value, scale), t = _timed(to_half, rows["count"], rows["value"])
-        times["half"] += t
-        parts.append({**rows, "value": value, "scale": scale})
+        parts.append(rows)
     times["total"] = time.perf_counter() - total
     times["total_cpu"] = time.process_time() - cpu
     rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -180,15 +178,13 @@ def brdf_table(scene: Any, name: str, params: dict[str, Any]) -> tuple[dict[str,
     material = brdf_stage.glossy_params(scene.materials[name].model, {
         k: ctx.scene[f"materials.{name}.{k}"] for k in brdf_stage.SHAPE_KEYS})
     grid = brdf_stage.view_grid(params)
-    means, t_means = _timed(brdf_stage.view_leaf_means, material, grid, level, refine)
-    coefficients, t_forward = _timed(forward_device, cl.read_only_buffer(means), len(means),
-                                     level)
-    selected, t_select = _timed(select_rows_buffer, coefficients, 0, len(means), 1, level,
-                                params["triple.store_budget"],
-                                params["triple.store_tolerance"], params["triple.store_top"])
-    _, t_half = _timed(to_half, selected["count"], selected["value"])
+    means, t_means = _timed(brdf_stage.view_leaf_means_buffer, material, grid, level, refine)
+    coefficients, t_forward = _timed(forward_device, means, grid.size, level)
+    _, t_select = _timed(select_rows_buffer, coefficients, 0, grid.size, 1, level,
+                         params["triple.store_budget"], params["triple.store_tolerance"],
+                         params["triple.store_top"], None, True)
     return {"total": total, "total_cpu": total_cpu, "leaf_means": t_means,
-            "forward": t_forward, "select": t_select, "half": t_half}, rows
+            "forward": t_forward, "select": t_select}, rows
 
 
 def brdf_accuracy(scene: Any, name: str, params: dict[str, Any], refines: list[int]) -> dict:
