@@ -76,6 +76,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "rows near-lossless": {"triple.store_tolerance": 0.0001, "triple.store_budget": 5120},
     "lighting cap off": {"triple.store_budget": 5120},
     "frame grid 64x32x64": {"triple.frame_grid": [64, 32, 64]},
+    "frame grid 32x17x32": {"triple.frame_grid": [32, 17, 32]},
+    "frame grid 48x17x48": {"triple.frame_grid": [48, 17, 48]},
     "light_refine 3": {"triple.light_refine": 3},
     "light_refine 1": {"triple.light_refine": 1},
     "view grid 256x128 + brdf_refine 2": {"triple.view_grid": [256, 128],
@@ -155,8 +157,14 @@ def split(image: np.ndarray, ref, masks: dict[str, np.ndarray],
     """Per region: raw, noise, corrected, mean_ratio (and change against ``default``)."""
     out = {}
     for name, m in masks.items():
+        if not m.any():
+            continue
         r = ref.mean[m].astype(np.float64)
         norm2 = float(np.sum(r * r))
+        if norm2 == 0.0:  # black in the reference (relative errors undefined)
+            out[name] = {"pixels": int(m.sum()), "reference_black": True,
+                         "image_rms": math.sqrt(float(np.mean(image[m] ** 2)))}
+            continue
         err2 = float(np.sum((image[m] - r) ** 2))
         var = float(np.sum(ref.variance[m], dtype=np.float64))
         out[name] = {"pixels": int(m.sum()), "raw": math.sqrt(err2 / norm2),
@@ -167,6 +175,32 @@ def split(image: np.ndarray, ref, masks: dict[str, np.ndarray],
             out[name]["change"] = math.sqrt(float(np.sum((image[m] - default[m]) ** 2))
                                             / norm2)
     return out
+
+
+def patched_reference(scene, reference_dir: Path, stale: Path, patch_spp: int,
+                      masks: dict[str, np.ndarray]) -> tuple[SimpleNamespace, dict]:
+    """The ``stale`` reference with its turned-normal pixels taken from a new one
+    (``patch_spp``, seed 2), and the check that nothing else moved: outside those pixels
+    E‖R_new − R_stale‖² = Σ var_new + Σ var_stale (``ratio_kept`` ≈ 1; inside,
+    ``ratio_patched`` ≫ 1 where the change moved them)."""
+    old = open_artifact(stale, "reference")
+    old_mean, old_var = old.read("mean"), old.read("variance")
+    new = job.reference(scene, Workdir(reference_dir), ReferenceSettings(
+        "env-direct", tolerance=0.0, min_spp=patch_spp, max_spp=patch_spp, seed=2),
+        quiet=True).image
+    patch = masks["turned normals"]
+
+    def ratio(m):
+        diff2 = float(np.sum((new.mean[m].astype(np.float64) - old_mean[m]) ** 2))
+        return diff2 / float(np.sum(new.variance[m], dtype=np.float64)
+                             + np.sum(old_var[m], dtype=np.float64))
+
+    mean = np.where(patch[..., None], new.mean, old_mean)
+    variance = np.where(patch[..., None], new.variance, old_var)
+    return SimpleNamespace(mean=mean, variance=variance), {
+        "stale": str(stale), "stale_spp": int(old.attrs["spp"]), "patch_spp": patch_spp,
+        "patched_pixels": int(patch.sum()),
+        "ratio_kept": ratio(masks["surfaces"] & ~patch), "ratio_patched": ratio(patch)}
 
 
 def rows_bytes(tables) -> dict[str, int]:
@@ -194,8 +228,17 @@ def _render(scene, artifacts, options: dict[str, Any]) -> tuple[np.ndarray, floa
 @click.option("--budgets/--no-budgets", default=True, show_default=True)
 @click.option("--env", "env_file", type=click.Path(path_type=Path),
               help="Another environment map for the scene (e.g. venice_sunset's sun).")
+@click.option("--stale-reference", type=click.Path(path_type=Path),
+              help="A reference artifact (.zarr, at --spp) rendered before a change of the "
+              "surface code that moved only the turned-normal pixels: used with those "
+              "pixels re-rendered (--patch-spp) instead of a new reference at --spp.")
+@click.option("--patch-spp", type=int, default=256, show_default=True)
+@click.option("--edge-frame", type=click.Path(path_type=Path),
+              help="A frame (.npy, H×W×3) whose 3×3 contrast defines the shadow edges "
+              "(default: the default frame; a smooth frame may have none).")
 @click.option("--out", type=click.Path(path_type=Path), required=True)
-def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_file, out):
+def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_file,
+         stale_reference, patch_spp, edge_frame, out):
     out.mkdir(parents=True, exist_ok=True)
     method = get_method("triple")
     scene = job.open_scene(SCENE, (size, size))
@@ -216,12 +259,15 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_fi
         result["budgets"] = kept["budgets"]
     base_artifacts = job.method_artifacts(method, wd)
     default, ms = _render(scene, base_artifacts, {})
-    if spp:
+    masks = regions(scene, wd, np.load(edge_frame) if edge_frame else default)
+    if spp and stale_reference:
+        ref, result["reference_patch"] = patched_reference(
+            scene, reference_dir, stale_reference, patch_spp, masks)
+    elif spp:
         ref = job.reference(scene, Workdir(reference_dir), ReferenceSettings(
             "env-direct", tolerance=0.0, min_spp=spp, max_spp=spp), quiet=True).image
     else:  # no reference: errors against the as-stored frame (noise free)
         ref = SimpleNamespace(mean=default, variance=np.zeros_like(default))
-    masks = regions(scene, wd, default)
     stored = load_tables(base_artifacts, _materials(base_artifacts))[0]
     result["default"] = {"regions": split(default, ref, masks), "frame_ms": ms,
                          "rows_bytes": rows_bytes(stored)}
