@@ -363,8 +363,10 @@ def _sigma_floor(options: FitOptions, samples: int) -> float:
 
 def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
            options: FitOptions, targets: FitTargets | None,
-           default_mean: np.ndarray | None) -> tuple[_Problem, np.ndarray]:
-    """The problem and the initial x (F, P)."""
+           default_mean: np.ndarray | None,
+           start: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[_Problem, np.ndarray]:
+    """The problem and the initial x (F, P): lobes from windowed moments, or ``start``
+    (means (F, N, 3), sharpnesses (F, N)), with least-squares weights."""
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
@@ -374,7 +376,8 @@ def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
     omega = np.asarray(solid_angles, np.float64)
     energy = np.einsum("s,fsc->f", omega, values * values)
     zero = energy <= options.zero_energy
-    mean, lam = _initial(directions, omega, values, options, default)
+    mean, lam = (_initial(directions, omega, values, options, default) if start is None
+                 else (np.array(start[0], np.float64), np.array(start[1], np.float64)))
     mean[zero] = default[zero][:, None]
     lam[zero] = sg.sharpness(options.default_sigma)
     bound = math.tan(math.radians(options.max_shift_deg))
@@ -443,23 +446,26 @@ def _lm(problem: _Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
         options: FitOptions = FitOptions(), targets: FitTargets | None = None,
-        default_mean: np.ndarray | None = None) -> SGFit:
+        default_mean: np.ndarray | None = None, start: SGFit | None = None) -> SGFit:
     """Fit N lobes to each of F functions tabulated at ``directions`` (S, 3) (unit, any
     sphere grid) with quadrature ``solid_angles`` (S,) (sr): ``values`` (F, S, C) or
-    (F, S). Batched Levenberg–Marquardt from moment-based starts (module docstring).
+    (F, S). Batched Levenberg–Marquardt from moment-based starts (module docstring),
+    or from the means and sharpnesses of ``start`` (e.g. a fit of the same functions on
+    a coarser grid; weights re-solved on this grid).
     ``default_mean`` (3,) or (F, 3): the mean given to zero functions (default +z)."""
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
     pieces = []
-    for start in range(0, len(values), options.batch):
-        part = slice(start, start + options.batch)
+    for offset in range(0, len(values), options.batch):
+        part = slice(offset, offset + options.batch)
         t = targets or FitTargets()
         t = FitTargets(*(None if a is None else np.asarray(a)[part]
                          for a in (t.mean, t.sigma, t.neighbour_means)))
         dm = (default_mean if default_mean is None or np.ndim(default_mean) == 1
               else np.asarray(default_mean)[part])
-        problem, x = _setup(directions, solid_angles, values[part], options, t, dm)
+        begin = None if start is None else (start.mean[part], start.sharpness[part])
+        problem, x = _setup(directions, solid_angles, values[part], options, t, dm, begin)
         pieces.append(_result(problem, *_lm(problem, x)))
     return SGFit(*(np.concatenate([getattr(p, name) for p in pieces])
                    for name in ("mean", "sharpness", "weight", "energy", "iterations",

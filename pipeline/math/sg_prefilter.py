@@ -53,7 +53,7 @@ follows σ_ℓ. A 1024 × 512 map's 39 levels: ``benchmarks/sg_prefilter_speed.p
 from __future__ import annotations
 
 import numpy as np
-from scipy.fft import next_fast_len
+from scipy.fft import ifft, irfft, next_fast_len, rfft
 from scipy.special import ive
 
 from pipeline.math.sg import PrefilterLevels, latlong_directions, sharpness
@@ -72,7 +72,7 @@ def prefilter(rgb: np.ndarray, levels: PrefilterLevels) -> list[np.ndarray]:
     theta_src = np.pi * np.arange(height) / (height - 1)
     omega_row = latlong_directions(height, 1)[1][:, 0]  # Ω of a whole ring per row
     omega_row = omega_row / width  # latlong_directions(height, 1) spans the whole ring
-    spectrum = np.ascontiguousarray(np.fft.rfft(np.asarray(rgb, np.float64), axis=1))
+    spectrum = np.ascontiguousarray(rfft(np.asarray(rgb, np.float64), axis=1))
     spectrum *= np.exp(-1j * np.pi * np.arange(spectrum.shape[1]) / width)[None, :, None]
     return [_level(spectrum, theta_src, omega_row, width, rows, cols, sigma)
             for (rows, cols), sigma in zip(levels.shapes, levels.sigmas, strict=True)]
@@ -96,7 +96,9 @@ def _level(spectrum: np.ndarray, theta_src: np.ndarray, omega_row: np.ndarray,
     else:  # every mode above e^{−REACH}, folded onto the level's columns below
         modes = min(max(cols // 2, mode_cut(lam)), width // 2) + 1
         n = next_fast_len(2 * (modes - 1), real=True)
-    source = spectrum[:, :modes].view(np.float64).reshape(len(theta_src), modes, 6)
+    # the source rows' spectra as (modes, rows, 6) reals: per mode, rows × (Re, Im) RGB
+    source = np.ascontiguousarray(spectrum[:, :modes].view(np.float64)
+                                  .reshape(len(theta_src), modes, 6).transpose(1, 0, 2))
     cos_phi = np.cos(2 * np.pi * np.arange(n) / n)
     numerator = np.zeros((rows, modes, 6))
     denominator = np.zeros(rows)
@@ -112,30 +114,41 @@ def _level(spectrum: np.ndarray, theta_src: np.ndarray, omega_row: np.ndarray,
         weight = omega_row[src] * np.exp(lam * (np.cos(theta_dst[dst] - theta_src[src]) - 1))
         # ĝ_m(a) of g(Δφ) = exp(−a(1 − cos Δφ)) from n samples, m = 0 .. modes − 1,
         # times the row pair's weight
-        g_hat = np.fft.rfft(np.exp(-a[:, None] * (1.0 - cos_phi)), axis=1).real[:, :modes]
+        # (entries below e^{−REACH} are left 0: most of a sharp level's, in φ too)
+        exponent = a[:, None] * (cos_phi - 1.0)
+        g = np.exp(exponent, out=np.zeros_like(exponent), where=exponent > -REACH)
+        g_hat = rfft(g, axis=1).real[:, :modes]
         g_hat *= (weight / n)[:, None]
         offsets = np.concatenate([[0], np.cumsum(counts)])
         for i, d in enumerate(block):
             g = g_hat[offsets[i]:offsets[i + 1]]
             s0, s1 = first[d], last[d] + 1
-            numerator[d] = np.einsum("sm,smk->mk", g, source[s0:s1])
+            numerator[d] = _sum_rows(g, source[:, s0:s1])
             denominator[d] = g[:, 0].sum()
             mirror = rows - 1 - d
             if mirror != d:
-                numerator[mirror] = np.einsum("sm,smk->mk", g[::-1],
-                                              source[last_src + 1 - s1:last_src + 1 - s0])
+                numerator[mirror] = _sum_rows(g[::-1],
+                                              source[:, last_src + 1 - s1:last_src + 1 - s0])
                 denominator[mirror] = denominator[d]
     spectra = numerator.view(np.complex128).reshape(rows, modes, 3)
     spectra *= np.exp(1j * np.pi * np.arange(modes) / cols)[None, :, None]  # φ_j's ½
     if cols == width:
-        level = np.fft.irfft(spectra * cols, n=cols, axis=1)
+        level = irfft(spectra * cols, n=cols, axis=1)
     else:  # Σ_{|m| < modes} C_m e^{imφ_j}: mode m lands on bin m mod W_ℓ
         m = np.arange(modes)
         folded = np.zeros((rows, cols, 3), np.complex128)
-        np.add.at(folded, (slice(None), m % cols), spectra)
-        np.add.at(folded, (slice(None), -m[1:] % cols), np.conj(spectra[:, 1:]))
-        level = np.fft.ifft(folded * cols, axis=1).real
+        for start in range(0, modes, cols):  # distinct bins within each run of W_ℓ
+            run = slice(start, min(start + cols, modes))
+            folded[:, m[run] % cols] += spectra[:, run]
+            run = slice(max(start, 1), min(start + cols, modes))
+            folded[:, -m[run] % cols] += np.conj(spectra[:, run])
+        level = ifft(folded * cols, axis=1).real
     return level / (width * denominator)[:, None, None]
+
+
+def _sum_rows(g: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """Σ_s g[s, m] source[m, s, k] (modes, 6): one small product per mode m."""
+    return np.matmul(g.T[:, None, :], source)[:, 0]
 
 
 def mode_cut(lam: float) -> int:
