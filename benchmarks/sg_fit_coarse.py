@@ -1,8 +1,11 @@
 """Benchmark: SG fits on a coarser grid first, then on the full grid from the coarse
-lobes (pipeline/math/sg_fit.py ``fit(..., start=)``), against the direct full-grid fit.
+lobes (pipeline/math/sg_fit.py ``fit(..., start=)``), against the direct full-grid fit;
+with ``--float32``, instead the direct fit with float32 fields (FitOptions.fields)
+against float64.
 
 Run from the project root:  python benchmarks/sg_fit_coarse.py [--count F] [--repeats R]
-Writes benchmarks/results/sg_fit_coarse.json.
+[--lobes N ...] [--float32]
+Writes benchmarks/results/sg_fit_coarse.json (--float32: sg_fit_float32.json).
 
 Data: benchmarks/sg_fit_speed.py's synthetic transport-like functions (N true lobes of
 σ 8–20°, cut by a visibility edge, 1 % noise) on its 55 × 110 lat-long grid (6050
@@ -82,21 +85,49 @@ def run(lobes: int, count: int, repeats: int) -> dict:
     }
 
 
+def run_float32(lobes: int, count: int, repeats: int) -> dict:
+    fine_d, fine_w = (a.reshape(-1, *a.shape[2:]) for a in sg.latlong_directions(55, 110))
+    values = functions(fine_d, count, lobes, seed=lobes)
+    double = sg_fit.FitOptions(lobes=lobes, batch=92)
+    single = sg_fit.FitOptions(lobes=lobes, batch=92, fields="float32")
+    a, b = [], []
+    for _ in range(repeats):
+        a.append(timed(sg_fit.fit, fine_d, fine_w, values, double))
+        b.append(timed(sg_fit.fit, fine_d, fine_w, values, single))
+    ratio = b[0][1].energy / np.maximum(a[0][1].energy, 1e-300)
+    cos = np.clip(np.sum(a[0][1].mean * b[0][1].mean, axis=-1), -1, 1)
+    return {
+        "lobes": lobes, "functions": count,
+        "float64_seconds": [t[0] for t in a], "float64_load": [t[2] for t in a],
+        "float32_seconds": [t[0] for t in b], "float32_load": [t[2] for t in b],
+        "speedup_median": statistics.median(t[0] for t in a)
+        / statistics.median(t[0] for t in b),
+        "iterations_float64_median": float(np.median(a[0][1].iterations)),
+        "iterations_float32_median": float(np.median(b[0][1].iterations)),
+        "energy_ratio_quantiles_0_50_90_100": np.quantile(ratio, [0, .5, .9, 1]).tolist(),
+        "mean_angle_deg_max": float(np.degrees(np.arccos(cos)).max()),
+        "converged_float64": int(a[0][1].converged.sum()),
+        "converged_float32": int(b[0][1].converged.sum()),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=184)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--lobes", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--float32", action="store_true")
     args = parser.parse_args()
     one_blas_thread()
     runs = []
     for lobes in args.lobes:
-        runs.append(run(lobes, args.count, args.repeats))
+        runs.append((run_float32 if args.float32 else run)(lobes, args.count, args.repeats))
         print(json.dumps({k: v for k, v in runs[-1].items() if not k.endswith(("seconds",
                                                                              "load"))}),
               flush=True)
-    out = ROOT / "benchmarks" / "results" / "sg_fit_coarse.json"
-    out.write_text(json.dumps({"benchmark": "sg_fit_coarse", "cores": os.cpu_count(),
+    name = "sg_fit_float32" if args.float32 else "sg_fit_coarse"
+    out = ROOT / "benchmarks" / "results" / f"{name}.json"
+    out.write_text(json.dumps({"benchmark": name, "cores": os.cpu_count(),
                                "runs": runs}, indent=1) + "\n")
     print(out)
 

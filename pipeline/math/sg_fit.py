@@ -102,6 +102,9 @@ class FitOptions:
     zero_energy: float = 0.0       # ∫T² dω at or below which a function counts as zero
     default_sigma: float = 0.5     # σ of the lobes of a zero function (radians)
     batch: int = 256               # functions per batched step (memory: batch · 4N · S)
+    # dtype of the fields Φ and their Gram matrix ("float32": exp and products in single
+    # precision, energies and steps in float64; benchmarks/sg_fit_coarse.py --float32)
+    fields: str = "float64"
 
 
 @dataclass(frozen=True)
@@ -184,15 +187,17 @@ def _fields(problem: _Problem, theta: np.ndarray, derivatives: bool
     """Φ (F, N, 4, S) (E_k and, if ``derivatives``, D_ka, D_kb, D_kρ; else (F, N, 1, S)),
     the means and their chart derivatives."""
     mu, dmu = _means(problem, theta)
-    lam = np.exp(theta[..., 2])[..., None]                        # (F, N, 1)
-    omega_t = problem.directions.T                                # (3, S)
+    dtype = np.dtype(problem.options.fields)
+    lam = np.exp(theta[..., 2])[..., None].astype(dtype)          # (F, N, 1)
+    omega_t = problem.directions.T.astype(dtype)                  # (3, S)
     # 1 − μ·ω by a product (BLAS), not sg.evaluate's ‖ω − μ‖²/2: in float64 its
     # rounding, λ · 1e-16 ≤ 4e-12 in the exponent at the σ floor, does not matter here
-    half_sq = 1.0 - mu @ omega_t                                  # (F, N, S)
-    e = np.exp(-lam * half_sq) * problem.sqrt_omega               # (F, N, S)
+    # (in float32, λ · 6e-8: 2e-3 at the floor of a 6k grid, a 0.2 % field error)
+    half_sq = 1.0 - mu.astype(dtype) @ omega_t                    # (F, N, S)
+    e = np.exp(-lam * half_sq) * problem.sqrt_omega.astype(dtype)  # (F, N, S)
     if not derivatives:
         return e[..., None, :], mu, dmu
-    dot = dmu @ omega_t                                           # ω·∂μ/∂(a, b)
+    dot = dmu.astype(dtype) @ omega_t                             # ω·∂μ/∂(a, b)
     d_ab = (e * lam)[..., None, :] * dot
     d_rho = -(e * lam * half_sq)[..., None, :]
     return np.concatenate([e[..., None, :], d_ab, d_rho], axis=-2), mu, dmu
@@ -248,7 +253,7 @@ def _energy(problem: _Problem, x: np.ndarray, derivatives: bool):
     """E (F,) at x (F, P) and what a step needs: Φ, the data residuals, prior rows."""
     theta, w = _split(problem, x)
     phi, mu, dmu = _fields(problem, theta, derivatives)
-    r = np.einsum("fns,fnc->fsc", phi[:, :, 0], w) - problem.y          # (F, S, C)
+    r = np.einsum("fns,fnc->fsc", phi[:, :, 0], w.astype(phi.dtype)) - problem.y
     prior_r, prior_j = _prior_rows(problem, theta, mu, dmu)
     energy = np.sum(r * r, axis=(1, 2)) + np.sum(prior_r * prior_r, axis=1)
     return energy, (phi, r, prior_r, prior_j, w)
@@ -260,8 +265,8 @@ def _normal_equations(problem: _Problem, parts) -> tuple[np.ndarray, np.ndarray]
     f, n, _, s = phi.shape
     c = w.shape[2]
     flat = phi.reshape(f, 4 * n, s)
-    q = (flat @ flat.transpose(0, 2, 1)).reshape(f, n, 4, n, 4)
-    pr = (flat @ r).reshape(f, n, 4, c)                                  # Φ r
+    q = (flat @ flat.transpose(0, 2, 1)).astype(np.float64).reshape(f, n, 4, n, 4)
+    pr = (flat @ r.astype(flat.dtype)).astype(np.float64).reshape(f, n, 4, c)  # Φ r
     p = n * (3 + c)
     h = np.zeros((f, p, p))
     g = np.zeros((f, p))
