@@ -47,7 +47,8 @@ Two cases of ĝ:
 
 Cost per level: (row pairs) × (n exp + one FFT) + (row pairs) × (W_ℓ/2) × 3 complex
 multiply-adds; row pairs ≈ H_ℓ · (2√(2 REACH) σ_ℓ/Δθ) ≈ const per level once H_ℓ
-follows σ_ℓ. A 1024 × 512 map's 39 levels: ``benchmarks/sg_prefilter_speed.py``.
+follows σ_ℓ, halved by the equator's mirror symmetry (:func:`_level`). A 1024 × 512
+map's 39 levels: ``benchmarks/sg_prefilter_speed.py``.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ from pipeline.math.sg import PrefilterLevels, latlong_directions, sharpness
 
 # Row pairs whose lobe weight exp(λ(cos Δθ − 1)) is below e^{−REACH} are skipped.
 REACH = 30.0
-# Row pairs per block: bounds the (pairs, n) kernel samples and (pairs, m, 3) products.
+# Row pairs per block: bounds the (pairs, n) kernel samples held at once.
 PAIR_BLOCK = 2048
 
 
@@ -70,8 +71,7 @@ def prefilter(rgb: np.ndarray, levels: PrefilterLevels) -> list[np.ndarray]:
     SG convolution at σ_ℓ, equal to sg.prefilter_reference up to rounding."""
     height, width = rgb.shape[:2]
     theta_src = np.pi * np.arange(height) / (height - 1)
-    omega_row = latlong_directions(height, 1)[1][:, 0]  # Ω of a whole ring per row
-    omega_row = omega_row / width  # latlong_directions(height, 1) spans the whole ring
+    omega_row = latlong_directions(height, 1)[1][:, 0] / width  # Ω of one texel per row
     spectrum = np.ascontiguousarray(rfft(np.asarray(rgb, np.float64), axis=1))
     spectrum *= np.exp(-1j * np.pi * np.arange(spectrum.shape[1]) / width)[None, :, None]
     return [_level(spectrum, theta_src, omega_row, width, rows, cols, sigma)
@@ -113,21 +113,21 @@ def _level(spectrum: np.ndarray, theta_src: np.ndarray, omega_row: np.ndarray,
         a = lam * np.sin(theta_dst[dst]) * np.sin(theta_src[src])
         weight = omega_row[src] * np.exp(lam * (np.cos(theta_dst[dst] - theta_src[src]) - 1))
         # ĝ_m(a) of g(Δφ) = exp(−a(1 − cos Δφ)) from n samples, m = 0 .. modes − 1,
-        # times the row pair's weight
-        # (entries below e^{−REACH} are left 0: most of a sharp level's, in φ too)
+        # times the row pair's weight; samples below e^{−REACH} are left 0 (most of a
+        # sharp level's: its lobe spans few columns away from the poles)
         exponent = a[:, None] * (cos_phi - 1.0)
         g = np.exp(exponent, out=np.zeros_like(exponent), where=exponent > -REACH)
         g_hat = rfft(g, axis=1).real[:, :modes]
         g_hat *= (weight / n)[:, None]
         offsets = np.concatenate([[0], np.cumsum(counts)])
         for i, d in enumerate(block):
-            g = g_hat[offsets[i]:offsets[i + 1]]
+            kernels = g_hat[offsets[i]:offsets[i + 1]]  # (source rows of d, modes)
             s0, s1 = first[d], last[d] + 1
-            numerator[d] = _sum_rows(g, source[:, s0:s1])
-            denominator[d] = g[:, 0].sum()
+            numerator[d] = _sum_rows(kernels, source[:, s0:s1])
+            denominator[d] = kernels[:, 0].sum()
             mirror = rows - 1 - d
             if mirror != d:
-                numerator[mirror] = _sum_rows(g[::-1],
+                numerator[mirror] = _sum_rows(kernels[::-1],
                                               source[:, last_src + 1 - s1:last_src + 1 - s0])
                 denominator[mirror] = denominator[d]
     spectra = numerator.view(np.complex128).reshape(rows, modes, 3)
