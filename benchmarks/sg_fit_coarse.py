@@ -1,11 +1,12 @@
 """Benchmark: SG fits on a coarser grid first, then on the full grid from the coarse
 lobes (pipeline/math/sg_fit.py ``fit(..., start=)``), against the direct full-grid fit;
-with ``--float32``, instead the direct fit with float32 fields (FitOptions.fields)
-against float64.
+with ``--float32``, instead the direct fit with float32 fields (FitOptions.fields,
+stopping tolerance ``--float32-tolerance``) against float64.
 
 Run from the project root:  python benchmarks/sg_fit_coarse.py [--count F] [--repeats R]
-[--lobes N ...] [--float32]
-Writes benchmarks/results/sg_fit_coarse.json (--float32: sg_fit_float32.json).
+[--lobes N ...] [--float32 [--float32-tolerance T]]
+Writes benchmarks/results/sg_fit_coarse.json (--float32: sg_fit_float32.json; with
+another tolerance: sg_fit_float32_tolerance.json).
 
 Data: benchmarks/sg_fit_speed.py's synthetic transport-like functions (N true lobes of
 σ 8–20°, cut by a visibility edge, 1 % noise) on its 55 × 110 lat-long grid (6050
@@ -85,11 +86,11 @@ def run(lobes: int, count: int, repeats: int) -> dict:
     }
 
 
-def run_float32(lobes: int, count: int, repeats: int) -> dict:
+def run_float32(lobes: int, count: int, repeats: int, tolerance: float = 1e-6) -> dict:
     fine_d, fine_w = (a.reshape(-1, *a.shape[2:]) for a in sg.latlong_directions(55, 110))
     values = functions(fine_d, count, lobes, seed=lobes)
     double = sg_fit.FitOptions(lobes=lobes, batch=92)
-    single = sg_fit.FitOptions(lobes=lobes, batch=92, fields="float32")
+    single = sg_fit.FitOptions(lobes=lobes, batch=92, fields="float32", tolerance=tolerance)
     a, b = [], []
     for _ in range(repeats):
         a.append(timed(sg_fit.fit, fine_d, fine_w, values, double))
@@ -97,7 +98,7 @@ def run_float32(lobes: int, count: int, repeats: int) -> dict:
     ratio = b[0][1].energy / np.maximum(a[0][1].energy, 1e-300)
     cos = np.clip(np.sum(a[0][1].mean * b[0][1].mean, axis=-1), -1, 1)
     return {
-        "lobes": lobes, "functions": count,
+        "lobes": lobes, "functions": count, "float32_tolerance": tolerance,
         "float64_seconds": [t[0] for t in a], "float64_load": [t[2] for t in a],
         "float32_seconds": [t[0] for t in b], "float32_load": [t[2] for t in b],
         "speedup_median": statistics.median(t[0] for t in a)
@@ -117,15 +118,19 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--lobes", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--float32", action="store_true")
+    parser.add_argument("--float32-tolerance", type=float, default=1e-6,
+                        help="FitOptions.tolerance of the float32 fits (float64: 1e-6)")
     args = parser.parse_args()
     one_blas_thread()
     runs = []
     for lobes in args.lobes:
-        runs.append((run_float32 if args.float32 else run)(lobes, args.count, args.repeats))
+        runs.append(run_float32(lobes, args.count, args.repeats, args.float32_tolerance)
+                    if args.float32 else run(lobes, args.count, args.repeats))
         print(json.dumps({k: v for k, v in runs[-1].items() if not k.endswith(("seconds",
                                                                              "load"))}),
               flush=True)
-    name = "sg_fit_float32" if args.float32 else "sg_fit_coarse"
+    name = ("sg_fit_coarse" if not args.float32 else "sg_fit_float32"
+            if args.float32_tolerance == 1e-6 else "sg_fit_float32_tolerance")
     out = ROOT / "benchmarks" / "results" / f"{name}.json"
     out.write_text(json.dumps({"benchmark": name, "cores": os.cpu_count(),
                                "runs": runs}, indent=1) + "\n")
