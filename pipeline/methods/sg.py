@@ -19,7 +19,7 @@ front: methods ``direct`` and ``d2i`` render them).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NoReturn
 
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
@@ -55,7 +55,7 @@ def check_scene(scene: Scene) -> None:
     read_environment(scene.environment_file())
 
 
-def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], **options: Any) -> None:
+def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], **options: Any) -> NoReturn:
     """Refuses: the stages a frame needs are not built yet (issue 17)."""
     raise PrtError(scene.path, f"method sg cannot render yet: {', '.join(NOT_BUILT)} "
                    f"are not built (issue 17); baked so far: {', '.join(artifacts)}")
