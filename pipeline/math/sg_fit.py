@@ -102,6 +102,9 @@ class FitOptions:
     zero_energy: float = 0.0       # ∫T² dω at or below which a function counts as zero
     default_sigma: float = 0.5     # σ of the lobes of a zero function (radians)
     batch: int = 256               # functions per batched step (memory: batch · 4N · S)
+    # dtype of the fields Φ and their Gram matrix ("float32": exp and products in single
+    # precision, energies and steps in float64; benchmarks/sg_fit_coarse.py --float32)
+    fields: str = "float64"
 
 
 @dataclass(frozen=True)
@@ -184,15 +187,17 @@ def _fields(problem: _Problem, theta: np.ndarray, derivatives: bool
     """Φ (F, N, 4, S) (E_k and, if ``derivatives``, D_ka, D_kb, D_kρ; else (F, N, 1, S)),
     the means and their chart derivatives."""
     mu, dmu = _means(problem, theta)
-    lam = np.exp(theta[..., 2])[..., None]                        # (F, N, 1)
-    omega_t = problem.directions.T                                # (3, S)
+    dtype = np.dtype(problem.options.fields)
+    lam = np.exp(theta[..., 2])[..., None].astype(dtype)          # (F, N, 1)
+    omega_t = problem.directions.T.astype(dtype)                  # (3, S)
     # 1 − μ·ω by a product (BLAS), not sg.evaluate's ‖ω − μ‖²/2: in float64 its
     # rounding, λ · 1e-16 ≤ 4e-12 in the exponent at the σ floor, does not matter here
-    half_sq = 1.0 - mu @ omega_t                                  # (F, N, S)
-    e = np.exp(-lam * half_sq) * problem.sqrt_omega               # (F, N, S)
+    # (in float32, λ · 6e-8: 2e-3 at the floor of a 6k grid, a 0.2 % field error)
+    half_sq = 1.0 - mu.astype(dtype) @ omega_t                    # (F, N, S)
+    e = np.exp(-lam * half_sq) * problem.sqrt_omega.astype(dtype)  # (F, N, S)
     if not derivatives:
         return e[..., None, :], mu, dmu
-    dot = dmu @ omega_t                                           # ω·∂μ/∂(a, b)
+    dot = dmu.astype(dtype) @ omega_t                             # ω·∂μ/∂(a, b)
     d_ab = (e * lam)[..., None, :] * dot
     d_rho = -(e * lam * half_sq)[..., None, :]
     return np.concatenate([e[..., None, :], d_ab, d_rho], axis=-2), mu, dmu
@@ -248,7 +253,7 @@ def _energy(problem: _Problem, x: np.ndarray, derivatives: bool):
     """E (F,) at x (F, P) and what a step needs: Φ, the data residuals, prior rows."""
     theta, w = _split(problem, x)
     phi, mu, dmu = _fields(problem, theta, derivatives)
-    r = np.einsum("fns,fnc->fsc", phi[:, :, 0], w) - problem.y          # (F, S, C)
+    r = np.einsum("fns,fnc->fsc", phi[:, :, 0], w.astype(phi.dtype)) - problem.y
     prior_r, prior_j = _prior_rows(problem, theta, mu, dmu)
     energy = np.sum(r * r, axis=(1, 2)) + np.sum(prior_r * prior_r, axis=1)
     return energy, (phi, r, prior_r, prior_j, w)
@@ -260,8 +265,8 @@ def _normal_equations(problem: _Problem, parts) -> tuple[np.ndarray, np.ndarray]
     f, n, _, s = phi.shape
     c = w.shape[2]
     flat = phi.reshape(f, 4 * n, s)
-    q = (flat @ flat.transpose(0, 2, 1)).reshape(f, n, 4, n, 4)
-    pr = (flat @ r).reshape(f, n, 4, c)                                  # Φ r
+    q = (flat @ flat.transpose(0, 2, 1)).astype(np.float64).reshape(f, n, 4, n, 4)
+    pr = (flat @ r.astype(flat.dtype)).astype(np.float64).reshape(f, n, 4, c)  # Φ r
     p = n * (3 + c)
     h = np.zeros((f, p, p))
     g = np.zeros((f, p))
@@ -363,8 +368,10 @@ def _sigma_floor(options: FitOptions, samples: int) -> float:
 
 def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
            options: FitOptions, targets: FitTargets | None,
-           default_mean: np.ndarray | None) -> tuple[_Problem, np.ndarray]:
-    """The problem and the initial x (F, P)."""
+           default_mean: np.ndarray | None,
+           start: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[_Problem, np.ndarray]:
+    """The problem and the initial x (F, P): lobes from windowed moments, or ``start``
+    (means (F, N, 3), sharpnesses (F, N)), with least-squares weights."""
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
@@ -374,7 +381,8 @@ def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
     omega = np.asarray(solid_angles, np.float64)
     energy = np.einsum("s,fsc->f", omega, values * values)
     zero = energy <= options.zero_energy
-    mean, lam = _initial(directions, omega, values, options, default)
+    mean, lam = (_initial(directions, omega, values, options, default) if start is None
+                 else (np.array(start[0], np.float64), np.array(start[1], np.float64)))
     mean[zero] = default[zero][:, None]
     lam[zero] = sg.sharpness(options.default_sigma)
     bound = math.tan(math.radians(options.max_shift_deg))
@@ -443,23 +451,26 @@ def _lm(problem: _Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
         options: FitOptions = FitOptions(), targets: FitTargets | None = None,
-        default_mean: np.ndarray | None = None) -> SGFit:
+        default_mean: np.ndarray | None = None, start: SGFit | None = None) -> SGFit:
     """Fit N lobes to each of F functions tabulated at ``directions`` (S, 3) (unit, any
     sphere grid) with quadrature ``solid_angles`` (S,) (sr): ``values`` (F, S, C) or
-    (F, S). Batched Levenberg–Marquardt from moment-based starts (module docstring).
+    (F, S). Batched Levenberg–Marquardt from moment-based starts (module docstring),
+    or from the means and sharpnesses of ``start`` (e.g. a fit of the same functions on
+    a coarser grid; weights re-solved on this grid).
     ``default_mean`` (3,) or (F, 3): the mean given to zero functions (default +z)."""
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
     pieces = []
-    for start in range(0, len(values), options.batch):
-        part = slice(start, start + options.batch)
+    for offset in range(0, len(values), options.batch):
+        part = slice(offset, offset + options.batch)
         t = targets or FitTargets()
         t = FitTargets(*(None if a is None else np.asarray(a)[part]
                          for a in (t.mean, t.sigma, t.neighbour_means)))
         dm = (default_mean if default_mean is None or np.ndim(default_mean) == 1
               else np.asarray(default_mean)[part])
-        problem, x = _setup(directions, solid_angles, values[part], options, t, dm)
+        begin = None if start is None else (start.mean[part], start.sharpness[part])
+        problem, x = _setup(directions, solid_angles, values[part], options, t, dm, begin)
         pieces.append(_result(problem, *_lm(problem, x)))
     return SGFit(*(np.concatenate([getattr(p, name) for p in pieces])
                    for name in ("mean", "sharpness", "weight", "energy", "iterations",
