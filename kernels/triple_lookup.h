@@ -120,12 +120,14 @@ inline void triple_frame_rows(float3 x, const triple_grids* g, uint* rows, float
             }
 }
 
-/* The view grid coordinates (φ_o, θ_o in grid steps) of the local view wo (below the
- * horizon: clamped to grazing, θ_o = π/2). Per camera. */
+/* The view grid coordinates (φ_o, θ_o in grid steps) of the local view wo; a view at or
+ * below the shading frame's horizon gets θ_o = TRIPLE_BELOW (every BRDF is zero there,
+ * pipeline/math/brdf.py, so the pixel's BRDF weights are). Per camera. */
+#define TRIPLE_BELOW (-1.0f)
 inline float2 triple_view_coords(float3 wo, const triple_grids* g) {
-    float theta = wo.z > 0.0f ? triple_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z)
-                              : 0.5f * TRIPLE_PI;
     float phi = triple_wrap_angle(triple_atan2(wo.y, wo.x));
+    if (!(wo.z > 0.0f)) return (float2)(phi * g->view_phi / TRIPLE_TWO_PI, TRIPLE_BELOW);
+    float theta = triple_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z);
     return (float2)(phi * g->view_phi / TRIPLE_TWO_PI,
                     theta * (g->view_theta - 1) / (0.5f * TRIPLE_PI));
 }
@@ -202,16 +204,18 @@ inline void triple_lookups_of(int i, __global const float* frame_coords,
                          out->vis_weight);
     int entries[4];
     float w[4];
-    triple_view_rows(vload2(i, view_coords), g, entries, w);
+    float2 view = vload2(i, view_coords);
+    float above = view.y == TRIPLE_BELOW ? 0.0f : 1.0f;
+    triple_view_rows(view, g, entries, w);
     int ma = material_a[i], mb = material_b[i];
     float tb = blend[i];
     out->brdf_rows[0] = (uint)diffuse_row[ma];
-    out->brdf_weight[0] = (1.0f - tb) * vload3(ma, kd) + tb * vload3(mb, kd);
+    out->brdf_weight[0] = above * ((1.0f - tb) * vload3(ma, kd) + tb * vload3(mb, kd));
     int m[2] = {ma, mb};
     float share[2] = {1.0f - tb, tb};
     for (int s = 0; s < 2; ++s) {
         int base = glossy_base[m[s]];
-        float3 rs = vload3(m[s], rho_s) * share[s];
+        float3 rs = vload3(m[s], rho_s) * (share[s] * above);
         for (int e = 0; e < 4; ++e) {
             out->brdf_rows[1 + 4 * s + e] = base >= 0 ? (uint)(base + entries[e]) : 0u;
             out->brdf_weight[1 + 4 * s + e] = base >= 0 ? w[e] * rs : (float3)(0.0f);

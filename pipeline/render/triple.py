@@ -243,7 +243,9 @@ def brdf_lookups(tables: TripleTables, material: np.ndarray, wo_local: np.ndarra
         + Σ 4 glossy view rows of a × bilinear × (1 − t) ρs_a  (rows 1–4)
         + Σ 4 glossy view rows of b × bilinear × t ρs_b        (rows 5–8);
 
-    rows of weight 0 (no blend, a Lambertian material) are skipped by the kernel."""
+    rows of weight 0 (no blend, a Lambertian material) are skipped by the kernel. A view
+    at or below the horizon (``wo_local`` z ≤ 0, e.g. a smooth normal at a silhouette)
+    gets weight 0 on every row: every BRDF is zero there (pipeline/math/brdf.py)."""
     if material_b is None or blend is None:
         material_b, blend = material, np.zeros(len(material))
     t = np.asarray(blend, np.float64)[:, None]
@@ -256,7 +258,8 @@ def brdf_lookups(tables: TripleTables, material: np.ndarray, wo_local: np.ndarra
         parts_rows.append(np.where(glossy[:, None], base[:, None] + entries, 0))
         parts_weight.append((weights * glossy[:, None] * share)[:, :, None]
                             * rho_s[m][:, None, :])
-    return np.concatenate(parts_rows, 1), np.concatenate(parts_weight, 1)
+    above = (np.asarray(wo_local)[:, 2] > 0.0)[:, None, None]
+    return np.concatenate(parts_rows, 1), np.concatenate(parts_weight, 1) * above
 
 
 def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, float, int]:
