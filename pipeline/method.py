@@ -117,6 +117,8 @@ class Method:
     return notes (a list of strings), shown before the bake and in ``--json`` output.
     ``stagefile``, ``schema_dir``, ``kernel_dir``: a plug-in's own stages, schemas and
     kernels (the built-in methods' live in the project's files).
+    ``renders``: False for a plug-in whose renderer is not built yet (it bakes, then
+    says so): refusals never name it among the methods that render something.
     """
 
     name: str
@@ -139,6 +141,7 @@ class Method:
     stagefile: Path | None = None
     schema_dir: Path | None = None
     kernel_dir: Path | None = None
+    renders: bool = True
 
     def option_values(self, given: dict[str, str]) -> dict[str, Any]:
         """Defaults overridden by ``given`` (NAME -> text), parsed; unknown names fail."""
@@ -266,7 +269,8 @@ def check_method_scene(method: Method, scene: Scene) -> list[str]:
 def _methods_with(field_name: str, value: str) -> str:
     """The registered methods whose ``field_name`` holds ``value``, listed for a message
     (``none yet`` if none)."""
-    found = [m.name for m in registry().values() if value in getattr(m, field_name)]
+    found = [m.name for m in registry().values()
+             if m.renders and value in getattr(m, field_name)]
     return ", ".join(found) or "none yet"
 
 

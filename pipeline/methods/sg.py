@@ -42,6 +42,7 @@ METHOD = Method(
     headline="rel_rmse_surfaces",
     lights=("environment",),
     check_scene="pipeline.methods.sg:check_scene",
+    renders=False,  # a skeleton until sg.transport, sg.fit and the renderer exist
 )
 
 
