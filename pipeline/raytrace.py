@@ -174,9 +174,9 @@ class Surface:
         blend = np.sum(self._weights * self.mesh.normals[self.mesh.faces[self.face]], axis=1)
         n = blend.astype(np.result_type(blend, self.normal_dtype))
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        # Turned with the face, not on its own: at a silhouette the blended normal of a
-        # face that faces the ray may face away from it; turning it alone would point
-        # it into the object (paper-free convention, as pbrt's shading normals).
+        # Turned with its face, not on its own: at a silhouette the blended normal of a
+        # face that faces the ray may face away from it, and turning it alone would
+        # point it into the object.
         face = self.mesh.face_normal[self.face]
         return np.where(np.sum(face * self.directions, axis=1, keepdims=True) > 0, -n, n)
 
