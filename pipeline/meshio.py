@@ -152,9 +152,29 @@ def read_mesh(path: Path) -> RawMesh:
     uv = getattr(mesh.visual, "uv", None)
     if uv is not None and len(uv) != len(mesh.vertices):
         uv = None
-    return RawMesh(np.asarray(mesh.vertices, dtype=np.float64),
-                   np.asarray(mesh.faces, dtype=np.int64),
-                   None if uv is None else np.asarray(uv, dtype=np.float64), str(path))
+    return weld(RawMesh(np.asarray(mesh.vertices, dtype=np.float64),
+                        np.asarray(mesh.faces, dtype=np.int64),
+                        None if uv is None else np.asarray(uv, dtype=np.float64), str(path)))
+
+
+def weld(raw: RawMesh) -> RawMesh:
+    """``raw`` with vertices that are bit-identical in position and uv merged into the
+    first of them (order of first appearance kept; a mesh without such twins comes back
+    unchanged). An OBJ file whose faces name per-face normals (``f v//vn``) is split by
+    trimesh into one vertex per (v, vn) pair; the geometry stage computes its own normals,
+    so those splits would only leave a faceted mesh whose vertices share no faces (per-
+    vertex methods then interpolate nothing across faces). Vertices that differ in uv —
+    texture seams — stay apart."""
+    keys = raw.vertices if raw.uv is None else np.hstack([raw.vertices, raw.uv])
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(keys):
+        return raw
+    order = np.argsort(first)                  # unique rows in order of first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    kept = first[order]
+    return RawMesh(raw.vertices[kept], rank[inverse.ravel()][raw.faces],
+                   None if raw.uv is None else raw.uv[kept], raw.source)
 
 
 def primitive_mesh(spec: dict[str, Any]) -> RawMesh:

@@ -233,6 +233,31 @@ def test_well_formed_obj_reads_the_same(tmp_path):
     assert mesh.faces.shape == (2, 3) and np.isfinite(mesh.vertices).all()
 
 
+def test_per_face_normals_are_welded_uv_seams_kept(tmp_path):
+    """Trimesh splits an OBJ vertex per (v, vn) pair; the reader welds bit-identical
+    positions back (the geometry stage computes its own normals), in order of first
+    appearance, but keeps vertices that differ in uv (a texture seam) apart. The shared
+    bunny_6.6kf.obj was 19,794 faceted vertices for 3,301 positions."""
+    from pipeline.meshio import read_mesh
+
+    quad = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
+    path = tmp_path / "flat.obj"
+    path.write_text(quad + "vn 0 0 1\nvn 0 0.1 1\nf 1//1 2//1 3//1\nf 2//2 4//2 3//2\n")
+    mesh = read_mesh(path)
+    assert len(mesh.vertices) == 4
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+
+    seam = tmp_path / "seam.obj"
+    seam.write_text(quad + "vt 0 0\nvt 1 0\nvt 0 1\nvt 0.5 0.5\nvt 1 1\n"
+                    "f 1/1 2/2 3/3\nf 2/4 4/5 3/3\n")
+    mesh = read_mesh(seam)
+    # vertex 2 appears with uv (1, 0) and (0.5, 0.5): two vertices; vertex 3 shares its uv
+    assert len(mesh.vertices) == 5
+    assert mesh.faces[0, 2] == mesh.faces[1, 2]
+    assert mesh.faces[0, 1] != mesh.faces[1, 0]
+
+
 @pytest.mark.parametrize("damage", ["garbage", "truncated"])
 def test_a_damaged_mesh_in_a_scene(case, tmp_path, damage):
     """`prt run` with a garbage or a truncated OBJ: one line naming the mesh file; the
