@@ -14,7 +14,8 @@
  * sg_shade: per lobe slot s < the largest count of the face's 3 vertices, the lobe
  * blended over 3 vertices x 3 views with weights W = face barycentric x view weight:
  *     w = sum W w_i,  mu = normalise(sum W mu_i),
- *     lam = exp(sum W log lam_i)   (LAMBDA_LOG = 1: linear in log sigma)
+ *     lam = exp(sum W log lam_i)   (LAMBDA_LOG = 1: linear in log sigma; the host
+ *                                   stores log lam in the lobes' last field)
  *         | sum W lam_i            (LAMBDA_LOG = 0),
  * integrated against the environment by the prefiltered stack at R^T mu (sg.h's
  * sg_env_integral); plus the diffuse SH term sum_k (sum_v bary_v transfer[v, c, k])
@@ -97,11 +98,7 @@ __kernel void sg_shade(__global const float* lobes, __global const uchar* count,
                                                   * SG_FIELDS;
                 w += weight * (float3)(p[0], p[1], p[2]);
                 mu += weight * (float3)(p[3], p[4], p[5]);
-#if LAMBDA_LOG
-                lam += weight * log(p[6]);
-#else
-                lam += weight * p[6];
-#endif
+                lam += weight * p[6];  /* log lam with LAMBDA_LOG */
             }
         }
 #if LAMBDA_LOG

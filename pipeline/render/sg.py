@@ -237,7 +237,9 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
 
 @dataclass
 class SgDevice:
-    """The tables on the OpenCL device, uploaded once; ``shade`` runs ``sg_shade``."""
+    """The tables on the OpenCL device, uploaded once (with ``lambda_blend="log"`` the
+    lobes' last field holds log λ, as the kernel blends it); ``shade`` runs
+    ``sg_shade``."""
 
     tables: SgTables
     lambda_blend: str = "log"
@@ -246,8 +248,12 @@ class SgDevice:
     def __post_init__(self) -> None:
         t = self.tables
         flat, info = sg.pack_stack(t.stack)
+        lobes = t.lobes
+        if self.lambda_blend == "log":  # the kernel blends log λ: taken once, here
+            lobes = lobes.copy()
+            lobes[..., 6] = np.log(lobes[..., 6])
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
-            ("lobes", t.lobes), ("count", t.count), ("transfer", t.transfer), ("stack", flat),
+            ("lobes", lobes), ("count", t.count), ("transfer", t.transfer), ("stack", flat),
             ("info", info))}
         self.kernel = cl.kernel("sg_render.cl", "sg_shade",
                                 {"LAMBDA_LOG": int(self.lambda_blend == "log")})
