@@ -19,6 +19,8 @@ Measured in one run (``os.getloadavg()`` recorded with each part):
   looked up) and environment-rotation frames (10° per frame, camera kept), medians over
   ``--frames``, split into trace, view lookup, shading kernel, background kernel, SH
   rotation and the rest; for ``lambda_blend`` log and linear;
+* the shading kernel's breakdown on the welded tables (camera fixed, kernels taking
+  turns): every glossy vertex with 3, 2, 1 and 0 lobes (0: the diffuse SH term alone);
 * the shading kernel's bandwidth: the bytes it loads and stores counting every
   gathered load (``render.sg.kernel_bytes``), and the distinct bytes (tables +
   per-pixel inputs + output), each over the median kernel time, as fractions of the
@@ -151,6 +153,27 @@ def run_frames(renderers: dict[str, Any], scenes: list[Any]) -> dict[str, dict[s
     return out
 
 
+def breakdown(tables: Any, geometry: dict, scene: Any, repeats: int) -> dict[str, Any]:
+    """Median ``sg_shade`` milliseconds with the glossy vertices' count set to 3..0."""
+    import dataclasses
+
+    from pipeline.math import sh
+    from pipeline.render import sg as render
+
+    gbuffer = render.camera_gbuffer(render.RayTracer(geometry["vertices"], geometry["faces"]),
+                                    np.asarray(geometry["faces"]), scene.camera)
+    light = np.zeros((sh.ORDER ** 2, 3))
+    devices = {n: render.SgDevice(dataclasses.replace(
+        tables, count=np.minimum(tables.count, n).astype(np.uint8))) for n in (3, 2, 1, 0)}
+    before, times = load(), {n: [] for n in devices}
+    for _ in range(repeats + 1):  # the first round builds the kernels
+        for n, device in devices.items():
+            times[n].append(device.shade(gbuffer.buffers(), len(gbuffer.pixel), light, 0.0,
+                                         1.0)[1])
+    return {"pixels": int(len(gbuffer.pixel)), "load_before": before, "load_after": load(),
+            **{f"lobes_{n}_ms": median(t[1:]) for n, t in times.items()}}
+
+
 def main() -> None:
     from pipeline import bandwidth
     from pipeline.images import read_environment, write_png
@@ -189,6 +212,9 @@ def main() -> None:
             "prefilter_s": prefilter_s, "prefilter_load": load(), "blends": {},
             "distinct_bytes": tables.nbytes + args.width * args.height * (48 + 12)}
         record["variants"][variant] = entry
+        if variant == "welded":
+            record["breakdown"] = breakdown(tables, geometry, scene, args.frames)
+            print("breakdown", json.dumps(record["breakdown"]), flush=True)
         renderers = {blend: render.sg_frames(tables, geometry["vertices"], geometry["faces"],
                                              env, blend) for blend in render.LAMBDA_BLENDS}
         for blend, frames_of in renderers.items():
