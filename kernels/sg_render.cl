@@ -19,8 +19,9 @@
  *         | sum W lam_i            (LAMBDA_LOG = 0),
  * integrated against the environment by the prefiltered stack at R^T mu (sg.h's
  * sg_env_integral); plus the diffuse SH term sum_k (sum_v bary_v transfer[v, c, k])
- * L[k, c]; all times the light's scale. Lobes: V x VIEWS x 3 x 7 floats (w_rgb, mu_xyz,
- * lam); transfer V x 3 x 25 floats; L 25 x 3 floats (the rotated map's SH). */
+ * L[k, c] = sum_v bary_v D[v, c], D[v, c] = sum_k transfer[v, c, k] L[k, c] computed
+ * per frame on the host (the sum is linear); all times the light's scale. Lobes:
+ * V x VIEWS x 3 x 7 floats (w_rgb, mu_xyz, lam); D V x 3 floats. */
 #include "sg.h"
 
 #ifndef LAMBDA_LOG
@@ -28,7 +29,6 @@
 #endif
 #define SG_SLOTS 3
 #define SG_FIELDS 7
-#define SH_COEFFS 25
 
 /* beta = M^-1 d for the 3x3 row-major inverse at m. */
 inline float3 sg_cone_weights(__global const float* m, float3 d) {
@@ -71,13 +71,13 @@ __kernel void sg_view_lookup(__global const float* parent_inverse,  /* 20 x 9 */
 }
 
 __kernel void sg_shade(__global const float* lobes, __global const uchar* count,
-                       __global const float* transfer, const int views,
+                       __global const float* vertex_diffuse, const int views,
                        __global const int* corner, __global const float* bary,
                        __global const int* view, __global const float* view_weight,
                        __global const float* stack, __global const int* level_info,
                        const int levels, const float log_sigma0, const float inv_log_ratio,
                        const float turn_cos, const float turn_sin,
-                       __global const float* light_sh, const float scale, const int n,
+                       const float scale, const int n,
                        __global float* out)
 {
     int i = get_global_id(0);
@@ -110,18 +110,9 @@ __kernel void sg_shade(__global const float* lobes, __global const uchar* count,
         radiance += sg_env_integral(stack, level_info, levels, log_sigma0, inv_log_ratio,
                                     mu_map, lam, w);
     }
-    float diffuse[3] = {0.0f, 0.0f, 0.0f};
-    for (int c = 0; c < 3; ++c) {
-        float acc = 0.0f;
-        for (int k = 0; k < SH_COEFFS; ++k) {
-            float t = fb[0] * transfer[(v[0] * 3 + c) * SH_COEFFS + k]
-                    + fb[1] * transfer[(v[1] * 3 + c) * SH_COEFFS + k]
-                    + fb[2] * transfer[(v[2] * 3 + c) * SH_COEFFS + k];
-            acc += t * light_sh[3 * k + c];
-        }
-        diffuse[c] = acc;
-    }
-    vstore3(scale * (radiance + (float3)(diffuse[0], diffuse[1], diffuse[2])), i, out);
+    float3 diffuse = fb[0] * vload3(v[0], vertex_diffuse) + fb[1] * vload3(v[1], vertex_diffuse)
+                   + fb[2] * vload3(v[2], vertex_diffuse);
+    vstore3(scale * (radiance + diffuse), i, out);
 }
 
 /* Pixels that miss: the environment map itself, rotated, times the light's scale. */

@@ -31,7 +31,9 @@ f = (1 − u − v, u, v)); ω_o = −ray direction (world, unit, towards the ey
   ``envmap.rotation_y``), times the light's ``scale``.
 * *Diffuse.* Σ_k (Σ_a f_a transfer[v_a, c, k]) L_k,c · scale, L = sh.project_latlong of
   the map turned by the light's rotation (projected once, turned per frame by
-  ``sh.rotate_y``).
+  ``sh.rotate_y``). Linear in the transfer, so it is Σ_a f_a D[v_a, c] with the
+  vertices' diffuse radiance D = Σ_k transfer L_k computed per frame on the host
+  (V × 75 products) instead of 225 per pixel.
 * Pixels that miss see the environment map (bilinear, rotated, scaled).
 
 Camera rays, their hits and the view triangles are kept per camera (a G-buffer), so an
@@ -253,24 +255,31 @@ class SgDevice:
             lobes = lobes.copy()
             lobes[..., 6] = np.log(lobes[..., 6])
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
-            ("lobes", lobes), ("count", t.count), ("transfer", t.transfer), ("stack", flat),
-            ("info", info))}
+            ("lobes", lobes), ("count", t.count), ("stack", flat), ("info", info))}
         self.kernel = cl.kernel("sg_render.cl", "sg_shade",
                                 {"LAMBDA_LOG": int(self.lambda_blend == "log")})
 
-    def shade(self, pixels: dict[str, Any], n: int, light_sh: np.ndarray, degrees: float,
+    def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
+        """A device buffer of the vertices' diffuse radiance D (V, 3) float32 =
+        Σ_k transfer[v, c, k] light_sh[k, c] (without the light's scale)."""
+        d = np.einsum("vck,kc->vc", self.tables.transfer, light_sh.astype(np.float32))
+        return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
+
+    def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
               scale: float) -> tuple[np.ndarray, float]:
         """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
-        ``pixels`` (corner, bary, view, view_weight), and the kernel's milliseconds."""
+        ``pixels`` (corner, bary, view, view_weight), with the vertices' diffuse
+        radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), and the kernel's
+        milliseconds."""
         b, levels, a = self.buffers, self.tables.levels, np.radians(degrees)
         out = np.empty((n, 3), np.float32)
-        ms = cl.run(self.kernel, n, b["lobes"], b["count"], b["transfer"],
+        ms = cl.run(self.kernel, n, b["lobes"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
                     pixels["view"], pixels["view_weight"], b["stack"], b["info"],
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),
                     np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
-                    np.float32(np.sin(a)), cl.read_only_buffer(light_sh.astype(np.float32)),
-                    np.float32(scale), np.int32(n), out=out, local=WORK_GROUP)
+                    np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
+                    local=WORK_GROUP)
         return out, ms
 
 
@@ -282,16 +291,17 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
               "bary": cl.read_only_buffer(np.asarray(bary, np.float32)),
               "view": cl.read_only_buffer(np.asarray(view, np.int32)),
               "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32))}
-    return device.shade(pixels, len(corner), light_sh, degrees, scale)[0]
+    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), degrees,
+                        scale)[0]
 
 
 def kernel_bytes(tables: SgTables, corner: np.ndarray) -> int:
     """Bytes ``sg_shade`` loads and stores for these pixels, every gathered load counted
     (cache hits included): per pixel 4 × 12 B of indices and weights, 3 counts, per
-    active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B, 9 × 25 transfer floats,
-    25 × 3 SH floats, 12 B out."""
+    active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B, 3 vertices' diffuse
+    radiance × 12 B, 12 B out."""
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
-    per_pixel = 48 + 3 + 9 * 25 * 4 + 75 * 4 + 12
+    per_pixel = 48 + 3 + 3 * 12 + 12
     return int(len(corner) * per_pixel + slots.sum() * (9 * FIELDS * 4 + 2 * 4 * 12))
 
 
@@ -352,7 +362,8 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
               env_map: np.ndarray, lambda_blend: str = "log") -> Callable[[Scene], Frame]:
     """The frame function over loaded tables: each call traces its scene's camera (kept
     while the camera stays), reads the environment's rotation and scale, and shades
-    (timings: gbuffer (trace + view lookup), sh, shade, background)."""
+    (timings: gbuffer (trace + view lookup), sh (SH rotation and the vertices' diffuse
+    radiance), shade, background)."""
     if lambda_blend not in LAMBDA_BLENDS:
         raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
                        f"{', '.join(LAMBDA_BLENDS)}")
@@ -377,13 +388,13 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
         t1 = time.perf_counter()
         light = environment_light(scene)
         degrees, scale = float(light.get("rotation", 0.0)), float(light.get("scale", 1.0))
-        light_sh = sh.rotate_y(map_sh, degrees)
+        vertex_diffuse = device.vertex_diffuse(sh.rotate_y(map_sh, degrees))
         t2 = time.perf_counter()
         rgb = np.zeros((cam.width * cam.height, 3), np.float32)
         shade_ms = background_ms = 0.0
         if len(gbuffer.pixel):
-            rgb[gbuffer.pixel], shade_ms = device.shade(pixels, len(gbuffer.pixel), light_sh,
-                                                        degrees, scale)
+            rgb[gbuffer.pixel], shade_ms = device.shade(pixels, len(gbuffer.pixel),
+                                                        vertex_diffuse, degrees, scale)
         if len(gbuffer.miss_pixel):
             if "map" not in static:
                 static["map"] = cl.read_only_buffer(env_map)
