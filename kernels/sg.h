@@ -48,10 +48,22 @@ inline float sg_inner(float3 mu_a, float la, float3 mu_b, float lb) {
     return scale * sg_integral(lam);
 }
 
+/* Bilinear radiance of stack level l at the map coordinates (u, v) in [0, 1) x [0, 1]
+ * (envmap.h's texel coordinates X = u W_l - 1/2, Y = v (H_l - 1)). */
+inline float3 sg_level_radiance(__global const float* stack, __global const int* level_info,
+                                int l, float u, float v) {
+    int width = level_info[3 * l + 1], height = level_info[3 * l + 2];
+    float x = u * width - 0.5f, y = v * (height - 1);
+    float x0 = floor(x), y0 = floor(y);
+    return envmap_bilinear(stack + 3 * level_info[3 * l], width, height, (int)x0, (int)y0,
+                           x - x0, y - y0);
+}
+
 /* Integral of weight * G(w; mu, lam) against the environment, mu in the map's frame:
  * weight * (integral of G) * P(mu, sigma), P bilinear in direction on the two levels
  * around f = log(sigma / sigma0) / log(ratio) (clamped to [0, levels - 1]) and linear
- * in f between them. log_sigma0 = log(sigma0), inv_log_ratio = 1 / log(ratio). */
+ * in f between them. log_sigma0 = log(sigma0), inv_log_ratio = 1 / log(ratio). The map
+ * coordinates (u, v) of mu are computed once for both levels. */
 inline float3 sg_env_integral(__global const float* stack, __global const int* level_info,
                               int levels, float log_sigma0, float inv_log_ratio,
                               float3 mu, float lam, float3 weight) {
@@ -60,10 +72,11 @@ inline float3 sg_env_integral(__global const float* stack, __global const int* l
     int lo = min((int)floor(f), max(levels - 2, 0));
     int hi = min(lo + 1, levels - 1);
     float t = f - (float)lo;
-    float3 a = envmap_radiance(stack + 3 * level_info[3 * lo], level_info[3 * lo + 1],
-                               level_info[3 * lo + 2], mu);
-    float3 b = envmap_radiance(stack + 3 * level_info[3 * hi], level_info[3 * hi + 1],
-                               level_info[3 * hi + 2], mu);
+    float u = atan2(mu.x, -mu.z) * (0.5f / ENVMAP_PI);
+    u -= floor(u);
+    float v = acos(clamp(mu.y, -1.0f, 1.0f)) * (1.0f / ENVMAP_PI);
+    float3 a = sg_level_radiance(stack, level_info, lo, u, v);
+    float3 b = sg_level_radiance(stack, level_info, hi, u, v);
     return weight * sg_integral(lam) * ((1.0f - t) * a + t * b);
 }
 

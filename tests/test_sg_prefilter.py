@@ -126,8 +126,8 @@ def test_render_bakes_the_prefilter_then_refuses_without_writing_a_frame(tmp_pat
                            "--quiet"], capture_output=True, text=True, cwd=PROJECT,
                           timeout=300)
     assert done.returncode != 0
-    assert "method sg cannot render yet: sg.transport, sg.fit, the renderer are not " \
-           "built" in done.stderr
+    assert "method sg cannot render yet: sg.fit, sg.diffuse are not built" \
+           in done.stderr
     assert not out.exists()
     assert open_artifact(Workdir(tmp_path / "work").artifact("sg.env_prefilter")) \
         .attrs["levels"] == sg.prefilter_levels(9, 18).count

@@ -1,13 +1,20 @@
 """Method ``sg``: view-dependent glossy transport as sums of spherical Gaussians per
 vertex and view, integrated against a Gaussian-prefiltered environment map (paper 003;
-issue 17). A skeleton so far: it bakes what exists and refuses to render.
+issue 17).
 
 Stages (stages.yaml, ``sg.*``): ``sg.env_prefilter`` (the environment map convolved
-with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py). Not built yet:
-``sg.transport`` (per vertex and each of 92 views, the glossy transport over a sphere
-grid and the diffuse part in SH) and ``sg.fit`` (the Gaussians, pipeline/math/sg_fit.py),
-and the renderer: ``prt render --method sg`` bakes the prefiltered stack and then stops
-with a one-line error saying so; no frame is written.
+with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py), ``sg.fit`` (per
+vertex and each of 92 views, the glossy transport fitted by Gaussians,
+pipeline/math/sg_fit.py) and ``sg.diffuse`` (the diffuse transfer in SH); shared:
+``geometry``. Renderer: pipeline/render/sg.py. Until ``sg.fit`` and ``sg.diffuse`` are
+in stages.yaml (:data:`STAGES_MERGED`), ``prt render --method sg`` bakes the
+prefiltered stack and then stops with a one-line error saying so; no frame is written.
+
+Run-time option: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is blended
+over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``.
+
+Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
+``orbit:N`` moves the camera around its look_at point (as method triple's).
 
 The lobe mathematics (pipeline/math/sg.py, kernels/sg.h) and the batched fit
 (pipeline/math/sg_fit.py) are in place and tested (tests/test_sg.py, test_sg_fit.py).
@@ -23,26 +30,32 @@ from typing import Any, NoReturn
 
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
-from pipeline.method import Method
+from pipeline.method import Method, Option
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
-BUILT = ("sg.env_prefilter",)
-NOT_BUILT = ("sg.transport", "sg.fit", "the renderer")
+STAGES_MERGED = False  # True once sg.fit and sg.diffuse are in stages.yaml: sg renders
+READS = ("geometry", "sg.fit", "sg.diffuse", "sg.env_prefilter")
+NOT_BUILT = ("sg.fit", "sg.diffuse")
 
 METHOD = Method(
     name="sg",
     description="paper 003: glossy transport per vertex and view as spherical Gaussians, "
-                "a Gaussian-prefiltered environment (skeleton: bakes the prefilter only)",
-    renderer="pipeline.methods.sg:sg_renderer",
-    reads=BUILT,
+                "a Gaussian-prefiltered environment",
+    renderer="pipeline.render.sg:sg_renderer" if STAGES_MERGED
+    else "pipeline.methods.sg:sg_renderer",
+    reads=READS if STAGES_MERGED else ("sg.env_prefilter",),
+    options=(Option("lambda_blend", str, "log",
+                    "log or linear: how a lobe's sharpness is blended between views"),),
+    sequences="pipeline.methods.sg:sequence",
+    main_sequences=("rotate:8", "orbit:8"),
     # paper 003 models direct and indirect glossy at the first vertex and diffuse light
     # with shadows and interreflection: of the reference transports, the full one
     reference="full",
     headline="rel_rmse_surfaces",
     lights=("environment",),
     check_scene="pipeline.methods.sg:check_scene",
-    renders=False,  # a skeleton until sg.transport, sg.fit and the renderer exist
+    renders=STAGES_MERGED,
 )
 
 
@@ -56,7 +69,19 @@ def check_scene(scene: Scene) -> None:
     read_environment(scene.environment_file())
 
 
+def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
+             ) -> tuple[str, list[Scene], list[str], str]:
+    """``rotate:N`` (the environment turns about +y) or ``orbit:N`` (the camera circles
+    its look_at point): method triple's sequences of those kinds."""
+    from pipeline.methods import triple
+
+    kind, _, count = spec.partition(":")
+    if kind not in ("rotate", "orbit") or not count.isdigit() or int(count) < 1:
+        raise PrtError(None, f"--frames {spec}: expected rotate:N or orbit:N (N ≥ 1 frames)")
+    return triple.sequence(scene, artifacts, spec)
+
+
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], **options: Any) -> NoReturn:
-    """Refuses: the stages a frame needs are not built yet (issue 17)."""
+    """Refuses while the stages a frame needs are not merged (:data:`STAGES_MERGED`)."""
     raise PrtError(scene.path, f"method sg cannot render yet: {', '.join(NOT_BUILT)} "
                    f"are not built (issue 17); baked so far: {', '.join(artifacts)}")

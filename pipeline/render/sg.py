@@ -1,0 +1,433 @@
+"""Method ``sg`` (paper 003 §5): per pixel, the spherical Gaussians of the hit face's 3
+vertices at the 3 views around the direction to the eye, blended and integrated against
+the prefiltered environment, plus the diffuse SH term (kernels/sg_render.cl; NumPy twins
+:func:`view_triangles` and :func:`shade_numpy`).
+
+Artifacts (the contract between issue 17's stages and this renderer): ``geometry`` (vertices,
+faces: global vertex indices), ``sg.fit`` (``sg_lobes``: per vertex, view of
+``sg_transport.view_directions()`` and lobe slot, (w_rgb, μ_xyz, λ), world frame, w in
+1/sr, λ = 1/σ² in rad⁻²; ``count`` lobes per vertex), ``sg.diffuse`` (``sg_diffuse``:
+per vertex the diffuse transfer (3 channels × 25 SH coefficients), albedo/π and cosine
+included) and ``sg.env_prefilter`` (the map convolved by normalised SGs, pipeline/math/
+sg.py).
+
+**The pixel.** A camera ray hits face (v₀, v₁, v₂) at barycentrics f_a (Embree's u, v:
+f = (1 − u − v, u, v)); ω_o = −ray direction (world, unit, towards the eye).
+
+* *View triangle.* The 92 views are the vertices of 180 geodesic triangles (their convex
+  hull, :class:`ViewTriangulation`); the triangle (a, b, c) whose cone holds ω_o gives
+  weights β = M⁻¹ω_o, M = [a b c] (columns), normalised to sum 1: the gnomonic
+  barycentrics (the point where the ray ω_o meets the flat triangle), ≥ 0 inside, 1 at
+  a view, continuous across edges (on an edge both triangles solve the same 2 × 2
+  system). Found in two levels: the icosahedron face (20 cones, their edges are great
+  circles through the sub-triangles' edges) and then its 9 sub-triangles.
+* *Lobes.* Per slot s (slot s is the same lobe at every view and vertex: the fit keeps
+  correspondences), with W_ab = f_a β_b over the 3 vertices × 3 views:
+  w = Σ W w_ab, μ = normalise(Σ W μ_ab), and λ = exp(Σ W log λ_ab) (linear in log σ,
+  the stack's own coordinate; ``lambda_blend="linear"``: Σ W λ_ab). A highlight moves
+  with μ between views instead of cross-fading (tests/test_sg_render.py).
+* *Integral.* ∫ w G(ω; μ, λ) L(ω) dω = w · sg.integral(λ) · P(Rᵀμ, σ = 1/√λ), P the
+  stack looked up at the map-space mean (R the environment's rotation about +y,
+  ``envmap.rotation_y``), times the light's ``scale``.
+* *Diffuse.* Σ_k (Σ_a f_a transfer[v_a, c, k]) L_k,c · scale, L = sh.project_latlong of
+  the map turned by the light's rotation (projected once, turned per frame by
+  ``sh.rotate_y``). Linear in the transfer, so it is Σ_a f_a D[v_a, c] with the
+  vertices' diffuse radiance D = Σ_k transfer L_k computed per frame on the host
+  (V × 75 products) instead of 225 per pixel.
+* Pixels that miss see the environment map (bilinear, rotated, scaled).
+
+Camera rays, their hits and the view triangles are kept per camera (a G-buffer), so an
+environment-rotation frame runs the shading kernel only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.errors import PrtError
+from pipeline.images import read_environment
+from pipeline.math import sg, sh
+from pipeline.math.camera import camera_rays
+from pipeline.math.envmap import rotation_y
+from pipeline.math.geodesic import icosahedron
+from pipeline.math.sg_transport import view_directions
+from pipeline.raytrace import RayTracer
+from pipeline.render import Frame
+from pipeline.render.triple_gbuffer import WORK_GROUP
+from pipeline.scene import Scene
+from pipeline.stages.env_prefilter import read_stack
+from pipeline.store import Artifact
+
+SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
+LAMBDA_BLENDS = ("log", "linear")
+
+
+# ------------------------------------------------------------------ view triangles
+
+
+@dataclass(frozen=True)
+class ViewTriangulation:
+    """The 92 views' geodesic triangles. ``views`` (92, 3) unit, world; ``faces``
+    (180, 3) view indices; ``face_inverse`` (180, 3, 3) M⁻¹ of M = [a b c] (columns);
+    ``parent_inverse`` (20, 3, 3) the same for the icosahedron's faces and
+    ``children`` (20, 9) the triangles inside each."""
+
+    views: np.ndarray
+    faces: np.ndarray
+    face_inverse: np.ndarray
+    parent_inverse: np.ndarray
+    children: np.ndarray
+
+
+@cache
+def view_triangulation() -> ViewTriangulation:
+    """The triangulation of ``sg_transport.view_directions()`` (their convex hull),
+    grouped by the icosahedron face holding each triangle's centroid."""
+    from scipy.spatial import ConvexHull
+
+    views = view_directions()
+    faces = np.asarray(ConvexHull(views).simplices, np.int64)
+    face_inverse = np.linalg.inv(np.transpose(views[faces], (0, 2, 1)))
+    corners, ico_faces = icosahedron()
+    parent_inverse = np.linalg.inv(np.transpose(corners[ico_faces], (0, 2, 1)))
+    centroid = views[faces].mean(axis=1)
+    inside = np.einsum("pij,fj->fpi", parent_inverse, centroid).min(axis=2)  # (180, 20)
+    parent = inside.argmax(axis=1)
+    children = np.stack([np.flatnonzero(parent == p) for p in range(len(ico_faces))])
+    return ViewTriangulation(views, faces, face_inverse, parent_inverse, children)
+
+
+def view_triangles(tri: ViewTriangulation, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The views (P, 3) int32 and weights (P, 3) float64 (≥ 0, sum 1) of the triangle
+    holding each unit direction ``wo`` (P, 3): the kernel ``sg_view_lookup``'s twin
+    (module docstring)."""
+    d = np.asarray(wo, np.float64)
+    parent = np.einsum("pij,nj->npi", tri.parent_inverse, d).min(axis=2).argmax(axis=1)
+    candidates = tri.children[parent]  # (P, 9)
+    beta = np.einsum("ncij,nj->nci", tri.face_inverse[candidates], d)  # (P, 9, 3)
+    face = candidates[np.arange(len(d)), beta.min(axis=2).argmax(axis=1)]
+    weights = np.maximum(np.einsum("nij,nj->ni", tri.face_inverse[face], d), 0.0)
+    weights /= weights.sum(axis=1, keepdims=True)
+    return tri.faces[face].astype(np.int32), weights
+
+
+def _launch(kernel: Any, size: int, args: list[Any], outs: list[np.ndarray]) -> float:
+    """One launch over ``size`` work-items (groups of WORK_GROUP) writing ``outs`` (host
+    arrays, filled); the kernel's milliseconds."""
+    import pyopencl as pcl
+
+    buffers = [pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, max(o.nbytes, 4))
+               for o in outs]
+    event = kernel(cl.queue(), (-(-size // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
+                   *args, *buffers)
+    ms = cl.event_ms(event)
+    for host, buffer in zip(outs, buffers, strict=True):
+        if host.size:
+            pcl.enqueue_copy(cl.queue(), host, buffer).wait()
+    return ms
+
+
+@cache
+def _triangulation_buffers() -> tuple[Any, ...]:
+    tri = view_triangulation()
+    return tuple(cl.read_only_buffer(a) for a in (
+        tri.parent_inverse.astype(np.float32), tri.children.astype(np.int32),
+        tri.face_inverse.astype(np.float32), tri.faces.astype(np.int32)))
+
+
+def device_view_triangles(wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`view_triangles` by the kernel: views (P, 3) int32, weights (P, 3)
+    float32, and the kernel's milliseconds."""
+    wo = np.ascontiguousarray(wo, np.float32)
+    views, weights = np.empty((len(wo), 3), np.int32), np.empty((len(wo), 3), np.float32)
+    ms = _launch(cl.kernel("sg_render.cl", "sg_view_lookup"), len(wo),
+                 [*_triangulation_buffers(), cl.read_only_buffer(wo), np.int32(len(wo))],
+                 [views, weights])
+    return views, weights, ms
+
+
+# -------------------------------------------------------------------------- tables
+
+
+@dataclass
+class SgTables:
+    """What a frame reads. ``lobes`` (V, views, 3, 7) float32 (w_rgb 1/sr, μ unit world,
+    λ rad⁻² > 0); ``count`` (V,) lobes per vertex; ``transfer`` (V, 3, 25) float32
+    (diffuse SH transfer); ``stack``/``levels`` the prefiltered map (sg.PrefilterLevels,
+    levels (H_ℓ, W_ℓ, 3) float32, W/(m² sr))."""
+
+    lobes: np.ndarray
+    count: np.ndarray
+    transfer: np.ndarray
+    stack: list[np.ndarray]
+    levels: sg.PrefilterLevels
+
+    @property
+    def nbytes(self) -> int:
+        return self.lobes.nbytes + self.count.nbytes + self.transfer.nbytes \
+            + sum(level.nbytes for level in self.stack)
+
+
+def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
+    """The tables from the artifacts of ``sg.fit``, ``sg.diffuse`` and
+    ``sg.env_prefilter``, checked against each other and the geometry's
+    ``vertex_count`` (one-line PrtErrors naming the artifact)."""
+    fit, diffuse = artifacts["sg.fit"], artifacts["sg.diffuse"]
+    views = fit.read("views")
+    if views.shape != view_directions().shape or \
+            not np.allclose(views, view_directions(), atol=1e-9):
+        raise PrtError("sg.fit", "views: not sg_transport.view_directions() in order; "
+                       "re-bake sg.fit")
+    lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
+    count = np.ascontiguousarray(fit.read("count"), np.uint8)
+    transfer = np.ascontiguousarray(diffuse.read("transfer"), np.float32)
+    expected = {"sg.fit lobes": (lobes.shape, (vertex_count, len(views), SLOTS, FIELDS)),
+                "sg.fit count": (count.shape, (vertex_count,)),
+                "sg.diffuse transfer": (transfer.shape, (vertex_count, 3, sh.ORDER ** 2))}
+    for what, (shape, want) in expected.items():
+        if tuple(shape) != want:
+            raise PrtError(what.split()[0], f"{what.split()[1]}: shape {tuple(shape)}, "
+                           f"expected {want} (geometry has {vertex_count} vertices)")
+    if not (np.all(np.isfinite(lobes)) and np.all(lobes[..., 6] > 0)):
+        raise PrtError("sg.fit", "lobes: non-finite values or a sharpness λ ≤ 0")
+    stack, levels = read_stack(artifacts["sg.env_prefilter"])
+    return SgTables(lobes, count, transfer, stack, levels)
+
+
+# ------------------------------------------------------------------------- shading
+
+
+def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
+                view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
+                scale: float = 1.0, lambda_blend: str = "log") -> np.ndarray:
+    """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
+    vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
+    ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
+    (25, 3), the environment turned by ``degrees`` about +y, times ``scale``."""
+    corner = np.asarray(corner, np.int64)
+    weight = bary[:, :, None].astype(np.float64) * view_weight[:, None, :]  # (P, 3, 3)
+    lobes = tables.lobes[corner[:, :, None], np.asarray(view, np.int64)[:, None, :]]
+    lobes = lobes.astype(np.float64)  # (P, 3 vertices, 3 views, slots, 7)
+    slots = tables.count[corner].max(axis=1)
+    stack = [np.asarray(level, np.float64) for level in tables.stack]
+    turn = rotation_y(degrees)
+    out = np.zeros((len(corner), 3))
+    for s in range(SLOTS):
+        lobe = lobes[:, :, :, s]
+        w = np.einsum("pab,pabc->pc", weight, lobe[..., 0:3])
+        mu = np.einsum("pab,pabc->pc", weight, lobe[..., 3:6])
+        if lambda_blend == "log":
+            lam = np.exp(np.einsum("pab,pab->p", weight, np.log(lobe[..., 6])))
+        else:
+            lam = np.einsum("pab,pab->p", weight, lobe[..., 6])
+        length = np.linalg.norm(mu, axis=1)
+        ok = (slots > s) & (length > 0)
+        mu_map = (mu[ok] / length[ok, None]) @ turn  # Rᵀμ, as rows
+        out[ok] += sg.env_integral(stack, tables.levels, mu_map, lam[ok], w[ok])
+    transfer = np.einsum("pa,pack->pck", bary.astype(np.float64),
+                         tables.transfer[corner].astype(np.float64))
+    out += np.einsum("pck,kc->pc", transfer, light_sh)
+    return scale * out
+
+
+@dataclass
+class SgDevice:
+    """The tables on the OpenCL device, uploaded once (with ``lambda_blend="log"`` the
+    lobes' last field holds log λ, as the kernel blends it); ``shade`` runs
+    ``sg_shade``."""
+
+    tables: SgTables
+    lambda_blend: str = "log"
+    buffers: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = self.tables
+        flat, info = sg.pack_stack(t.stack)
+        lobes = t.lobes
+        if self.lambda_blend == "log":  # the kernel blends log λ: taken once, here
+            lobes = lobes.copy()
+            lobes[..., 6] = np.log(lobes[..., 6])
+        self.buffers = {name: cl.read_only_buffer(array) for name, array in (
+            ("lobes", lobes), ("count", t.count), ("stack", flat), ("info", info))}
+        self.kernel = cl.kernel("sg_render.cl", "sg_shade",
+                                {"LAMBDA_LOG": int(self.lambda_blend == "log")})
+
+    def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
+        """A device buffer of the vertices' diffuse radiance D (V, 3) float32 =
+        Σ_k transfer[v, c, k] light_sh[k, c] (without the light's scale)."""
+        d = np.einsum("vck,kc->vc", self.tables.transfer, light_sh.astype(np.float32))
+        return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
+
+    def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
+              scale: float) -> tuple[np.ndarray, float]:
+        """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
+        ``pixels`` (corner, bary, view, view_weight), with the vertices' diffuse
+        radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), and the kernel's
+        milliseconds."""
+        b, levels, a = self.buffers, self.tables.levels, np.radians(degrees)
+        out = np.empty((n, 3), np.float32)
+        ms = cl.run(self.kernel, n, b["lobes"], b["count"], vertex_diffuse,
+                    np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
+                    pixels["view"], pixels["view_weight"], b["stack"], b["info"],
+                    np.int32(levels.count), np.float32(np.log(levels.sigma0)),
+                    np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
+                    np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
+                    local=WORK_GROUP)
+        return out, ms
+
+
+def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
+                 view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
+                 scale: float = 1.0) -> np.ndarray:
+    """The kernel on host arrays (as :func:`shade_numpy`'s arguments), float32 (P, 3)."""
+    pixels = {"corner": cl.read_only_buffer(np.asarray(corner, np.int32)),
+              "bary": cl.read_only_buffer(np.asarray(bary, np.float32)),
+              "view": cl.read_only_buffer(np.asarray(view, np.int32)),
+              "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32))}
+    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), degrees,
+                        scale)[0]
+
+
+def kernel_bytes(tables: SgTables, corner: np.ndarray) -> int:
+    """Bytes ``sg_shade`` loads and stores for these pixels, every gathered load counted
+    (cache hits included): per pixel 4 × 12 B of indices and weights, 3 counts, per
+    active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B, 3 vertices' diffuse
+    radiance × 12 B, 12 B out."""
+    slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
+    per_pixel = 48 + 3 + 3 * 12 + 12
+    return int(len(corner) * per_pixel + slots.sum() * (9 * FIELDS * 4 + 2 * 4 * 12))
+
+
+# -------------------------------------------------------------------------- frames
+
+
+@dataclass
+class SgGBuffer:
+    """One camera's pixels: ``pixel`` (P,) flat indices that hit, their face's vertices
+    ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), view triangles ``view`` (P, 3)
+    and ``view_weight`` (P, 3); ``miss_pixel``/``miss_direction`` (M, 3) world ray
+    directions of the others; the milliseconds it took."""
+
+    pixel: np.ndarray
+    corner: np.ndarray
+    bary: np.ndarray
+    view: np.ndarray
+    view_weight: np.ndarray
+    miss_pixel: np.ndarray
+    miss_direction: np.ndarray
+    trace_ms: float
+    view_lookup_ms: float
+    device: dict[str, Any] = field(default_factory=dict)
+
+    def buffers(self) -> dict[str, Any]:
+        """Device copies of the per-pixel arrays (made on first use)."""
+        if not self.device:
+            self.device = {name: cl.read_only_buffer(getattr(self, name)) for name in
+                           ("corner", "bary", "view", "view_weight", "miss_direction")}
+        return self.device
+
+
+def camera_gbuffer(tracer: RayTracer, faces: np.ndarray, cam: Any) -> SgGBuffer:
+    """Trace camera ``cam``'s rays; hits' faces and barycentrics, view triangles of
+    ω_o = −ray direction (kernel ``sg_view_lookup``)."""
+    t0 = time.perf_counter()
+    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                      cam.width, cam.height)
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    hits = tracer.intersect(origins, directions)
+    hit = hits.prim >= 0
+    u, v = hits.u[hit], hits.v[hit]
+    corner = np.ascontiguousarray(faces[hits.prim[hit]], np.int32)
+    bary = np.ascontiguousarray(np.stack([1.0 - u - v, u, v], axis=1), np.float32)
+    trace_ms = (time.perf_counter() - t0) * 1e3
+    view, view_weight, lookup_ms = device_view_triangles(-directions[hit])
+    return SgGBuffer(np.flatnonzero(hit), corner, bary, view, view_weight,
+                     np.flatnonzero(~hit), np.ascontiguousarray(directions[~hit]),
+                     trace_ms, lookup_ms)
+
+
+def environment_light(scene: Scene) -> dict[str, Any]:
+    """The params of the scene's one environment light."""
+    return next(light for light in scene.lights if light.type == "environment").params
+
+
+def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
+              env_map: np.ndarray, lambda_blend: str = "log") -> Callable[[Scene], Frame]:
+    """The frame function over loaded tables: each call traces its scene's camera (kept
+    while the camera stays), reads the environment's rotation and scale, and shades
+    (timings: gbuffer (trace + view lookup), sh (SH rotation and the vertices' diffuse
+    radiance), shade, background)."""
+    if lambda_blend not in LAMBDA_BLENDS:
+        raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
+                       f"{', '.join(LAMBDA_BLENDS)}")
+    tracer = RayTracer(vertices, faces)
+    device = SgDevice(tables, lambda_blend)
+    env_map = np.ascontiguousarray(env_map, np.float32)
+    map_sh = sh.project_latlong(env_map)  # (25, 3), unrotated
+    static: dict[str, Any] = {}
+    cached: dict[tuple, SgGBuffer] = {}
+
+    def frame(scene: Scene) -> Frame:
+        t0 = time.perf_counter()
+        cam = scene.camera
+        key = (tuple(cam.position), tuple(cam.look_at), tuple(cam.up), cam.fov, cam.width,
+               cam.height)
+        was_cached = key in cached
+        if not was_cached:
+            cached.clear()
+            cached[key] = camera_gbuffer(tracer, faces, cam)
+        gbuffer = cached[key]
+        pixels = gbuffer.buffers()
+        t1 = time.perf_counter()
+        light = environment_light(scene)
+        degrees, scale = float(light.get("rotation", 0.0)), float(light.get("scale", 1.0))
+        vertex_diffuse = device.vertex_diffuse(sh.rotate_y(map_sh, degrees))
+        t2 = time.perf_counter()
+        rgb = np.zeros((cam.width * cam.height, 3), np.float32)
+        shade_ms = background_ms = 0.0
+        if len(gbuffer.pixel):
+            rgb[gbuffer.pixel], shade_ms = device.shade(pixels, len(gbuffer.pixel),
+                                                        vertex_diffuse, degrees, scale)
+        if len(gbuffer.miss_pixel):
+            if "map" not in static:
+                static["map"] = cl.read_only_buffer(env_map)
+            miss = np.empty((len(gbuffer.miss_pixel), 3), np.float32)
+            a = np.radians(degrees)
+            background_ms = cl.run(cl.kernel("sg_render.cl", "sg_background"), len(miss),
+                                   static["map"], np.int32(env_map.shape[1]),
+                                   np.int32(env_map.shape[0]), pixels["miss_direction"],
+                                   np.float32(np.cos(a)), np.float32(np.sin(a)),
+                                   np.float32(scale), np.int32(len(miss)), out=miss,
+                                   local=WORK_GROUP)
+            rgb[gbuffer.miss_pixel] = miss
+        t3 = time.perf_counter()
+        timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
+                   "trace_ms": 0.0 if was_cached else gbuffer.trace_ms,
+                   "view_lookup_ms": 0.0 if was_cached else gbuffer.view_lookup_ms,
+                   "sh_ms": (t2 - t1) * 1e3, "shade_ms": shade_ms,
+                   "background_ms": background_ms, "kernel_ms": shade_ms + background_ms,
+                   "counted_kernel_ms": shade_ms, "setup_ms": (t2 - t0) * 1e3,
+                   "total_ms": (t3 - t0) * 1e3}
+        return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, [],
+                     kernel_bytes=kernel_bytes(tables, gbuffer.corner))
+
+    return frame
+
+
+def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log"
+                ) -> Callable[[Scene], Frame]:
+    """The method's renderer factory (pipeline/method.py): tables loaded once from the
+    artifacts of ``geometry``, ``sg.fit``, ``sg.diffuse``, ``sg.env_prefilter``; the
+    map for the background and the SH lighting from the scene's environment file."""
+    geo = artifacts["geometry"]
+    vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
+    tables = load_tables(artifacts, len(vertices))
+    env_map = read_environment(environment_light(scene)["file"])
+    return sg_frames(tables, vertices, faces, env_map, lambda_blend)

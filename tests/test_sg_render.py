@@ -1,0 +1,325 @@
+"""Method sg's renderer (pipeline/render/sg.py, kernels/sg_render.cl) on synthetic
+artifacts in the layout of the sg.fit / sg.diffuse contract: the view-triangle lookup,
+the kernels against their NumPy twins, a highlight kept between views, a lobe's
+integral against quadrature, and an environment rotation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.errors import PrtError
+from pipeline.images import write_exr
+from pipeline.math import sg, sh
+from pipeline.math.envmap import direction_to_uv, rotation_y, uv_to_direction
+from pipeline.math.sg_prefilter import prefilter
+from pipeline.math.sg_transport import view_directions
+from pipeline.render import sg as render
+from pipeline.scene_edits import with_environment_rotation
+from tests.helpers import scene_geometry, small_scene_dict
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def random_units(n: int, rng: np.random.Generator) -> np.ndarray:
+    return unit(rng.normal(size=(n, 3)))
+
+
+def spot_map(height: int, centres: np.ndarray, sigma: float, power: list[float]
+             ) -> np.ndarray:
+    """A lat-long map (H, 2H, 3): a dim sky plus an SG spot of RGB ``power`` and width
+    ``sigma`` (radians) around each of ``centres`` (map space)."""
+    d, _ = sg.latlong_directions(height, 2 * height)
+    rgb = np.full((height, 2 * height, 3), 0.05) + 0.02 * (d[..., 1:2] > 0)
+    for centre in np.atleast_2d(centres):
+        rgb += np.asarray(power) * sg.evaluate(d, unit(centre), 1.0 / sigma**2)[..., None]
+    return rgb
+
+
+def tables_of(lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
+              rgb: np.ndarray) -> render.SgTables:
+    levels = sg.prefilter_levels(*rgb.shape[:2])
+    stack = [level.astype(np.float32) for level in prefilter(rgb, levels)]
+    return render.SgTables(lobes.astype(np.float32), count.astype(np.uint8),
+                           transfer.astype(np.float32), stack, levels)
+
+
+def random_tables(vertices: int, rgb: np.ndarray, seed: int) -> render.SgTables:
+    """Lobes as the contract allows: w ≥ 0 (0 in slots ≥ the vertex's count), μ unit,
+    λ log-uniform in [4, 4000] (σ 0.9° .. 29°); transfer a DC term and smaller others."""
+    rng = np.random.default_rng(seed)
+    views = len(view_directions())
+    lobes = np.empty((vertices, views, render.SLOTS, render.FIELDS))
+    lobes[..., 0:3] = rng.uniform(0.0, 0.5, (vertices, views, render.SLOTS, 3))
+    lobes[..., 3:6] = random_units(vertices * views * render.SLOTS, rng).reshape(
+        vertices, views, render.SLOTS, 3)
+    lobes[..., 6] = np.exp(rng.uniform(np.log(4.0), np.log(4000.0),
+                                       (vertices, views, render.SLOTS)))
+    count = rng.integers(0, render.SLOTS + 1, vertices)
+    lobes[..., 0:3] *= (np.arange(render.SLOTS) < count[:, None])[:, None, :, None]
+    transfer = 0.02 * rng.normal(size=(vertices, 3, sh.ORDER ** 2))
+    transfer[..., 0] = rng.uniform(0.1, 0.3, (vertices, 3))
+    return tables_of(lobes, count, transfer, rgb)
+
+
+def constant_tables(vertices: int, mu: np.ndarray, lam: float, weight: list[float],
+                    rgb: np.ndarray) -> render.SgTables:
+    """One lobe (μ world, λ, RGB w) at every vertex and view; no diffuse part."""
+    lobes = np.zeros((vertices, len(view_directions()), render.SLOTS, render.FIELDS))
+    lobes[..., 3:6], lobes[..., 6] = unit(np.asarray(mu, float)), lam
+    lobes[:, :, 0, 0:3] = weight
+    return tables_of(lobes, np.ones(vertices), np.zeros((vertices, 3, sh.ORDER ** 2)), rgb)
+
+
+@pytest.fixture(scope="module")
+def small_map() -> np.ndarray:
+    return spot_map(16, np.array([[0.6, 0.5, -0.4], [-0.5, 0.1, 0.8]]), 0.25,
+                    [3.0, 2.0, 1.0])
+
+
+# --- the view triangles ----------------------------------------------------------------
+
+
+def test_view_triangulation_covers_the_sphere_once():
+    """180 triangles of the 92 views, 9 in each icosahedron face, and their solid angles
+    sum to 4π (no gap, no overlap)."""
+    from pipeline.math.geodesic import solid_angles
+
+    tri = render.view_triangulation()
+    assert tri.faces.shape == (180, 3) and tri.children.shape == (20, 9)
+    assert sorted(tri.children.ravel()) == list(range(180))
+    v = tri.views[tri.faces]
+    assert solid_angles(v[:, 0], v[:, 1], v[:, 2]).sum() == pytest.approx(4 * np.pi, rel=1e-12)
+
+
+def test_view_weights_sum_to_one_reproduce_the_direction_and_are_exact_at_the_views():
+    """For random directions: weights ≥ 0 summing to 1, and Σ β_j v_j points along ω
+    (gnomonic barycentrics); at each of the 92 views, weight 1 on that view."""
+    tri = render.view_triangulation()
+    d = random_units(20000, np.random.default_rng(1))
+    views, weights = render.view_triangles(tri, d)
+    assert weights.min() >= 0.0
+    np.testing.assert_allclose(weights.sum(axis=1), 1.0, atol=1e-12)
+    back = unit(np.einsum("pi,pij->pj", weights, tri.views[views]))
+    np.testing.assert_allclose(back, d, atol=1e-12)
+    views, weights = render.view_triangles(tri, tri.views)
+    at = np.argmax(weights, axis=1)
+    assert np.array_equal(views[np.arange(92), at], np.arange(92))
+    np.testing.assert_allclose(weights[np.arange(92), at], 1.0, atol=1e-12)
+
+
+def test_view_lookup_kernel_matches_numpy():
+    """sg_view_lookup against view_triangles, the weights spread over the 92 views (a
+    direction on an edge may pick either triangle: the same weights). Tolerance 1e-5:
+    float32 directions and inverse matrices (entries ≤ 3) give ~1e-6; measured 3e-7."""
+    tri = render.view_triangulation()
+    d = np.concatenate([random_units(5000, np.random.default_rng(2)), tri.views,
+                        unit(tri.views[tri.faces[:, 0]] + tri.views[tri.faces[:, 1]])])
+    d32 = d.astype(np.float32)
+    expected_views, expected = render.view_triangles(tri, d32.astype(np.float64))
+    views, weights, _ = render.device_view_triangles(d32)
+
+    def spread(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        full = np.zeros((len(v), 92))
+        np.add.at(full, (np.arange(len(v))[:, None], v), w)
+        return full
+
+    assert np.abs(spread(views, weights) - spread(expected_views, expected)).max() < 1e-5
+
+
+# --- shading ---------------------------------------------------------------------------
+
+
+def random_pixels(tables: render.SgTables, n: int, seed: int) -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(seed)
+    corner = rng.integers(0, len(tables.count), (n, 3))
+    bary = rng.dirichlet(np.ones(3), n)
+    view, view_weight = render.view_triangles(render.view_triangulation(),
+                                              random_units(n, rng))
+    return corner, bary.astype(np.float32), view, view_weight.astype(np.float32)
+
+
+@pytest.mark.parametrize("blend", render.LAMBDA_BLENDS)
+def test_shade_kernel_matches_numpy(small_map, blend):
+    """sg_shade against shade_numpy on random contract-shaped tables (all lobe counts,
+    turned map, scale). Tolerance 1e-4 of the pixel's largest channel: the lookup's
+    1e-4 (tests/test_sg.py's env kernel test), float32 sums of 9 weights and of
+    225 SH products (~1e-6), the float32 log/exp of λ (1e-6 of λ → as much of a level
+    step); measured 5e-7 (and 0.85 with the rotation's sign flipped)."""
+    tables = random_tables(50, small_map, seed=3)
+    corner, bary, view, view_weight = random_pixels(tables, 3000, seed=4)
+    light = sh.rotate_y(sh.project_latlong(small_map), 37.0)
+    expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, 37.0, 1.7,
+                                  blend)
+    device = render.SgDevice(tables, blend)
+    out = render.shade_arrays(device, corner, bary, view, view_weight, light, 37.0, 1.7)
+    rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
+    assert rel.max() < 1e-4, rel.max()
+
+
+def test_interpolated_lobes_keep_a_highlights_peak_tabulated_values_dip(small_map):
+    """Two neighbouring views A, B whose lobe (σ = 3°) reflects towards μ_A, μ_B 30°
+    apart, under a small light (σ = 3°) at μ_M = normalise(μ_A + μ_B). Halfway between
+    the views (ω_o on the edge's midpoint: weights ½, ½) the interpolated lobe points at
+    μ_M and sees the light at full strength: within 0.5 % of a lobe placed there (the
+    same lobe, so only the float32 kernel and the stack lookup differ). Linear
+    interpolation of the tabulated values at A and B (their integrals, each seeing the
+    light 15° = 5σ off) gives under 1 % of that peak: the cross-fade dip (measured:
+    midway = peak to 5e-7, tabulated 0.54 % of it)."""
+    tri = render.view_triangulation()
+    a, b = tri.faces[0, 0], tri.faces[0, 1]
+    wo = unit(tri.views[a] + tri.views[b])
+    axis = unit(np.cross(tri.views[a], tri.views[b]))
+    mu_m = unit(np.cross(axis, wo) + wo)  # any direction; the lobes fan out about it
+    half = np.radians(15.0)
+    turn = np.cross(axis, mu_m)
+    mu_a, mu_b = (unit(np.cos(half) * mu_m + s * np.sin(half) * turn) for s in (-1, 1))
+    rgb = spot_map(64, mu_m, np.radians(3.0), [40.0, 40.0, 40.0])
+    lam = 1.0 / np.radians(3.0) ** 2
+    vertices = 3
+    tables = constant_tables(vertices, mu_a, lam, [1.0, 1.0, 1.0], rgb)
+    tables.lobes[:, b, 0, 3:6] = mu_b
+    no_light = np.zeros((sh.ORDER ** 2, 3))
+    corner = np.array([[0, 1, 2]])
+    bary = np.full((1, 3), 1.0 / 3.0, np.float32)
+    view, weight = render.view_triangles(tri, wo[None])
+    assert sorted(view[0, weight[0] > 1e-9]) == sorted([a, b])
+    np.testing.assert_allclose(weight[0][weight[0] > 1e-9], 0.5, atol=1e-12)
+
+    device = render.SgDevice(tables)
+    midway = render.shade_arrays(device, corner, bary, view, weight, no_light)[0]
+    at = {}
+    for name, mu in (("A", mu_a), ("B", mu_b), ("M", mu_m)):
+        single = constant_tables(vertices, mu, lam, [1.0, 1.0, 1.0], rgb)
+        at[name] = render.shade_numpy(single, corner, bary, view, weight, no_light)[0]
+    np.testing.assert_allclose(midway, at["M"], rtol=5e-3)
+    tabulated = 0.5 * (at["A"] + at["B"])
+    assert np.all(tabulated < 0.01 * at["M"]), (tabulated, at["M"])
+
+
+# --- frames ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sg_scene(tmp_path_factory, small_map):
+    """The tiny scene (floor, box, ball) under an environment light of ``small_map``,
+    16×16 pixels, and its geometry."""
+    folder = tmp_path_factory.mktemp("sg_render")
+    write_exr(folder / "env.exr", small_map.astype(np.float32))
+    doc = small_scene_dict(16)
+    doc["lights"] = [{"type": "environment", "file": str(folder / "env.exr")}]
+    scene, geometry = scene_geometry(folder, doc)
+    return scene, geometry, folder
+
+
+def frame_of(scene, geometry, tables, rgb, degrees=0.0):
+    frames = render.sg_frames(tables, geometry["vertices"], geometry["faces"], rgb)
+    return frames(with_environment_rotation(scene, degrees))
+
+
+def test_a_constant_lobe_integrates_the_map_as_quadrature_does(sg_scene, small_map):
+    """Every vertex and view holding the same lobe, every surface pixel is
+    w ∫G(ω; Rᵀμ, λ) L dω: against the quadrature of sg.env_integral_reference (sums
+    over the map's samples, accurate for lobes spanning ≥ 2 texels, here σ ≥ 17° on the
+    12° rows) within 3 %: the stack's lookup error, 2.5 % at most with the 2^¼ level
+    ratio (sg.prefilter_levels' measurement). Background pixels are the map itself."""
+    scene, geometry, _ = sg_scene
+    vertices = len(geometry["vertices"])
+    mu = unit(np.array([0.5, 0.6, -0.3]))
+    for lam, degrees in ((3.0, 0.0), (11.0, 65.0)):
+        weight = [0.3, 0.5, 0.7]
+        tables = constant_tables(vertices, mu, lam, weight, small_map)
+        frame = frame_of(scene, geometry, tables, small_map, degrees)
+        expected = sg.env_integral_reference(small_map, (mu @ rotation_y(degrees))[None],
+                                             np.array([lam]), np.array([weight]))[0]
+        hit = frame.rgb.reshape(-1, 3)[render.camera_gbuffer(
+            render.RayTracer(geometry["vertices"], geometry["faces"]),
+            np.asarray(geometry["faces"]), scene.camera).pixel]
+        assert len(hit) > 100
+        np.testing.assert_allclose(hit, np.broadcast_to(expected, hit.shape), rtol=0.03)
+    assert frame.timings["shade_ms"] > 0 and frame.kernel_bytes > 0
+
+
+def test_environment_rotated_90_degrees_equals_the_rotated_maps_frame(sg_scene, small_map):
+    """A frame with the environment turned 90° about +y equals the frame of the unturned
+    scene lit by the turned map (its columns rolled by W/4: radiance from ω is
+    map(Rᵀω)), its own stack and SH: lobes (random tables, σ ≤ 29°, so only the 7
+    full-width levels, rolled exactly, are read), diffuse SH and background. Tolerance
+    1e-4 of the frame's largest value: float32 texel coordinates and rounding."""
+    scene, geometry, _ = sg_scene
+    height, width = small_map.shape[:2]
+    u = (np.arange(width) + 0.5) / width
+    turned_u, _ = direction_to_uv(uv_to_direction(u, np.full(width, 0.5)) @ rotation_y(90.0))
+    shift = int(np.round((turned_u[0] - u[0]) * width)) % width
+    turned_map = np.roll(small_map, -shift, axis=1)
+    np.testing.assert_allclose(sh.project_latlong(turned_map),
+                               sh.project_latlong(small_map, 90.0), atol=1e-10)
+    tables = random_tables(len(geometry["vertices"]), small_map, seed=5)
+    turned = random_tables(len(geometry["vertices"]), turned_map, seed=5)
+    a = frame_of(scene, geometry, tables, small_map, 90.0).rgb
+    b = frame_of(scene, geometry, turned, turned_map, 0.0).rgb
+    assert np.abs(a - b).max() < 1e-4 * np.abs(b).max(), np.abs(a - b).max()
+
+
+class FakeArtifact:
+    """An opened artifact as the renderer reads it: ``read``, ``names``, ``attrs``."""
+
+    def __init__(self, arrays: dict, attrs: dict | None = None) -> None:
+        self.arrays, self.attrs = arrays, attrs or {}
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.arrays)
+
+    def read(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, FakeArtifact]:
+    flat, info = sg.pack_stack(tables.stack)
+    lv = tables.levels
+    return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "faces")}),
+            "sg.fit": FakeArtifact({"views": view_directions(), "lobes": tables.lobes,
+                                    "count": tables.count,
+                                    "error": np.zeros(tables.lobes.shape[:2], np.float32)},
+                                   {"max_lobes": 3}),
+            "sg.diffuse": FakeArtifact({"transfer": tables.transfer}, {"order": 5}),
+            "sg.env_prefilter": FakeArtifact({"texels": flat.reshape(-1, 3), "level": info,
+                                              "sigma": lv.sigmas},
+                                             {"sigma0": lv.sigma0, "ratio": lv.ratio})}
+
+
+def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_scene,
+                                                                           small_map):
+    """sg_renderer on artifacts in the contract's layout renders what sg_frames renders
+    from the same tables; a transfer of the wrong vertex count and a sharpness ≤ 0 are
+    refused with one line naming the artifact."""
+    scene, geometry, _ = sg_scene
+    tables = random_tables(len(geometry["vertices"]), small_map, seed=6)
+    artifacts = contract_artifacts(geometry, tables)
+    frame = render.sg_renderer(scene, artifacts)(scene)
+    np.testing.assert_array_equal(frame.rgb, frame_of(scene, geometry, tables, small_map).rgb)
+    artifacts["sg.diffuse"] = FakeArtifact({"transfer": tables.transfer[:-1]})
+    with pytest.raises(PrtError, match="sg.diffuse: transfer: shape"):
+        render.sg_renderer(scene, artifacts)
+    bad = tables.lobes.copy()
+    bad[0, 0, 2, 6] = 0.0
+    artifacts = contract_artifacts(geometry, tables)
+    artifacts["sg.fit"].arrays["lobes"] = bad
+    with pytest.raises(PrtError, match="sharpness"):
+        render.sg_renderer(scene, artifacts)
+
+
+def test_sequences_are_an_environment_rotation_and_a_camera_orbit(sg_scene):
+    from pipeline.methods import sg as method
+
+    scene, _, _ = sg_scene
+    kind, scenes, labels, _ = method.sequence(scene, {}, "rotate:4")
+    assert kind == "rotate" and len(scenes) == 4
+    assert [s.lights[0].params["rotation"] for s in scenes] == [0.0, 90.0, 180.0, 270.0]
+    kind, scenes, _, _ = method.sequence(scene, {}, "orbit:3")
+    assert kind == "orbit" and len({s.camera.position for s in scenes}) == 3
+    with pytest.raises(PrtError, match="rotate:N or orbit:N"):
+        method.sequence(scene, {}, "gamma:3")
