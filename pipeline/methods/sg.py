@@ -27,8 +27,8 @@ from pipeline.method import Method
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
-BUILT = ("sg.env_prefilter",)
-NOT_BUILT = ("sg.transport", "sg.fit", "the renderer")
+BUILT = ("sg.env_prefilter", "sg.fit")
+NOT_BUILT = ("sg.diffuse", "the renderer")
 
 METHOD = Method(
     name="sg",
