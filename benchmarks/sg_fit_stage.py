@@ -8,7 +8,8 @@ Run from the project root:
     python benchmarks/sg_fit_stage.py [--vertices 12] [--trf 24] [--grid 55 110]
 Writes benchmarks/results/sg_fit_stage.json.
 
-Data: the coarse bunny (${PRT_DATA}/meshes/bunny_6.6kf.obj, Blinn–Phong γ 60, ρs 0.1 —
+Data: the coarse bunny (${PRT_DATA}/meshes/bunny_6.6kf.obj, its 3,301 distinct
+positions as vertices, Blinn–Phong γ 60, ρs 0.1 —
 bunny_grace's bunny material) on a diffuse ground, a test-local scene; ``--vertices``
 vertices spread evenly over the bunny's vertex order; their direct glossy transport
 (BRDF × Embree visibility × cos, sg_stage.transport) for the 92 views on the lat-long
@@ -50,11 +51,15 @@ from pipeline.stages import sg_fit as stage  # noqa: E402
 BUNNY = BrdfParams("blinn_phong", (0.55, 0.45, 0.35), (0.1, 0.1, 0.1), gamma=60.0)
 
 
-def scene_arrays() -> tuple[RayTracer, np.ndarray, np.ndarray, float, int]:
+def scene_arrays(mesh: str = "bunny_6.6kf.obj"
+                 ) -> tuple[RayTracer, np.ndarray, np.ndarray, float, int, np.ndarray]:
     """Tracer of bunny + ground, the bunny's vertices and unit area-weighted normals,
-    the ray offset and the bunny's vertex count."""
-    bunny = read_mesh(shared_data_dir() / "meshes" / "bunny_6.6kf.obj")
-    v, f = bunny.vertices, bunny.faces
+    the ray offset, the bunny's vertex count and its faces. The mesh's vertices are
+    merged by position first: bunny_6.6kf.obj stores every face corner apart (19,794
+    vertices, 3,301 positions), which the geometry stage keeps as they are."""
+    bunny = read_mesh(shared_data_dir() / "meshes" / mesh)
+    v, inverse = np.unique(bunny.vertices, axis=0, return_inverse=True)
+    f = inverse.reshape(-1)[bunny.faces]
     ground = primitive_mesh({"type": "plane", "size": [6, 6]})
     gv = ground.vertices + [0.0, v[:, 1].min(), 0.0]
     tracer = RayTracer(np.concatenate([v, gv]).astype(np.float32),
@@ -65,7 +70,7 @@ def scene_arrays() -> tuple[RayTracer, np.ndarray, np.ndarray, float, int]:
         np.add.at(normals, f[:, i], cross)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     diagonal = float(np.linalg.norm(v.max(0) - v.min(0)))
-    return tracer, v.astype(np.float64), normals, 1e-4 * diagonal, len(v)
+    return tracer, v.astype(np.float64), normals, 1e-4 * diagonal, len(v), f
 
 
 def timed(fn, repeats: int):
@@ -93,7 +98,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/sg_fit_stage.json"))
     args = ap.parse_args()
     one_blas_thread()
-    tracer, positions, normals, offset, vertex_count = scene_arrays()
+    tracer, positions, normals, offset, vertex_count, _ = scene_arrays()
     pick = np.linspace(0, vertex_count - 1, args.vertices).astype(np.int64)
     directions, omega = (a.reshape(-1, *a.shape[2:]) for a in
                          sg.latlong_directions(*args.grid))

@@ -3,11 +3,11 @@ vertex and view, integrated against a Gaussian-prefiltered environment map (pape
 issue 17). A skeleton so far: it bakes what exists and refuses to render.
 
 Stages (stages.yaml, ``sg.*``): ``sg.env_prefilter`` (the environment map convolved
-with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py). Not built yet:
-``sg.transport`` (per vertex and each of 92 views, the glossy transport over a sphere
-grid and the diffuse part in SH) and ``sg.fit`` (the Gaussians, pipeline/math/sg_fit.py),
-and the renderer: ``prt render --method sg`` bakes the prefiltered stack and then stops
-with a one-line error saying so; no frame is written.
+with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py) and ``sg.fit``
+(per vertex and view, the glossy transport computed in the chunk and fitted by N ≤ 3
+Gaussians, pipeline/stages/sg_fit.py). Not built yet: ``sg.diffuse`` (the diffuse
+transfer in SH) and the renderer: ``prt render --method sg`` bakes the stages above and
+then stops with a one-line error saying so; no frame is written.
 
 The lobe mathematics (pipeline/math/sg.py, kernels/sg.h) and the batched fit
 (pipeline/math/sg_fit.py) are in place and tested (tests/test_sg.py, test_sg_fit.py).

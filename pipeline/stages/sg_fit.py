@@ -315,29 +315,20 @@ def _coupled_refit(lobes: Lobes, group: np.ndarray, g_idx: np.ndarray, v_idx: np
         lobes.converged[p, v] = result.converged
 
 
-def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    geometry = ctx.inputs["geometry"]
-    attrs = geometry.attrs
-    obj = attrs["object_names"].index(ctx.chunk.object)
-    first = int(geometry.read("object_ranges")[obj, 0])
-    start, end = (first + s for s in ctx.chunk.span)
-    material = attrs["material_names"][int(geometry.read("object_material")[obj])]
-    cfg = settings(ctx.params)
-    directions, omega = grid(ctx.params)
+def fit_batch(tracer, offset: float, positions: np.ndarray, normals: np.ndarray,
+              edges: np.ndarray, brdf: BrdfParams | None, directions: np.ndarray,
+              omega: np.ndarray, cfg: dict[str, Any]) -> tuple[Lobes, dict[str, Any]]:
+    """Steps 2–7 of the module docstring for one batch of P vertices: positions and
+    unit normals (P, 3), mesh ``edges`` (E, 2) among them (local indices), the glossy
+    BRDF (None: no glossy part). Returns the lobes and the chunk's report."""
     views = view_directions()
-    normals = geometry.read("normals")[start:end].astype(np.float64)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    positions = geometry.read("vertices")[start:end].astype(np.float64)
-    lobes = Lobes(end - start, len(views), mirror(views, normals))
-    edges = batch_edges(geometry.read("faces"), start, end)
-    order, vertex_nbs = flood_order(end - start, edges)
+    lobes = Lobes(len(positions), len(views), mirror(views, normals))
+    order, vertex_nbs = flood_order(len(positions), edges)
     view_nbs = sg_coherence.view_neighbours(views)
-    brdf = material_brdf(ctx, material)
     flips_before = flips_after = {}
     relaxed = 0
     if brdf is not None:
-        tracer, _, offset = scene_tracer(geometry)
-        done = np.zeros(end - start, bool)
+        done = np.zeros(len(positions), bool)
         for g0 in range(0, len(order), GROUP):
             group = order[g0:g0 + GROUP]
             t = transport(tracer, offset, positions[group], normals[group], brdf, views,
@@ -352,12 +343,32 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         lobes.permute(perm)
         flips_after = sg_coherence.count_flips(lobes.mean, lobes.active, lobes.count,
                                                edges, view_nbs)
-    ctx.meta.update(vertices=end - start, glossy=brdf is not None,
-                    counts=np.bincount(lobes.count, minlength=MAX_LOBES + 1).tolist(),
-                    not_converged=int((~lobes.converged & lobes.active).sum()),
-                    flips_before=flips_before, flips_after=flips_after,
-                    relaxation_sweeps=relaxed, edges=len(edges),
-                    load=os.getloadavg()[0])
+    report = {"vertices": len(positions), "glossy": brdf is not None,
+              "counts": np.bincount(lobes.count, minlength=MAX_LOBES + 1).tolist(),
+              "not_converged": int((~lobes.converged & lobes.active).sum()),
+              "flips_before": flips_before, "flips_after": flips_after,
+              "relaxation_sweeps": relaxed, "edges": len(edges), "load": os.getloadavg()[0]}
+    return lobes, report
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    geometry = ctx.inputs["geometry"]
+    attrs = geometry.attrs
+    obj = attrs["object_names"].index(ctx.chunk.object)
+    first = int(geometry.read("object_ranges")[obj, 0])
+    start, end = (first + s for s in ctx.chunk.span)
+    material = attrs["material_names"][int(geometry.read("object_material")[obj])]
+    cfg = settings(ctx.params)
+    directions, omega = grid(ctx.params)
+    normals = geometry.read("normals")[start:end].astype(np.float64)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    positions = geometry.read("vertices")[start:end].astype(np.float64)
+    brdf = material_brdf(ctx, material)
+    tracer, _, offset = scene_tracer(geometry) if brdf is not None else (None, None, 0.0)
+    lobes, report = fit_batch(tracer, offset, positions, normals,
+                              batch_edges(geometry.read("faces"), start, end), brdf,
+                              directions, omega, cfg)
+    ctx.meta.update(report)
     packed = np.concatenate([lobes.weight, lobes.mean, lobes.sharpness[..., None]], axis=-1)
     return {"lobes": packed.astype(np.float32), "count": lobes.count.astype(np.uint8),
             "error": lobes.error.astype(np.float32)}
