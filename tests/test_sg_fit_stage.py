@@ -78,7 +78,8 @@ def test_flips_are_counted_and_relaxation_removes_them():
     count = np.array([2, 2, 2])
     edges = np.array([[0, 1], [1, 2]])
     before = sg_coherence.count_flips(mean, active, count, edges, nbs)
-    assert before["vertex_flips"] == 2 * 92 and before["view_flips"] == 0
+    assert before["vertex_flips"] == before["vertex_flips_5deg"] == 2 * 92
+    assert before["view_flips"] == 0
     perm, sweeps = sg_coherence.relax(mean, active, count, [np.array([1]), np.array([0, 2]),
                                                             np.array([1])], nbs,
                                       np.array([0, 1, 2]), sweeps=4)
@@ -170,6 +171,7 @@ def test_stage_writes_valid_lobes_on_a_tiny_scene(tmp_path):
     below = normals @ view_directions().T <= 0
     assert np.all(lobes[a:b][below][..., :3] == 0)
     for key in ("flips_before_relaxation", "flips_after_relaxation"):
-        assert set(artifact.attrs[key]) == {"vertex_flips", "vertex_pairs", "view_flips",
+        assert set(artifact.attrs[key]) == {"vertex_flips", "vertex_flips_5deg",
+                                            "vertex_pairs", "view_flips", "view_flips_5deg",
                                             "view_pairs"}
     assert artifact.attrs["grid"]["directions"] == 144

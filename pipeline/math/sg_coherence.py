@@ -37,6 +37,9 @@ import itertools
 import numpy as np
 
 FLIP_MARGIN = 1e-6  # radians: a best match must beat the identity by this to count
+# a flip that matters for interpolation: the relabelling moves the means by more than
+# this in total (two near-coincident lobes — one feature split in two — swap for free)
+SIGNIFICANT_DEG = 5.0
 
 
 def view_neighbours(views: np.ndarray, max_angle_deg: float = 26.0) -> list[np.ndarray]:
@@ -62,10 +65,11 @@ def match_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return angles[..., k, perms].sum(axis=-1)                      # (..., N!)
 
 
-def is_flip(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether the identity is not a best match between a and b (..., N, 3), N ≥ 2."""
+def is_flip(a: np.ndarray, b: np.ndarray, margin: float = FLIP_MARGIN) -> np.ndarray:
+    """Whether the identity is not a best match between a and b (..., N, 3), N ≥ 2:
+    another permutation costs ``margin`` radians less."""
     cost = match_cost(a, b)
-    return cost[..., 0] > cost.min(axis=-1) + FLIP_MARGIN
+    return cost[..., 0] > cost.min(axis=-1) + margin
 
 
 def count_flips(mean: np.ndarray, active: np.ndarray, count: np.ndarray,
@@ -74,15 +78,19 @@ def count_flips(mean: np.ndarray, active: np.ndarray, count: np.ndarray,
     holding data) and lobe counts ``count`` (P,): over the mesh ``edges`` (E, 2) (local
     vertex indices) at every view active at both ends, the first min(count) slots; and
     over the view graph ``neighbours`` within each vertex. Pairs with fewer than 2 lobes
-    cannot flip and are not counted. Returns flips and pairs checked of each kind."""
-    out = {"vertex_flips": 0, "vertex_pairs": 0, "view_flips": 0, "view_pairs": 0}
+    cannot flip and are not counted. Returns flips, flips by more than
+    :data:`SIGNIFICANT_DEG` (``*_flips_5deg``) and pairs checked, of each kind."""
+    out = {"vertex_flips": 0, "vertex_flips_5deg": 0, "vertex_pairs": 0,
+           "view_flips": 0, "view_flips_5deg": 0, "view_pairs": 0}
+    big = np.radians(SIGNIFICANT_DEG)
     for n in (2, 3):
         e = edges[np.minimum(count[edges[:, 0]], count[edges[:, 1]]) == n]
         both = active[e[:, 0]] & active[e[:, 1]]                     # (E, V)
         pair, view = np.nonzero(both)
         if len(pair):
-            flips = is_flip(mean[e[pair, 0], view, :n], mean[e[pair, 1], view, :n])
-            out["vertex_flips"] += int(flips.sum())
+            a, b = mean[e[pair, 0], view, :n], mean[e[pair, 1], view, :n]
+            out["vertex_flips"] += int(is_flip(a, b).sum())
+            out["vertex_flips_5deg"] += int(is_flip(a, b, big).sum())
             out["vertex_pairs"] += len(pair)
         vertices = np.flatnonzero(count == n)
         for v1, nbs in enumerate(neighbours):
@@ -90,8 +98,9 @@ def count_flips(mean: np.ndarray, active: np.ndarray, count: np.ndarray,
             ok = active[vertices, v1][:, None] & active[vertices][:, nbs]   # (P', K)
             p, j = np.nonzero(ok)
             if len(p):
-                flips = is_flip(mean[vertices[p], v1, :n], mean[vertices[p], nbs[j], :n])
-                out["view_flips"] += int(flips.sum())
+                a, b = mean[vertices[p], v1, :n], mean[vertices[p], nbs[j], :n]
+                out["view_flips"] += int(is_flip(a, b).sum())
+                out["view_flips_5deg"] += int(is_flip(a, b, big).sum())
                 out["view_pairs"] += len(p)
     return out
 

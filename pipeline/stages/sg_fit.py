@@ -385,7 +385,8 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     def total(name: str, key: str) -> int:
         return int(sum(m[name].get(key, 0) for _, m in metas))
 
-    kinds = ("vertex_flips", "vertex_pairs", "view_flips", "view_pairs")
+    kinds = ("vertex_flips", "vertex_flips_5deg", "vertex_pairs", "view_flips",
+             "view_flips_5deg", "view_pairs")
     counts = np.sum([m["counts"] for _, m in metas], axis=0)
     cfg = settings(ctx.params)
     return Output(
