@@ -41,7 +41,7 @@ def test_support_path_recovers_known_gaussians(n):
     for f in range(len(values)):
         # match lobes by mean (the fit's slot order is its own)
         cost = sg_coherence.match_cost(mean[f], fast.mean[f])
-        perm = sg_coherence._permutations(n)[np.argmin(cost)]
+        perm = sg_coherence.permutations(n)[np.argmin(cost)]
         assert angle_deg(mean[f], fast.mean[f, perm]).max() < 1.0
         np.testing.assert_allclose(fast.sigma[f, perm], sigma[f], rtol=0.05)
     whole = sg_fit.fit(DIRECTIONS, SOLID_ANGLES, values, options)
@@ -175,3 +175,16 @@ def test_stage_writes_valid_lobes_on_a_tiny_scene(tmp_path):
                                             "vertex_pairs", "view_flips", "view_flips_5deg",
                                             "view_pairs"}
     assert artifact.attrs["grid"]["directions"] == 144
+
+
+def test_vertex_permutation_undoes_a_three_cycle():
+    """Three lobes held in cyclically shifted slots (a permutation that is not its own
+    inverse) at every view: the permutation found maps them back onto the neighbour's
+    slots exactly; a vertex sharing no view gets None."""
+    lobes = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    neighbour = np.broadcast_to(lobes, (92, 3, 3))
+    own = neighbour[:, [1, 2, 0]]
+    shared = np.ones(92, bool)
+    best = sg_coherence.vertex_permutation(own, [(neighbour, shared)])
+    np.testing.assert_array_equal(own[:, best], neighbour)
+    assert sg_coherence.vertex_permutation(own, [(neighbour, ~shared)]) is None

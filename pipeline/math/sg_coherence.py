@@ -51,14 +51,15 @@ def view_neighbours(views: np.ndarray, max_angle_deg: float = 26.0) -> list[np.n
     return [np.flatnonzero(row > np.cos(np.radians(max_angle_deg))) for row in cos]
 
 
-def _permutations(n: int) -> np.ndarray:
+def permutations(n: int) -> np.ndarray:
+    """All permutations (N!, N) of N slots, in itertools order (the identity first)."""
     return np.array(list(itertools.permutations(range(n))), np.int64)
 
 
 def match_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """c(π) (..., N!) of every permutation π (in itertools order) between lobe means
     a (..., N, 3) and b (..., N, 3): Σ_k arccos(a_k · b_π(k))."""
-    perms = _permutations(a.shape[-2])
+    perms = permutations(a.shape[-2])
     dots = np.clip(a @ np.swapaxes(b, -1, -2), -1.0, 1.0)         # (..., N, N)
     angles = np.arccos(dots)
     k = np.arange(a.shape[-2])
@@ -111,7 +112,23 @@ def _best_permutation(own: np.ndarray, others: list[np.ndarray]) -> np.ndarray |
     if not others:
         return None
     cost = match_cost(np.stack(others), np.broadcast_to(own, (len(others),) + own.shape))
-    return _permutations(own.shape[0])[int(np.argmin(cost.sum(axis=0)))]
+    return permutations(own.shape[0])[int(np.argmin(cost.sum(axis=0)))]
+
+
+def vertex_permutation(own: np.ndarray, others: list[tuple[np.ndarray, np.ndarray]]
+                       ) -> np.ndarray | None:
+    """One slot permutation π (N,) for all views of a vertex with lobe means ``own``
+    (V, N, 3), minimising Σ over ``others`` — (their means (V, N, 3), the views both
+    see (V,) bool) — and over those views of Σ_k angle(other_k, own_π(k)); apply as
+    own[:, π]. None when no view is shared; the identity unless another permutation is
+    better by :data:`FLIP_MARGIN`."""
+    pairs = [(m[shared], own[shared]) for m, shared in others if shared.any()]
+    if not pairs:
+        return None
+    cost = match_cost(np.concatenate([a for a, _ in pairs]),
+                      np.concatenate([b for _, b in pairs])).sum(axis=0)
+    best = int(np.argmin(cost))
+    return permutations(own.shape[1])[best if cost[0] > cost[best] + FLIP_MARGIN else 0]
 
 
 def align_views(mean: np.ndarray, active: np.ndarray, strength: np.ndarray,
@@ -162,17 +179,13 @@ def relax(mean: np.ndarray, active: np.ndarray, count: np.ndarray, vertex_neighb
             if n < 2:
                 continue
             # the vertex as a whole against its neighbours, summed over shared views
-            pairs = [(q, active[p] & active[q]) for q in vertex_neighbours[p]
-                     if count[q] >= n]
-            own = [current[p, both, :n] for _, both in pairs]
-            if own and sum(len(o) for o in own):
-                cost = match_cost(np.concatenate([current[q, both, :n] for q, both in pairs]),
-                                  np.concatenate(own)).sum(axis=0)
-                best = _permutations(n)[int(np.argmin(cost))]
-                if cost[0] > cost.min() + FLIP_MARGIN:
-                    current[p, :, :n] = current[p][:, best]
-                    perm[p, :, :n] = perm[p][:, best]
-                    changed = True
+            best = vertex_permutation(current[p, :, :n], [
+                (current[q, :, :n], active[p] & active[q]) for q in vertex_neighbours[p]
+                if count[q] >= n])
+            if best is not None and np.any(best != np.arange(n)):
+                current[p, :, :n] = current[p][:, best]
+                perm[p, :, :n] = perm[p][:, best]
+                changed = True
             # then each view against its neighbouring views and vertices
             for v in np.flatnonzero(active[p]):
                 others = [current[p, u, :n] for u in neighbours[v] if active[p, u]]

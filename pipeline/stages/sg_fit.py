@@ -247,17 +247,12 @@ def fit_group(lobes: Lobes, group: np.ndarray, t: np.ndarray, views: np.ndarray,
         full = np.tile(np.arange(MAX_LOBES), (len(views), 1))
         full[:, :n] = perm
         lobes.relabel(p, full)
-        prior = [q for q in vertex_nbs[p] if done[q] and lobes.count[q] >= n]
-        if prior:
-            both = [(q, active[g] & lobes.active[q]) for q in prior]
-            others = np.concatenate([lobes.mean[q, b, :n] for q, b in both])
-            own = np.concatenate([lobes.mean[p, b, :n] for _, b in both])
-            if len(own):
-                cost = sg_coherence.match_cost(own, others).sum(axis=0)
-                best = sg_coherence._permutations(n)[int(np.argmin(cost))]
-                full = np.tile(np.arange(MAX_LOBES), (len(views), 1))
-                full[:, :n] = best
-                lobes.relabel(p, full)
+        best = sg_coherence.vertex_permutation(lobes.mean[p, :, :n], [
+            (lobes.mean[q, :, :n], active[g] & lobes.active[q]) for q in vertex_nbs[p]
+            if done[q] and lobes.count[q] >= n])
+        if best is not None:
+            full[:, :n] = best
+            lobes.relabel(p, full)
     _coupled_refit(lobes, group, g_idx, v_idx, values, norm, view_nbs, vertex_nbs, done,
                    directions, omega, cfg)
     for g, p in enumerate(group):
