@@ -144,8 +144,10 @@ def test_a_fit_started_from_a_coarser_grid_recovers_the_lobes(lobes):
 
 @pytest.mark.parametrize("lobes", [1, 2])
 def test_float32_fields_reach_the_float64_optimum(lobes):
-    """FitOptions(fields="float32") on the occluded noisy set: each function converges
-    as its float64 fit does (one N = 2 function creeps 200 steps in both), the energy
+    """FitOptions(fields="float32") on the occluded noisy set: each function that
+    converges in float64 converges in float32 (one N = 2 function creeps 200 steps in
+    float64; since the residual became a matrix product (third session) float32 stops
+    it by the tolerance — its flat valley, not a better or worse optimum), the energy
     (computed in float64 from float32 fields) within 1e-4 of float64's and means within
     0.5°. Field rounding is ≤ λ · 6e-8 in the exponent, so well-posed optima move by
     ~1e-6 (measured 2e-7 for N = 1); N = 2 lobes sharing a feature sit in a flat
@@ -154,7 +156,7 @@ def test_float32_fields_reach_the_float64_optimum(lobes):
     double = sg_fit.fit(DIRECTIONS, SOLID_ANGLES, values, sg_fit.FitOptions(lobes=lobes))
     single = sg_fit.fit(DIRECTIONS, SOLID_ANGLES, values,
                         sg_fit.FitOptions(lobes=lobes, fields="float32"))
-    np.testing.assert_array_equal(single.converged, double.converged)
+    assert np.all(single.converged | ~double.converged)
     np.testing.assert_allclose(single.energy, double.energy, rtol=1e-4)
     cos = np.clip(np.sum(single.mean * double.mean, axis=-1), -1, 1)
     assert np.degrees(np.arccos(cos)).max() < 0.5

@@ -117,17 +117,21 @@ def test_scene_without_one_environment_light_is_refused_before_baking(tmp_path):
 
 def test_render_bakes_the_prefilter_then_refuses_without_writing_a_frame(tmp_path):
     """``prt render --method sg`` (a subprocess: the CLI's bake) bakes sg.env_prefilter
-    and stops with one line naming what is not built; no frame appears."""
+    and sg.fit and stops with one line naming what is not built; no frame appears."""
     map_path = write_map(tmp_path / "env.exr", spiky_map(9, 18, 5))
-    scene = write_scene(tmp_path, sg_scene(tmp_path, map_path))
+    doc = sg_scene(tmp_path, map_path)
+    doc["objects"]["ball"]["primitive"]["subdivisions"] = 0  # sg.fit: 12 glossy vertices
+    doc["settings"] = {"sg.fit_grid": [9, 16]}
+    scene = write_scene(tmp_path, doc)
     out = tmp_path / "frame.exr"
     done = subprocess.run([sys.executable, "-m", "pipeline", "render", str(scene), "--method",
                            "sg", "--out", str(out), "--workdir", str(tmp_path / "work"),
                            "--quiet"], capture_output=True, text=True, cwd=PROJECT,
                           timeout=300)
     assert done.returncode != 0
-    assert "method sg cannot render yet: sg.fit, sg.diffuse are not built" \
-           in done.stderr
+    assert "method sg cannot render yet: sg.diffuse are not built" \
+        in done.stderr
     assert not out.exists()
     assert open_artifact(Workdir(tmp_path / "work").artifact("sg.env_prefilter")) \
         .attrs["levels"] == sg.prefilter_levels(9, 18).count
+    assert open_artifact(Workdir(tmp_path / "work").artifact("sg.fit")).attrs["max_lobes"] == 3

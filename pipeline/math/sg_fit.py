@@ -136,14 +136,17 @@ class SGFit:
 class _Problem:
     """One batch: data, charts, bounds and targets (arrays over the batch's functions)."""
 
-    directions: np.ndarray  # (S, 3)
-    sqrt_omega: np.ndarray  # (S,)
+    # the grid's directions transposed, (3, S) or per function (F, 3, S) (support fits),
+    # and √Ω (S,) or (F, S), both in the fields' dtype
+    directions_t: np.ndarray
+    sqrt_omega: np.ndarray
     y: np.ndarray           # (F, S, C) √Ω T
     chart: np.ndarray       # (F, N, 3, 3) rows m_k, t_k, b̂_k
     lower: np.ndarray       # (P,)
     upper: np.ndarray       # (P,)
     options: FitOptions
     targets: FitTargets
+    samples: int            # size of the sphere grid the directions come from (its step)
 
     @property
     def lobes(self) -> int:
@@ -155,10 +158,13 @@ class _Problem:
 
     def subset(self, index: np.ndarray) -> _Problem:
         t = self.targets
-        return _Problem(self.directions, self.sqrt_omega, self.y[index], self.chart[index],
-                        self.lower, self.upper, self.options,
+        per_function = self.directions_t.ndim == 3
+        return _Problem(self.directions_t[index] if per_function else self.directions_t,
+                        self.sqrt_omega[index] if per_function else self.sqrt_omega,
+                        self.y[index], self.chart[index], self.lower, self.upper, self.options,
                         FitTargets(*(None if a is None else a[index]
-                                     for a in (t.mean, t.sigma, t.neighbour_means))))
+                                     for a in (t.mean, t.sigma, t.neighbour_means))),
+                        self.samples)
 
 
 def _tangent_basis(m: np.ndarray) -> np.ndarray:
@@ -189,15 +195,15 @@ def _fields(problem: _Problem, theta: np.ndarray, derivatives: bool
     mu, dmu = _means(problem, theta)
     dtype = np.dtype(problem.options.fields)
     lam = np.exp(theta[..., 2])[..., None].astype(dtype)          # (F, N, 1)
-    omega_t = problem.directions.T.astype(dtype)                  # (3, S)
+    omega_t = problem.directions_t                                # (3, S) or (F, 3, S)
     # 1 − μ·ω by a product (BLAS), not sg.evaluate's ‖ω − μ‖²/2: in float64 its
     # rounding, λ · 1e-16 ≤ 4e-12 in the exponent at the σ floor, does not matter here
     # (in float32, λ · 6e-8: 2e-3 at the floor of a 6k grid, a 0.2 % field error)
     half_sq = 1.0 - mu.astype(dtype) @ omega_t                    # (F, N, S)
-    e = np.exp(-lam * half_sq) * problem.sqrt_omega.astype(dtype)  # (F, N, S)
+    e = np.exp(-lam * half_sq) * problem.sqrt_omega[..., None, :]  # (F, N, S)
     if not derivatives:
         return e[..., None, :], mu, dmu
-    dot = dmu.astype(dtype) @ omega_t                             # ω·∂μ/∂(a, b)
+    dot = dmu.astype(dtype) @ omega_t[..., None, :, :]            # ω·∂μ/∂(a, b)
     d_ab = (e * lam)[..., None, :] * dot
     d_rho = -(e * lam * half_sq)[..., None, :]
     return np.concatenate([e[..., None, :], d_ab, d_rho], axis=-2), mu, dmu
@@ -253,7 +259,7 @@ def _energy(problem: _Problem, x: np.ndarray, derivatives: bool):
     """E (F,) at x (F, P) and what a step needs: Φ, the data residuals, prior rows."""
     theta, w = _split(problem, x)
     phi, mu, dmu = _fields(problem, theta, derivatives)
-    r = np.einsum("fns,fnc->fsc", phi[:, :, 0], w.astype(phi.dtype)) - problem.y
+    r = np.swapaxes(phi[:, :, 0], 1, 2) @ w.astype(phi.dtype) - problem.y   # (F, S, C)
     prior_r, prior_j = _prior_rows(problem, theta, mu, dmu)
     energy = np.sum(r * r, axis=(1, 2)) + np.sum(prior_r * prior_r, axis=1)
     return energy, (phi, r, prior_r, prior_j, w)
@@ -310,28 +316,38 @@ def _cap_resultant(lam: np.ndarray, cos_psi: np.ndarray) -> np.ndarray:
     return (one_minus_e + (1 - cos_psi) * (1 - one_minus_e)) / one_minus_e - 1 / lam
 
 
+def _cosines(v: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """v·ω (F, M, S) of vectors v (F, M, 3) with the grid (S, 3) or per-function grids
+    (F, S, 3)."""
+    return v @ np.swapaxes(directions, -1, -2)
+
+
 def _initial(directions: np.ndarray, omega: np.ndarray, values: np.ndarray,
-             options: FitOptions, default_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Moment-based initial means (F, N, 3) and sharpness (F, N) (module docstring)."""
+             options: FitOptions, default_mean: np.ndarray, samples: int
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Moment-based initial means (F, N, 3) and sharpness (F, N) (module docstring);
+    ``directions`` (S, 3) or (F, S, 3), ``omega`` (S,) or (F, S), ``samples`` the size
+    of the sphere grid they come from (its step sets the window's least size)."""
     lam_lo = sg.sharpness(options.sigma_max)
-    lam_hi = sg.sharpness(_sigma_floor(options, len(directions)))
+    lam_hi = sg.sharpness(_sigma_floor(options, samples))
     f, n = len(values), options.lobes
-    spacing = math.sqrt(4 * math.pi / len(directions))       # the grid's typical step (rad)
+    spacing = math.sqrt(4 * math.pi / samples)               # the grid's typical step (rad)
     residual = np.maximum(values.mean(axis=2), 0.0)                       # (F, S)
     mean = np.empty((f, n, 3))
     lam = np.empty((f, n))
     rows = np.arange(f)
     for k in range(n):
         top = np.argmax(residual, axis=1)
-        peak, height = directions[top], residual[rows, top]                # (F, 3), (F,)
-        cos_to_peak = peak @ directions.T                                  # (F, S)
+        peak = directions[top] if directions.ndim == 2 else directions[rows, top]  # (F, 3)
+        height = residual[rows, top]                                       # (F,)
+        cos_to_peak = _cosines(peak[:, None], directions)[:, 0]            # (F, S)
         below = residual < 0.5 * height[:, None]
         cos_half = np.where(below, cos_to_peak, -1.0).max(axis=1)         # nearest below ½
         psi = np.clip(2.5 * np.arccos(np.clip(cos_half, -1, 1)), 2 * spacing, np.pi / 2)
         cos_psi = np.cos(psi)
         mass = residual * omega * (cos_to_peak >= cos_psi[:, None])
         total = mass.sum(axis=1)
-        m = (mass @ directions) / np.maximum(total, 1e-300)[:, None]
+        m = (mass[:, None] @ directions)[:, 0] / np.maximum(total, 1e-300)[:, None]
         rbar = np.linalg.norm(m, axis=1)
         empty = (total <= 0) | (rbar <= 0)
         mean[:, k] = np.where(empty[:, None], default_mean, m / np.maximum(rbar, 1e-300)[:, None])
@@ -342,7 +358,7 @@ def _initial(directions: np.ndarray, omega: np.ndarray, values: np.ndarray,
             low = _cap_resultant(np.exp(mid), cos_psi) < rbar
             lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
         lam[:, k] = np.where(empty, sg.sharpness(options.default_sigma), np.exp(0.5 * (lo + hi)))
-        g = sg.evaluate(directions[None], mean[:, k, None], lam[:, k, None])      # (F, S)
+        g = np.exp(lam[:, k, None] * (_cosines(mean[:, k, None], directions)[:, 0] - 1))
         window = omega * (cos_to_peak >= cos_psi[:, None])
         amplitude = (np.sum(window * g * residual, axis=1)
                      / np.maximum(np.sum(window * g * g, axis=1), 1e-300))
@@ -369,9 +385,13 @@ def _sigma_floor(options: FitOptions, samples: int) -> float:
 def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
            options: FitOptions, targets: FitTargets | None,
            default_mean: np.ndarray | None,
-           start: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[_Problem, np.ndarray]:
+           start: tuple[np.ndarray, np.ndarray] | None = None, samples: int | None = None
+           ) -> tuple[_Problem, np.ndarray]:
     """The problem and the initial x (F, P): lobes from windowed moments, or ``start``
-    (means (F, N, 3), sharpnesses (F, N)), with least-squares weights."""
+    (means (F, N, 3), sharpnesses (F, N)), with least-squares weights. ``directions``
+    (S, 3) with ``solid_angles`` (S,), or per-function subsets of a sphere grid of
+    ``samples`` directions: (F, S, 3) and (F, S)."""
+    samples = len(directions) if samples is None else samples
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
@@ -379,20 +399,22 @@ def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
     default = np.broadcast_to(np.asarray([0.0, 0.0, 1.0] if default_mean is None
                                          else default_mean, np.float64), (f, 3))
     omega = np.asarray(solid_angles, np.float64)
-    energy = np.einsum("s,fsc->f", omega, values * values)
+    energy = np.sum(omega[..., None] * values * values, axis=(1, 2))
     zero = energy <= options.zero_energy
-    mean, lam = (_initial(directions, omega, values, options, default) if start is None
+    mean, lam = (_initial(directions, omega, values, options, default, samples) if start is None
                  else (np.array(start[0], np.float64), np.array(start[1], np.float64)))
     mean[zero] = default[zero][:, None]
     lam[zero] = sg.sharpness(options.default_sigma)
     bound = math.tan(math.radians(options.max_shift_deg))
     log_lo, log_hi = (math.log(sg.sharpness(options.sigma_max)),
-                      math.log(sg.sharpness(_sigma_floor(options, len(directions)))))
+                      math.log(sg.sharpness(_sigma_floor(options, samples))))
     lower = np.concatenate([np.tile([-bound, -bound, log_lo], n), np.zeros(n * c)])
     upper = np.concatenate([np.tile([bound, bound, log_hi], n), np.full(n * c, np.inf)])
-    problem = _Problem(np.asarray(directions, np.float64), np.sqrt(omega),
-                       values * np.sqrt(omega)[:, None], _tangent_basis(mean), lower, upper,
-                       options, targets or FitTargets())
+    dtype = np.dtype(options.fields)
+    problem = _Problem(np.ascontiguousarray(np.swapaxes(directions, -1, -2), dtype),
+                       np.sqrt(omega).astype(dtype),
+                       values * np.sqrt(omega)[..., None], _tangent_basis(mean), lower, upper,
+                       options, targets or FitTargets(), samples)
     theta = np.zeros((f, n, 3))
     theta[..., 2] = np.log(lam)
     w = _least_squares_weights(problem, theta)
@@ -451,13 +473,16 @@ def _lm(problem: _Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
         options: FitOptions = FitOptions(), targets: FitTargets | None = None,
-        default_mean: np.ndarray | None = None, start: SGFit | None = None) -> SGFit:
+        default_mean: np.ndarray | None = None, start: SGFit | None = None,
+        samples: int | None = None) -> SGFit:
     """Fit N lobes to each of F functions tabulated at ``directions`` (S, 3) (unit, any
     sphere grid) with quadrature ``solid_angles`` (S,) (sr): ``values`` (F, S, C) or
     (F, S). Batched Levenberg–Marquardt from moment-based starts (module docstring),
     or from the means and sharpnesses of ``start`` (e.g. a fit of the same functions on
     a coarser grid; weights re-solved on this grid).
-    ``default_mean`` (3,) or (F, 3): the mean given to zero functions (default +z)."""
+    ``default_mean`` (3,) or (F, 3): the mean given to zero functions (default +z).
+    Per-function grids (pipeline/math/sg_support.py): ``directions`` (F, S, 3) and
+    ``solid_angles`` (F, S), subsets of a sphere grid of ``samples`` directions."""
     values = np.asarray(values, np.float64)
     if values.ndim == 2:
         values = values[..., None]
@@ -470,7 +495,9 @@ def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
         dm = (default_mean if default_mean is None or np.ndim(default_mean) == 1
               else np.asarray(default_mean)[part])
         begin = None if start is None else (start.mean[part], start.sharpness[part])
-        problem, x = _setup(directions, solid_angles, values[part], options, t, dm, begin)
+        grid = ((directions, solid_angles) if np.ndim(directions) == 2
+                else (directions[part], solid_angles[part]))
+        problem, x = _setup(*grid, values[part], options, t, dm, begin, samples)
         pieces.append(_result(problem, *_lm(problem, x)))
     return SGFit(*(np.concatenate([getattr(p, name) for p in pieces])
                    for name in ("mean", "sharpness", "weight", "energy", "iterations",

@@ -36,7 +36,7 @@ from pipeline.store import Artifact
 
 STAGES_MERGED = False  # True once sg.fit and sg.diffuse are in stages.yaml: sg renders
 READS = ("geometry", "sg.fit", "sg.diffuse", "sg.env_prefilter")
-NOT_BUILT = ("sg.fit", "sg.diffuse")
+NOT_BUILT = ("sg.diffuse",)
 
 METHOD = Method(
     name="sg",
@@ -44,7 +44,7 @@ METHOD = Method(
                 "a Gaussian-prefiltered environment",
     renderer="pipeline.render.sg:sg_renderer" if STAGES_MERGED
     else "pipeline.methods.sg:sg_renderer",
-    reads=READS if STAGES_MERGED else ("sg.env_prefilter",),
+    reads=READS if STAGES_MERGED else ("sg.env_prefilter", "sg.fit"),
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views"),),
     sequences="pipeline.methods.sg:sequence",

@@ -1,0 +1,190 @@
+"""Method sg's fit stage (pipeline/stages/sg_fit.py) and its parts: the support-cap fast
+path (pipeline/math/sg_support.py), lobe correspondence, flips and relaxation
+(pipeline/math/sg_coherence.py), N from the tolerance, the stage on a tiny scene."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import PROJECT, small_scene_dict, write_scene
+from test_sg import sg_lights_map
+from test_sg_fit import DIRECTIONS, SOLID_ANGLES, random_lobes, tabulate
+
+from pipeline.images import write_exr
+from pipeline.math import sg, sg_coherence, sg_fit, sg_support
+from pipeline.math.sg_transport import view_directions
+from pipeline.runner import run
+from pipeline.scene import load_scene
+from pipeline.stagefile import load_stagefile
+from pipeline.stages import sg_fit as stage
+from pipeline.store import Workdir, open_artifact
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1, 1)))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_support_path_recovers_known_gaussians(n):
+    """Planted lobes (σ 8–20°, ≥ 50° apart, 1 % multiplicative noise) on the 33 × 64
+    grid: the fit on each function's cap finds the means within 1° and σ within 5 %
+    (the issue's bar; measured ≤ 0.3° and 1.2 %), and its whole-grid error is the
+    whole-grid fit's within 1 % (what the cap leaves out adds ≤ √1e-4 = 1 % relative;
+    measured ratio ≤ 1.0001)."""
+    mean, sigma, weight = random_lobes(12, n, seed=10 + n)
+    values = tabulate(mean, sigma, weight)
+    values *= 1 + 0.01 * np.random.default_rng(n).normal(size=values.shape)
+    options = sg_fit.FitOptions(lobes=n)
+    fast, size = sg_support.fit(DIRECTIONS, SOLID_ANGLES, values, options)
+    if n == 1:  # one lobe: the cap is a small part of the sphere (lobes ≥ 50° apart
+        assert np.median(size) < len(DIRECTIONS) / 4  # share a cap around the highest)
+    for f in range(len(values)):
+        # match lobes by mean (the fit's slot order is its own)
+        cost = sg_coherence.match_cost(mean[f], fast.mean[f])
+        perm = sg_coherence.permutations(n)[np.argmin(cost)]
+        assert angle_deg(mean[f], fast.mean[f, perm]).max() < 1.0
+        np.testing.assert_allclose(fast.sigma[f, perm], sigma[f], rtol=0.05)
+    whole = sg_fit.fit(DIRECTIONS, SOLID_ANGLES, values, options)
+    ratio = (sg_support.relative_error(DIRECTIONS, SOLID_ANGLES, values, fast)
+             / sg_support.relative_error(DIRECTIONS, SOLID_ANGLES, values, whole))
+    assert ratio.max() < 1.01
+
+
+def test_cap_holds_all_but_the_allowed_energy():
+    """Each cap leaves out at most ``outside_energy`` of ∫‖T‖² (here 1e-4), holds the
+    peak, and a zero function's cap is one sample."""
+    mean, sigma, weight = random_lobes(10, 2, seed=4)
+    values = tabulate(mean, sigma, weight)
+    values[3] = 0.0
+    inside, top = sg_support.caps(DIRECTIONS, SOLID_ANGLES, values)
+    energy = np.sum(values ** 2, axis=2) * SOLID_ANGLES
+    outside = np.sum(energy * ~inside, axis=1)
+    assert np.all(outside <= 1e-4 * energy.sum(axis=1) + 1e-300)
+    assert inside[np.arange(10), top].all() and inside[3].sum() == 1
+
+
+def test_flips_are_counted_and_relaxation_removes_them():
+    """Three vertices in a chain, two lobes 90° apart at every view; the middle vertex
+    holds them in swapped slots at every view: both edges flip at every view (2 × 92),
+    the views within a vertex do not. The relaxation relabels the middle vertex's slots
+    and no flip is left."""
+    views = view_directions()
+    nbs = sg_coherence.view_neighbours(views)
+    assert {len(n) for n in nbs} == {5, 6}
+    lobes = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    mean = np.broadcast_to(lobes, (3, 92, 3, 3)).copy()
+    mean[1, :, :2] = mean[1, :, 1::-1]
+    active = np.ones((3, 92), bool)
+    count = np.array([2, 2, 2])
+    edges = np.array([[0, 1], [1, 2]])
+    before = sg_coherence.count_flips(mean, active, count, edges, nbs)
+    assert before["vertex_flips"] == before["vertex_flips_5deg"] == 2 * 92
+    assert before["view_flips"] == 0
+    perm, sweeps = sg_coherence.relax(mean, active, count, [np.array([1]), np.array([0, 2]),
+                                                            np.array([1])], nbs,
+                                      np.array([0, 1, 2]), sweeps=4)
+    relaxed = np.take_along_axis(mean, perm[..., None], axis=2)
+    after = sg_coherence.count_flips(relaxed, active, count, edges, nbs)
+    assert after["vertex_flips"] == 0 and after["view_flips"] == 0 and sweeps >= 1
+
+
+def synthetic_transport(second_lobe: bool) -> np.ndarray:
+    """T (1, 92, S, 3) of a vertex with normal +y on the 33 × 64 grid: per view above
+    the horizon, a lobe of σ 10° at the mirror direction (and, if ``second_lobe``, one
+    of σ 12° and half the weight at a fixed direction 70° from +y); zero below the
+    horizon."""
+    views = view_directions()
+    mirror = stage.mirror(views, np.array([[0.0, 1.0, 0.0]]))[0]
+    t = sg.evaluate(DIRECTIONS[None], mirror[:, None], sg.sharpness(np.radians(10.0)))
+    if second_lobe:
+        fixed = np.array([np.sin(np.radians(70)), np.cos(np.radians(70)), 0.0])
+        t = t + 0.5 * sg.evaluate(DIRECTIONS, fixed, sg.sharpness(np.radians(12.0)))[None]
+    t = t * (views[:, 1] > 0)[:, None]
+    return (t[..., None] * [1.0, 0.8, 0.6])[None].astype(np.float32)
+
+
+def test_n_is_chosen_from_the_tolerance_and_views_below_the_horizon_are_filled():
+    """One lobe per view → N = 1 with the mirror directions within 1°; a second, fixed
+    lobe → N = 2 (one lobe leaves ≥ 30 % error, above the tolerance 5 %). Views below
+    the horizon: w = 0, μ unit, λ > 0, error −1; slots ≥ N: w = 0."""
+    views = view_directions()
+    view_nbs = sg_coherence.view_neighbours(views)
+    cfg = stage.settings({"sg.fit_tolerance": 0.05, "sg.fit_max_lobes": 3,
+                          "sg.fit_mean_weight": 0.01, "sg.fit_sigma_weight": 0.01,
+                          "sg.fit_spatial_weight": 0.1, "sg.fit_relaxation_sweeps": 2})
+    normal = np.array([[0.0, 1.0, 0.0]])
+    above = views[:, 1] > 0
+    for second, expected in ((False, 1), (True, 2)):
+        t = synthetic_transport(second)
+        lobes = stage.Lobes(1, 92, stage.mirror(views, normal))
+        stage.fit_group(lobes, np.array([0]), t, views, view_nbs, [np.array([], np.int64)],
+                        np.zeros(1, bool), DIRECTIONS, SOLID_ANGLES, cfg)
+        assert lobes.count[0] == expected
+        assert np.all(lobes.error[0, above] <= 0.05) and np.all(lobes.error[0, ~above] == -1)
+        assert np.all(lobes.weight[0, ~above] == 0) and np.all(lobes.weight[0, :, expected:] == 0)
+        np.testing.assert_allclose(np.linalg.norm(lobes.mean[0], axis=-1), 1.0, atol=1e-9)
+        assert np.all(lobes.sharpness[0] > 0) and np.isfinite(lobes.sharpness).all()
+        if not second:
+            mirror = stage.mirror(views, normal)[0]
+            assert angle_deg(lobes.mean[0, above, 0], mirror[above]).max() < 1.0
+
+
+def test_stage_writes_valid_lobes_on_a_tiny_scene(tmp_path):
+    """A glossy icosphere (12 vertices) in the open, a second one shut inside a closed
+    box, a Lambert floor; grid 9 × 16. The artifact follows the contract: shapes, the 92
+    views, unit means, λ > 0, w ≥ 0 and finite everywhere; Lambert vertices and the
+    shut-in sphere's (all views occluded) have N = 0, w = 0, error −1; open glossy
+    vertices have 1 ≤ N ≤ 3 and errors in [0, 1]; views below a vertex's horizon have
+    w = 0; the flip counts are in the attributes."""
+    write_exr(tmp_path / "env.exr", sg_lights_map().astype(np.float32))
+    doc = small_scene_dict(8)
+    doc["objects"]["ball"]["primitive"]["subdivisions"] = 0
+    doc["objects"]["shut"] = {"primitive": {"type": "sphere", "radius": 0.1,
+                                            "subdivisions": 0},
+                              "transform": {"translate": [-0.6, 0.3, 0.0]},
+                              "material": "shiny"}
+    doc["lights"] = [{"type": "environment", "file": str(tmp_path / "env.exr")}]
+    doc["settings"] = {"sg.fit_grid": [9, 16], "sg.fit_batch": 64}
+    scene = load_scene(write_scene(tmp_path, doc))
+    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+        until="sg.fit", progress=False)
+    artifact = open_artifact(Workdir(tmp_path / "work").artifact("sg.fit"))
+    geometry = open_artifact(Workdir(tmp_path / "work").artifact("geometry"))
+    lobes, count, error = artifact.read("lobes"), artifact.read("count"), artifact.read("error")
+    vertices = len(geometry.read("vertices"))
+    assert lobes.shape == (vertices, 92, 3, 7) and count.shape == (vertices,)
+    np.testing.assert_array_equal(artifact.read("views"), view_directions())
+    assert np.isfinite(lobes).all() and np.all(lobes[..., :3] >= 0)
+    np.testing.assert_allclose(np.linalg.norm(lobes[..., 3:6], axis=-1), 1.0, atol=1e-5)
+    assert np.all(lobes[..., 6] > 0)
+    ranges = dict(zip(geometry.attrs["object_names"], geometry.read("object_ranges"),
+                      strict=True))
+    for name in ("floor", "box", "shut"):
+        a, b = ranges[name][:2]
+        assert np.all(count[a:b] == 0) and np.all(lobes[a:b, ..., :3] == 0)
+        assert np.all(error[a:b] == -1)
+    a, b = ranges["ball"][:2]
+    assert np.all((count[a:b] >= 1) & (count[a:b] <= 3))
+    seen = error[a:b][error[a:b] >= 0]
+    assert len(seen) and seen.max() <= 1.0
+    normals = geometry.read("normals")[a:b]
+    below = normals @ view_directions().T <= 0
+    assert np.all(lobes[a:b][below][..., :3] == 0)
+    for key in ("flips_before_relaxation", "flips_after_relaxation"):
+        assert set(artifact.attrs[key]) == {"vertex_flips", "vertex_flips_5deg",
+                                            "vertex_pairs", "view_flips", "view_flips_5deg",
+                                            "view_pairs"}
+    assert artifact.attrs["grid"]["directions"] == 144
+
+
+def test_vertex_permutation_undoes_a_three_cycle():
+    """Three lobes held in cyclically shifted slots (a permutation that is not its own
+    inverse) at every view: the permutation found maps them back onto the neighbour's
+    slots exactly; a vertex sharing no view gets None."""
+    lobes = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    neighbour = np.broadcast_to(lobes, (92, 3, 3))
+    own = neighbour[:, [1, 2, 0]]
+    shared = np.ones(92, bool)
+    best = sg_coherence.vertex_permutation(own, [(neighbour, shared)])
+    np.testing.assert_array_equal(own[:, best], neighbour)
+    assert sg_coherence.vertex_permutation(own, [(neighbour, ~shared)]) is None
