@@ -46,6 +46,7 @@ def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
     """Milliseconds of the kernel path's parts (as ``camera_gbuffer`` runs them)."""
     from pipeline.math.camera import camera_rays, pixel_directions
     from pipeline.render import triple as render
+    from pipeline.render.triple_gbuffer import surface_attributes
 
     t0 = time.perf_counter()
     origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
@@ -54,7 +55,7 @@ def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
     hits = tracer.intersect(origins.reshape(-1, 3), directions.reshape(-1, 3))
     t2 = time.perf_counter()
     pixel = np.flatnonzero(hits.prim >= 0)
-    render.surface_attributes(mesh, atlas.face_uv, hits, directions.reshape(-1, 3), pixel)
+    surface_attributes(mesh, atlas.face_uv, hits, directions.reshape(-1, 3), pixel)
     t3 = time.perf_counter()
     whole = render.camera_gbuffer(tracer, mesh, atlas, detail, cam)
     t4 = time.perf_counter()
