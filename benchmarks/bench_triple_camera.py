@@ -9,9 +9,7 @@ workdir's bake as is) and rendered at ``--width``×``--height``:
   camera move ran before) against the kernel path (``camera_gbuffer``), alternated
   ``--repeats`` times; the kernel path split into camera rays, Embree trace, surface
   kernel (uploads and read-back included) and the rest, and the frame-grid angles
-  (kernel ``triple_angles``, run once per camera); ``camera_rays_old_ms`` is the camera
-  rays as computed before this change (per pixel in float64: the same bits, both paths
-  now use the faster one);
+  (kernel ``triple_angles``, run once per camera);
 * ``trace``: Embree's primary-ray rate (rays/s) as the G-buffer calls it (batches of
   32768 on the task's threads), in one call on one thread, and with the rays reordered
   into 8×8-pixel tiles (coherent batches);
@@ -44,7 +42,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
                   tables: Any) -> dict[str, float]:
     """Milliseconds of the kernel path's parts (as ``camera_gbuffer`` runs them)."""
-    from pipeline.math.camera import camera_rays, pixel_directions
+    from pipeline.math.camera import camera_rays
     from pipeline.render import triple as render
     from pipeline.render.triple_gbuffer import surface_attributes
 
@@ -61,14 +59,7 @@ def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
     t4 = time.perf_counter()
     _, angles_device_ms = whole.angles(tables.frames, tables.views)
     t5 = time.perf_counter()
-    y, x = np.meshgrid(np.arange(cam.height) + 0.5, np.arange(cam.width) + 0.5, indexing="ij")
-    d = pixel_directions(cam.position, cam.look_at, cam.up, cam.fov, cam.width, cam.height,
-                         x, y)  # camera_rays before this session: per pixel, then cast
-    np.broadcast_to(np.asarray(cam.position, float), d.shape).astype(np.float32)
-    d.astype(np.float32)
-    t6 = time.perf_counter()
-    return {"camera_rays_ms": (t1 - t0) * 1e3, "camera_rays_old_ms": (t6 - t5) * 1e3,
-            "trace_ms": (t2 - t1) * 1e3,
+    return {"camera_rays_ms": (t1 - t0) * 1e3, "trace_ms": (t2 - t1) * 1e3,
             "surface_kernel_ms": (t3 - t2) * 1e3, "camera_gbuffer_ms": (t4 - t3) * 1e3,
             "angles_ms": (t5 - t4) * 1e3, "angles_device_ms": angles_device_ms,
             "rays": cam.width * cam.height, "shaded": len(pixel),

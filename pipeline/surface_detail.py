@@ -101,11 +101,6 @@ class SceneDetail:
                                          material.bump.texture))
 
     @property
-    def materials(self) -> set[int]:
-        """The materials with a blend or a bump."""
-        return set(self.blend) | set(self.bump)
-
-    @property
     def empty(self) -> bool:
         """True when no material has a blend or a bump."""
         return not self.blend and not self.bump

@@ -41,16 +41,9 @@ def camera_rays(position, look_at, up, fov: float, width: int, height: int,
                 region: tuple[int, int, int, int] | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Origins and unit directions, each (rows, cols, 3) float32, through the pixel
-    centres of ``region`` = (y0, y1, x0, x1) (default: the whole image). The same
-    arithmetic as :func:`pixel_directions`, in the same order (so the same bits), with
-    the column and row terms summed once per column and row before the one per-pixel sum."""
+    centres of ``region`` = (y0, y1, x0, x1) (default: the whole image)."""
     y0, y1, x0, x1 = region or (0, height, 0, width)
-    right, true_up, forward = camera_frame(position, look_at, up)
-    half_h = np.tan(np.radians(fov) / 2.0)
-    half_w = half_h * width / height
-    sx = (2.0 * (np.arange(x0, x1) + 0.5) / width - 1.0) * half_w
-    sy = (1.0 - 2.0 * (np.arange(y0, y1) + 0.5) / height) * half_h
-    d = (forward + sx[:, None] * right)[None, :, :] + (sy[:, None] * true_up)[:, None, :]
-    d /= np.sqrt(np.add.reduce(d * d, axis=-1, keepdims=True))  # = np.linalg.norm
-    origins = np.broadcast_to(np.asarray(position, np.float32), d.shape)
-    return np.ascontiguousarray(origins), d.astype(np.float32)
+    y, x = np.meshgrid(np.arange(y0, y1) + 0.5, np.arange(x0, x1) + 0.5, indexing="ij")
+    d = pixel_directions(position, look_at, up, fov, width, height, x, y)
+    origins = np.broadcast_to(np.asarray(position, float), d.shape)
+    return origins.astype(np.float32), d.astype(np.float32)

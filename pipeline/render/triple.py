@@ -402,7 +402,7 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
     s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel)
     material = np.asarray(mesh.object_material, np.int32)[s["object"]]
     material_b, blend = material.copy(), np.zeros(len(pixel), np.float32)
-    which = np.flatnonzero(np.isin(material, list(detail.materials)))
+    which = np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
     if len(which):  # the host's SceneDetail on the pixels of detailed materials
         at = pixel[which]
         shading = detail.at(surface_at(mesh, hits.select(at), origins[at], directions[at],
