@@ -217,7 +217,11 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
     p.key = digest({"stage": spec.name, "chunks": p.chunk_keys})
     scene_digests = {path: digest(value) for s in p.sections.values()
                      for path, value in s.items()}
-    inputs_all = {dep: digest([input_parts[c.id][dep] for c in chunks]) for dep in spec.inputs}
+    # What each input contributes over all chunks, as a set: an input every chunk reads
+    # whole (the geometry under texel tiles) does not seem changed when only the number
+    # of chunks did (an atlas re-sized by a camera move).
+    inputs_all = {dep: digest(sorted({digest(input_parts[c.id][dep]) for c in chunks}))
+                  for dep in spec.inputs}
     p.key_parts = {"stage": spec.name, "code": code, "schema_version": schema_version,
                    "params": params, "inputs": inputs_all,
                    "scene": dict(sorted(scene_digests.items())),

@@ -223,3 +223,21 @@ def test_texel_tiles_and_vertex_batches_are_planned_from_upstream_data(tmp_path)
     assert set(ran(report)) == {"atlas", "texels"}
     assert len(ran(report)["texels"]) == sum(-(-h // 4) * -(-w // 4) for h, w in
                                              sizes.values())
+
+
+def test_status_blames_the_atlas_not_the_geometry_when_the_tiles_change(tmp_path):
+    """A texel-tiled stage whose atlas changed size (a camera move, for triple.visibility)
+    names the atlas as the changed input, not the unchanged geometry it also reads (the
+    geometry's part of the explanation must not depend on how many tiles there are)."""
+    doc = small_scene_dict()
+    workdir = Workdir(tmp_path / "w")
+    run(load_scene(write_scene(tmp_path, doc)), load_stagefile(CHUNKED), workdir,
+        progress=False)
+    doc["settings"] = {"toy.texels_per_vertex": 2.0}
+    scene = load_scene(write_scene(tmp_path, doc))
+    run(scene, load_stagefile(CHUNKED), workdir, progress=False, until="atlas")
+    states = {p.spec.name: (p.state, p.reason)
+              for p in plan(scene, load_stagefile(CHUNKED), workdir)}
+    assert states["geometry"] == ("fresh", "")
+    assert states["atlas"] == ("fresh", "")
+    assert states["texels"] == ("stale", "input atlas changed")

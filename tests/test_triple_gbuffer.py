@@ -198,3 +198,54 @@ def test_renderer_caches_the_camera_and_follows_gamma_edits(tmp_path):
     moved = render(with_camera_position(scene, tuple(np.add(scene.camera.position,
                                                             [0.3, 0.0, 0.0]))))
     assert moved.timings["gbuffer_cached"] == 0
+
+
+def test_surface_kernel_matches_the_numpy_gbuffer(tmp_path):
+    """camera_gbuffer (kernel triple_surface, SceneDetail on the floor's pixels) against
+    its twin camera_gbuffer_numpy on the tiny scene at 40×32: a floor with a uv bump and
+    a blend, the box's flat faces, the ball without uv (the tangent's fallback). The same
+    pixels, objects, materials, blends and views exactly; normals and tangents within
+    1e-6 (both float32: blends and normalisations differ by a few ulp of 1 where the
+    kernel fuses multiply-adds); texel coordinates within 1e-6 × the texture's 64 texels
+    (float32 interpolation against float64 rounded to float32)."""
+    from test_surface_detail import detail_scene, png
+
+    from pipeline import job
+    from pipeline.raytrace import Mesh, RayTracer
+    from pipeline.render.triple import camera_gbuffer, camera_gbuffer_numpy
+    from pipeline.scene_edits import with_camera_position
+    from pipeline.store import open_artifact
+    from pipeline.surface_detail import SceneDetail
+
+    png(tmp_path / "ramp.png", np.tile(np.arange(16) / 15, (4, 1)))
+    scene = detail_scene(tmp_path, bump={"texture": "ramp.png", "height": 0.3,
+                                         "projection": "uv", "scale": 3.0},
+                         blend={"material": "shiny", "texture": "ramp.png",
+                                "projection": "xz", "scale": 0.7})
+    scene = scene.with_image_size(40, 32)
+    workdir = job.workdir_for(scene, tmp_path / "w")
+    job.bake(scene, workdir, quiet=True, until="geometry", jobs=1)
+    geo = open_artifact(workdir.artifact("geometry"))
+    arrays = {n: geo.read(n) for n in
+              ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
+    mesh = Mesh.from_arrays(arrays)
+    rng = np.random.default_rng(3)
+    atlas = Atlas(rng.uniform(0.0, 64.0, size=(len(mesh.faces), 3, 2)), np.array([[64, 64]]),
+                  np.array([0]), np.ones(4096, bool), np.arange(4096))
+    tracer = RayTracer(arrays["vertices"], arrays["faces"])
+    detail = SceneDetail(scene, geo.attrs["material_names"])
+    for position in (scene.camera.position, (0.5, 1.0, -4.0)):  # behind: normals' z < 0
+        cam = with_camera_position(scene, position).camera
+        got = camera_gbuffer(tracer, mesh, atlas, detail, cam)
+        expected = camera_gbuffer_numpy(tracer, mesh, atlas, detail, cam)
+        assert len(set(expected.object.tolist())) == 3 and len(expected.miss_pixel)
+        assert expected.blend.max() > 0.0 and (expected.normal[:, 2] < -0.5).any() == \
+            (position[2] < 0)
+        for name in ("pixel", "object", "material_a", "material_b", "blend", "view",
+                     "miss_pixel", "miss"):
+            assert np.array_equal(getattr(got, name), getattr(expected, name)), name
+        for name, tolerance in (("normal", 1e-6), ("tangent", 1e-6), ("texel_xy", 64e-6)):
+            error = np.abs(getattr(got, name) - getattr(expected, name)).max()
+            assert error <= tolerance, (name, error)
+        bumped = np.abs(expected.normal - [0.0, 1.0, 0.0]).max(axis=1) > 1e-3
+        assert (bumped & (expected.object == 0)).any()  # the bump turned floor normals

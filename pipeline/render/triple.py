@@ -70,6 +70,7 @@ from pipeline.render.triple_gbuffer import (
     LookupTables,
     device_lookups,
     kernel_arguments,
+    surface_attributes,
 )
 from pipeline.scene import Light, Scene
 from pipeline.stages.brdf_tables import SHAPE_KEYS, glossy_rows
@@ -386,10 +387,38 @@ class Atlas:
 def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
                    cam: Any) -> GBuffer:
     """The G-buffer of camera ``cam`` (pipeline/render/triple_gbuffer.py): camera rays
-    traced, surface attributes at the hits: the shading frame (the interpolated normal
-    and the uv tangent, turned by a bump map) and the materials' blends from ``detail``
-    (pipeline/surface_detail.py); the texel coordinates stay with the geometric hit (the
-    visibility is the unbumped texel's, paper 004 §4.2)."""
+    traced, surface attributes at the hits on the device (``surface_attributes``: the
+    interpolated normal, the uv tangent, the texel coordinates); where a material has a
+    blend or a bump, ``detail`` (pipeline/surface_detail.py) turns the shading frame and
+    blends the materials on the host. The texel coordinates stay with the geometric hit
+    (the visibility is the unbumped texel's, paper 004 §4.2). NumPy twin:
+    :func:`camera_gbuffer_numpy`."""
+    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                      cam.width, cam.height)
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    hits = tracer.intersect(origins, directions)
+    hit = hits.prim >= 0
+    pixel = np.flatnonzero(hit)
+    s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel)
+    material = np.asarray(mesh.object_material, np.int32)[s["object"]]
+    material_b, blend = material.copy(), np.zeros(len(pixel), np.float32)
+    which = np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
+    if len(which):  # the host's SceneDetail on the pixels of detailed materials
+        at = pixel[which]
+        shading = detail.at(surface_at(mesh, hits.select(at), origins[at], directions[at],
+                                       normal_dtype=np.float32))
+        s["normal"][which], s["tangent"][which] = shading.normal, shading.tangent
+        material_b[which], blend[which] = shading.material_b, shading.blend
+    return GBuffer(cam.width, cam.height, pixel, s["normal"], s["tangent"], s["view"],
+                   s["texel_xy"], s["object"], material, material_b, blend,
+                   np.flatnonzero(~hit), directions[~hit])
+
+
+def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
+                         cam: Any) -> GBuffer:
+    """:func:`camera_gbuffer` on the host: every attribute from
+    pipeline.raytrace.Surface, ``detail`` and :meth:`Atlas.texel_xy` (the device
+    kernel's twin, tests and benchmarks)."""
     origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
                                       cam.width, cam.height)
     origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)

@@ -38,6 +38,7 @@ from pipeline import cl
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
 
 if TYPE_CHECKING:
+    from pipeline.raytrace import Hits, Mesh
     from pipeline.render.triple import Atlas, PixelLookups, TripleTables
 
 WORK_GROUP = 64  # work-items per group of the per-pixel kernels (pipeline.cl.run's local)
@@ -104,6 +105,39 @@ class GBuffer:
     @cached_property
     def miss_device(self) -> Any:
         return cl.read_only_buffer(self.miss)
+
+
+def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,
+                       pixel: np.ndarray) -> dict[str, np.ndarray]:
+    """Kernel ``triple_surface`` (kernels/triple_surface.cl): the G-buffer's ``normal``,
+    ``tangent``, ``view`` (P, 3), ``texel_xy`` (P, 2) float32 and ``object`` (P,) int32
+    at the camera rays ``pixel`` (P,) of ``hits`` and unit ``directions`` (N, 3) (all
+    of them hits), from the mesh's vertex normals (blended in float32), unit face normals
+    and unit uv tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels. Its
+    NumPy twin is pipeline.raytrace.Surface with Atlas.texel_xy."""
+    import pyopencl as pcl
+
+    n = len(pixel)
+    tangent = mesh.face_tangent
+    tangent = tangent / np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    inputs = [cl.read_only_buffer(np.asarray(a, dtype)) for a, dtype in (
+        (pixel, np.int32), (hits.prim, np.int32), (hits.u, np.float32), (hits.v, np.float32),
+        (directions, np.float32), (mesh.faces, np.int32), (mesh.normals, np.float32),
+        (mesh.face_normal, np.float32), (tangent, np.float32), (face_uv, np.float32),
+        (mesh.face_object, np.int32))]
+    out = {"normal": np.empty((n, 3), np.float32), "tangent": np.empty((n, 3), np.float32),
+           "view": np.empty((n, 3), np.float32), "texel_xy": np.empty((n, 2), np.float32),
+           "object": np.empty(n, np.int32)}
+    if not n:
+        return out
+    buffers = [pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, a.nbytes)
+               for a in out.values()]
+    kernel = cl.kernel("triple_surface.cl", "triple_surface")
+    event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *inputs,
+                   np.int32(n), *buffers)
+    for a, buffer in zip(out.values(), buffers, strict=True):
+        pcl.enqueue_copy(cl.queue(), a, buffer, wait_for=[event])
+    return out
 
 
 @dataclass
