@@ -106,6 +106,7 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
              "select": 0.0}
     parts = []
     light_stage._sample_coords.cache_clear()
+    light_stage._PREFILTERED.clear()
     total, cpu = time.perf_counter(), time.process_time()
     for start in range(0, grid.size, block):
         end = min(start + block, grid.size)

@@ -16,6 +16,7 @@ rotation and scale are applied by the renderer: the key holds the map file's byt
 
 from __future__ import annotations
 
+import hashlib
 from functools import lru_cache
 from typing import Any
 
@@ -119,9 +120,22 @@ def kernel_leaf_means(rgb: np.ndarray, grid: FrameGrid, phi_first: int, phi_coun
 
 
 def prefiltered_map(rgb: np.ndarray, params: dict[str, Any]) -> np.ndarray:
-    """The map as the kernel samples it: prefiltered to the samples' spacing."""
+    """The map as the kernel samples it: prefiltered to the samples' spacing. The last
+    one is kept, keyed by a digest of the map's bytes and the settings: the chunks of a
+    grid that a process runs share it (0.13–0.2 s of NumPy per chunk otherwise)."""
+    rgb = np.ascontiguousarray(rgb)
     spacing = sample_spacing(int(params["triple.leaf_level"]), int(params["triple.light_refine"]))
-    return prefilter(rgb, spacing, frame_grid(params).n_phi)
+    n_phi = frame_grid(params).n_phi
+    key = (hashlib.blake2b(rgb.view(np.uint8)).digest(), rgb.shape, str(rgb.dtype),
+           spacing, n_phi)
+    if _PREFILTERED.get("key") != key:
+        filtered = prefilter(rgb, spacing, n_phi)
+        filtered.setflags(write=False)
+        _PREFILTERED.update(key=key, map=filtered)
+    return _PREFILTERED["map"]
+
+
+_PREFILTERED: dict[str, Any] = {}  # prefiltered_map's last key and (read-only) map
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
