@@ -100,7 +100,6 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
     texel coordinates computed once, then kept), split by step; and the stored rows."""
     grid = light_stage.frame_grid(params)
     level, refine = params["triple.leaf_level"], params["triple.light_refine"]
-    per_phi = grid.n_theta * grid.n_psi
     block = params["triple.light_block"]
     times = {"coords": 0.0, "prefilter": 0.0, "leaf_means": 0.0, "forward": 0.0,
              "select": 0.0}
@@ -110,20 +109,18 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
     total, cpu = time.perf_counter(), time.process_time()
     for start in range(0, grid.size, block):
         end = min(start + block, grid.size)
-        phi_first, phis = start // per_phi, -(-end // per_phi) - start // per_phi
         pm, t = _timed(light_stage.prefiltered_map, rgb, params)
         times["prefilter"] += t
         _, t = _timed(light_stage._sample_coords, grid, level, refine, *pm.shape[1::-1])
         times["coords"] += t
-        means, t = _timed(light_stage.leaf_means_buffer, pm, grid, phi_first, phis, level,
+        means, t = _timed(light_stage.leaf_means_buffer, pm, grid, start, end, level,
                           refine)
         times["leaf_means"] += t
-        coefficients, t = _timed(forward_device, means, phis * per_phi * 3, level)
+        coefficients, t = _timed(forward_device, means, (end - start) * 3, level)
         times["forward"] += t
-        rows, t = _timed(select_rows_buffer, coefficients, start - phi_first * per_phi,
-                         end - start, 3, level, params["triple.store_budget"],
-                         params["triple.store_tolerance"], params["triple.store_top"],
-                         LUMINANCE, True)
+        rows, t = _timed(select_rows_buffer, coefficients, 0, end - start, 3, level,
+                         params["triple.store_budget"], params["triple.store_tolerance"],
+                         params["triple.store_top"], LUMINANCE, True)
         times["select"] += t
         parts.append(rows)
     times["total"] = time.perf_counter() - total
@@ -153,7 +150,8 @@ def light_accuracy(rgb: np.ndarray, params: dict[str, Any], refines: list[int]) 
     for refine in refines:
         p = {**params, "triple.light_refine": refine}
         pm = light_stage.prefiltered_map(rgb, p)
-        kernel = light_stage.kernel_leaf_means(pm, grid, 0, 1, level, refine)[0][picks]
+        kernel = light_stage.kernel_leaf_means(pm, grid, 0, grid.n_theta * grid.n_psi,
+                                               level, refine)[picks]
         out[str(refine)] = {"prefiltered": errors(kernel),
                             "unfiltered_map": errors(frame_leaf_means(rgb, frames, level,
                                                                       refine)),
