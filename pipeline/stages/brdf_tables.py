@@ -170,7 +170,7 @@ def view_leaf_means_buffer(params: BrdfParams, grid: ViewGrid, leaf_level: int,
     source, perm = mirror_sources(grid, leaf_level)
     out = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, grid.size * leaves * 4)
     cl.kernel("brdf_tables.cl", "brdf_mirror_views", _defines(params, refine))(
-        cl.queue(), (leaves, grid.n_theta, grid.n_phi), None, base,
+        cl.queue(), (grid.n_theta, grid.n_phi), None, base,
         cl.read_only_buffer(source), cl.read_only_buffer(perm), np.int32(grid.n_theta),
         np.int32(leaves), out)
     return out
