@@ -13,7 +13,8 @@ average.
   triple.light_rotations, as the stage computes it, without the zarr writes) per
   refinement r, split into the samples' texel coordinates (once per process),
   prefilter, leaf-mean kernel, forward transform, row selection with the float16
-  conversion (both on the device); aim ≤ 2 s.
+  conversion (both on the device); aim ≤ 2 s; and the leaf-mean kernel's bilinear map
+  lookups (``lookups``: those it computes) per second of its wall time.
 * ``light_accuracy``: leaf means of a few grid frames against a reference of 4^5
   samples per leaf on the unfiltered map (NumPy), with and without the prefilter, per r:
   luminance-weighted relative L2 over the leaves, and the worst leaf's error relative
@@ -95,6 +96,24 @@ def _cpu(fn: Any) -> tuple[Any, dict[str, float]]:
     return out, {"wall_s": time.perf_counter() - wall, "cpu_s": time.process_time() - cpu}
 
 
+def bilinear_lookups(grid: Any, start: int, end: int, leaves: int, samples: int) -> int:
+    """Bilinear map lookups (4 float4 texel loads each) of the leaf-mean kernel for grid
+    entries [start, end): per φ plane the span touches and frame given (ψ < π for an
+    even n_ψ), one per sample of every leaf when the entry or its ψ + π partner is in
+    the span (kernels/light_rotations.cl)."""
+    per_phi = grid.n_theta * grid.n_psi
+    given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi
+    rows = np.arange(grid.n_theta)[:, None] * grid.n_psi + np.arange(given)[None, :]
+    total = 0
+    for phi in range(start // per_phi, -(-end // per_phi)):
+        entry = phi * per_phi + rows
+        wanted = (entry >= start) & (entry < end)
+        if given < grid.n_psi:
+            wanted |= (entry + given >= start) & (entry + given < end)
+        total += int(wanted.sum())
+    return total * leaves * samples
+
+
 def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, float], dict]:
     """One rebuild of every chunk in a process that has not seen the grid (the samples'
     texel coordinates computed once, then kept), split by step; and the stored rows."""
@@ -102,7 +121,7 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
     level, refine = params["triple.leaf_level"], params["triple.light_refine"]
     block = params["triple.light_block"]
     times = {"coords": 0.0, "prefilter": 0.0, "leaf_means": 0.0, "forward": 0.0,
-             "select": 0.0}
+             "select": 0.0, "lookups": 0}
     parts = []
     light_stage._sample_coords.cache_clear()
     light_stage._PREFILTERED.clear()
@@ -116,6 +135,7 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
         means, t = _timed(light_stage.leaf_means_buffer, pm, grid, start, end, level,
                           refine)
         times["leaf_means"] += t
+        times["lookups"] += bilinear_lookups(grid, start, end, 20 * 4 ** level, 4 ** refine)
         coefficients, t = _timed(forward_device, means, (end - start) * 3, level)
         times["forward"] += t
         rows, t = _timed(select_rows_buffer, coefficients, 0, end - start, 3, level,
@@ -125,6 +145,7 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
         parts.append(rows)
     times["total"] = time.perf_counter() - total
     times["total_cpu"] = time.process_time() - cpu
+    times["lookups_per_s"] = times["lookups"] / times["leaf_means"]
     rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return times, rows
 
