@@ -14,7 +14,8 @@ average.
   refinement r, split into the samples' texel coordinates (once per process),
   prefilter, leaf-mean kernel, forward transform, row selection with the float16
   conversion (both on the device); aim ≤ 2 s; and the leaf-mean kernel's bilinear map
-  lookups (``lookups``: those it computes) per second of its wall time.
+  lookups (``lookups``: those it computes) per second of its wall time; each step's
+  CPU seconds as ``<step>_cpu`` (the wall clock of a shared machine says little).
 * ``light_accuracy``: leaf means of a few grid frames against a reference of 4^5
   samples per leaf on the unfiltered map (NumPy), with and without the prefilter, per r:
   luminance-weighted relative L2 over the leaves, and the worst leaf's error relative
@@ -82,10 +83,17 @@ def _median(runs: list[dict[str, float]]) -> dict[str, float]:
 
 
 def _timed(fn: Any, *args: Any) -> tuple[Any, float]:
-    start = time.perf_counter()
+    """``fn(*args)`` and its wall-clock seconds (the queue finished); its CPU seconds
+    (this process, all threads) are added to ``CPU[fn.__name__]``."""
+    start, cpu = time.perf_counter(), time.process_time()
     out = fn(*args)
     cl.queue().finish()
+    name = getattr(fn, "__name__", "call")
+    CPU[name] = CPU.get(name, 0.0) + time.process_time() - cpu
     return out, time.perf_counter() - start
+
+
+CPU: dict[str, float] = {}  # CPU seconds per timed function since the last clear
 
 
 def _cpu(fn: Any) -> tuple[Any, dict[str, float]]:
@@ -125,6 +133,7 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
     parts = []
     light_stage._sample_coords.cache_clear()
     light_stage._PREFILTERED.clear()
+    CPU.clear()
     total, cpu = time.perf_counter(), time.process_time()
     for start in range(0, grid.size, block):
         end = min(start + block, grid.size)
@@ -146,6 +155,10 @@ def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, fl
     times["total"] = time.perf_counter() - total
     times["total_cpu"] = time.process_time() - cpu
     times["lookups_per_s"] = times["lookups"] / times["leaf_means"]
+    names = {"prefiltered_map": "prefilter", "_sample_coords": "coords",
+             "leaf_means_buffer": "leaf_means", "forward_device": "forward",
+             "select_rows_buffer": "select"}
+    times.update({f"{step}_cpu": CPU.get(name, 0.0) for name, step in names.items()})
     rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return times, rows
 
