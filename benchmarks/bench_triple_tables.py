@@ -204,6 +204,7 @@ def _material_ctx(scene: Any, name: str, params: dict[str, Any]) -> ChunkContext
 def brdf_table(scene: Any, name: str, params: dict[str, Any]) -> tuple[dict[str, float], dict]:
     """One material's table through the stage's run_chunk (total), and split."""
     ctx = _material_ctx(scene, name, params)
+    CPU.clear()
     cpu = time.process_time()
     rows, total = _timed(brdf_stage.run_chunk, ctx)
     total_cpu = time.process_time() - cpu
@@ -217,7 +218,9 @@ def brdf_table(scene: Any, name: str, params: dict[str, Any]) -> tuple[dict[str,
                          params["triple.store_budget"], params["triple.store_tolerance"],
                          params["triple.store_top"], None, True)
     return {"total": total, "total_cpu": total_cpu, "leaf_means": t_means,
-            "forward": t_forward, "select": t_select}, rows
+            "forward": t_forward, "select": t_select,
+            "leaf_means_cpu": CPU["view_leaf_means_buffer"], "forward_cpu": CPU["forward_device"],
+            "select_cpu": CPU["select_rows_buffer"]}, rows
 
 
 def brdf_accuracy(scene: Any, name: str, params: dict[str, Any], refines: list[int]) -> dict:
