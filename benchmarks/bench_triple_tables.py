@@ -13,7 +13,9 @@ average.
   triple.light_rotations, as the stage computes it, without the zarr writes) per
   refinement r, split into the samples' texel coordinates (once per process),
   prefilter, leaf-mean kernel, forward transform, row selection with the float16
-  conversion (both on the device); aim ≤ 2 s.
+  conversion (both on the device); aim ≤ 2 s; and the leaf-mean kernel's bilinear map
+  lookups (``lookups``: those it computes) per second of its wall time; each step's
+  CPU seconds as ``<step>_cpu`` (the wall clock of a shared machine says little).
 * ``light_accuracy``: leaf means of a few grid frames against a reference of 4^5
   samples per leaf on the unfiltered map (NumPy), with and without the prefilter, per r:
   luminance-weighted relative L2 over the leaves, and the worst leaf's error relative
@@ -81,10 +83,17 @@ def _median(runs: list[dict[str, float]]) -> dict[str, float]:
 
 
 def _timed(fn: Any, *args: Any) -> tuple[Any, float]:
-    start = time.perf_counter()
+    """``fn(*args)`` and its wall-clock seconds (the queue finished); its CPU seconds
+    (this process, all threads) are added to ``CPU[fn.__name__]``."""
+    start, cpu = time.perf_counter(), time.process_time()
     out = fn(*args)
     cl.queue().finish()
+    name = getattr(fn, "__name__", "call")
+    CPU[name] = CPU.get(name, 0.0) + time.process_time() - cpu
     return out, time.perf_counter() - start
+
+
+CPU: dict[str, float] = {}  # CPU seconds per timed function since the last clear
 
 
 def _cpu(fn: Any) -> tuple[Any, dict[str, float]]:
@@ -95,38 +104,61 @@ def _cpu(fn: Any) -> tuple[Any, dict[str, float]]:
     return out, {"wall_s": time.perf_counter() - wall, "cpu_s": time.process_time() - cpu}
 
 
+def bilinear_lookups(grid: Any, start: int, end: int, leaves: int, samples: int) -> int:
+    """Bilinear map lookups (4 float4 texel loads each) of the leaf-mean kernel for grid
+    entries [start, end): per φ plane the span touches and frame given (ψ < π for an
+    even n_ψ), one per sample of every leaf when the entry or its ψ + π partner is in
+    the span (kernels/light_rotations.cl)."""
+    per_phi = grid.n_theta * grid.n_psi
+    given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi
+    rows = np.arange(grid.n_theta)[:, None] * grid.n_psi + np.arange(given)[None, :]
+    total = 0
+    for phi in range(start // per_phi, -(-end // per_phi)):
+        entry = phi * per_phi + rows
+        wanted = (entry >= start) & (entry < end)
+        if given < grid.n_psi:
+            wanted |= (entry + given >= start) & (entry + given < end)
+        total += int(wanted.sum())
+    return total * leaves * samples
+
+
 def light_rebuild(rgb: np.ndarray, params: dict[str, Any]) -> tuple[dict[str, float], dict]:
     """One rebuild of every chunk in a process that has not seen the grid (the samples'
     texel coordinates computed once, then kept), split by step; and the stored rows."""
     grid = light_stage.frame_grid(params)
     level, refine = params["triple.leaf_level"], params["triple.light_refine"]
-    per_phi = grid.n_theta * grid.n_psi
     block = params["triple.light_block"]
     times = {"coords": 0.0, "prefilter": 0.0, "leaf_means": 0.0, "forward": 0.0,
-             "select": 0.0}
+             "select": 0.0, "lookups": 0}
     parts = []
     light_stage._sample_coords.cache_clear()
+    light_stage._PREFILTERED.clear()
+    CPU.clear()
     total, cpu = time.perf_counter(), time.process_time()
     for start in range(0, grid.size, block):
         end = min(start + block, grid.size)
-        phi_first, phis = start // per_phi, -(-end // per_phi) - start // per_phi
         pm, t = _timed(light_stage.prefiltered_map, rgb, params)
         times["prefilter"] += t
         _, t = _timed(light_stage._sample_coords, grid, level, refine, *pm.shape[1::-1])
         times["coords"] += t
-        means, t = _timed(light_stage.leaf_means_buffer, pm, grid, phi_first, phis, level,
+        means, t = _timed(light_stage.leaf_means_buffer, pm, grid, start, end, level,
                           refine)
         times["leaf_means"] += t
-        coefficients, t = _timed(forward_device, means, phis * per_phi * 3, level)
+        times["lookups"] += bilinear_lookups(grid, start, end, 20 * 4 ** level, 4 ** refine)
+        coefficients, t = _timed(forward_device, means, (end - start) * 3, level)
         times["forward"] += t
-        rows, t = _timed(select_rows_buffer, coefficients, start - phi_first * per_phi,
-                         end - start, 3, level, params["triple.store_budget"],
-                         params["triple.store_tolerance"], params["triple.store_top"],
-                         LUMINANCE, True)
+        rows, t = _timed(select_rows_buffer, coefficients, 0, end - start, 3, level,
+                         params["triple.store_budget"], params["triple.store_tolerance"],
+                         params["triple.store_top"], LUMINANCE, True)
         times["select"] += t
         parts.append(rows)
     times["total"] = time.perf_counter() - total
     times["total_cpu"] = time.process_time() - cpu
+    times["lookups_per_s"] = times["lookups"] / times["leaf_means"]
+    names = {"prefiltered_map": "prefilter", "_sample_coords": "coords",
+             "leaf_means_buffer": "leaf_means", "forward_device": "forward",
+             "select_rows_buffer": "select"}
+    times.update({f"{step}_cpu": CPU.get(name, 0.0) for name, step in names.items()})
     rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return times, rows
 
@@ -152,7 +184,8 @@ def light_accuracy(rgb: np.ndarray, params: dict[str, Any], refines: list[int]) 
     for refine in refines:
         p = {**params, "triple.light_refine": refine}
         pm = light_stage.prefiltered_map(rgb, p)
-        kernel = light_stage.kernel_leaf_means(pm, grid, 0, 1, level, refine)[0][picks]
+        kernel = light_stage.kernel_leaf_means(pm, grid, 0, grid.n_theta * grid.n_psi,
+                                               level, refine)[picks]
         out[str(refine)] = {"prefiltered": errors(kernel),
                             "unfiltered_map": errors(frame_leaf_means(rgb, frames, level,
                                                                       refine)),
@@ -171,6 +204,7 @@ def _material_ctx(scene: Any, name: str, params: dict[str, Any]) -> ChunkContext
 def brdf_table(scene: Any, name: str, params: dict[str, Any]) -> tuple[dict[str, float], dict]:
     """One material's table through the stage's run_chunk (total), and split."""
     ctx = _material_ctx(scene, name, params)
+    CPU.clear()
     cpu = time.process_time()
     rows, total = _timed(brdf_stage.run_chunk, ctx)
     total_cpu = time.process_time() - cpu
@@ -184,7 +218,9 @@ def brdf_table(scene: Any, name: str, params: dict[str, Any]) -> tuple[dict[str,
                          params["triple.store_budget"], params["triple.store_tolerance"],
                          params["triple.store_top"], None, True)
     return {"total": total, "total_cpu": total_cpu, "leaf_means": t_means,
-            "forward": t_forward, "select": t_select}, rows
+            "forward": t_forward, "select": t_select,
+            "leaf_means_cpu": CPU["view_leaf_means_buffer"], "forward_cpu": CPU["forward_device"],
+            "select_cpu": CPU["select_rows_buffer"]}, rows
 
 
 def brdf_accuracy(scene: Any, name: str, params: dict[str, Any], refines: list[int]) -> dict:

@@ -51,6 +51,7 @@ def main() -> None:
     cache = getattr(light_stage, "_sample_coords", None)  # absent in older checkouts
     if cache is not None:
         cache.cache_clear()
+    getattr(light_stage, "_PREFILTERED", {}).clear()  # the prefiltered map, where kept
     light_wall, light_cpu = _timed(lambda: light(0, size))
     brdf = [_timed(lambda: brdf_stage.run_chunk(brdf_ctx)) for _ in range(3)]
     print(json.dumps({"light_grid_s": light_wall, "light_grid_cpu_s": light_cpu,

@@ -16,10 +16,12 @@
  * sample-major, fine[(c * SAMPLES + s) * padded + k], so neighbouring work-items read
  * neighbouring floats.
  *
- * brdf_mirror_views, work-item (n, t, j): the leaf means of view (phi_j, theta_t) are
+ * brdf_mirror_views, work-item (t, j): the leaf means of view (phi_j, theta_t) are
  * those of view (phi_source[j], theta_t) with leaves permuted (a reflection of wi and
  * wo together; pipeline/stages/brdf_tables.py view_leaf_means):
- * out[(j, t, n)] = base[(source[j], t, perm[j, n])]. A copy: exact. */
+ * out[(j, t, n)] = base[(source[j], t, perm[j, n])] for every leaf n. A copy: exact.
+ * One row per work-item (a loop over n) measured 3.5x less CPU than a work-item per
+ * (n, t, j) with a bounds test (0.063 against 0.223 CPU-s for 8192 rows of 5120). */
 #include "fastmath.h"
 #define BRDF_EXP fast_exp
 #define BRDF_LOG1P fast_log1p
@@ -51,8 +53,9 @@ __kernel void brdf_mirror_views(__global const float* base,   /* (quarter + 1, n
                                 const int n_theta, const int n_leaves,
                                 __global float* out)          /* (n_phi, n_theta, N) */
 {
-    int n = get_global_id(0), t = get_global_id(1), j = get_global_id(2);
-    if (n >= n_leaves) return;
-    out[((size_t)j * n_theta + t) * n_leaves + n] =
-        base[((size_t)source[j] * n_theta + t) * n_leaves + perm[(size_t)j * n_leaves + n]];
+    int t = get_global_id(0), j = get_global_id(1);  /* the global size is exact */
+    __global const float* from = base + ((size_t)source[j] * n_theta + t) * n_leaves;
+    __global const int* p = perm + (size_t)j * n_leaves;
+    __global float* to = out + ((size_t)j * n_theta + t) * n_leaves;
+    for (int n = 0; n < n_leaves; ++n) to[n] = from[p[n]];
 }

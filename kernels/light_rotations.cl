@@ -21,11 +21,13 @@
  * the frames at phi = 0 (rows of R, R's columns the frame's tangent, bitangent and
  * normal in world coordinates) for theta_i, psi_k: coords[b * n_fine + q] = the
  * sample's continuous texel coordinates (kernels/envmap.h envmap_texel_coords).
- * light_leaf_means, work-item (n, b): leaf n, frame b. Output for the phi_count phi
- * values from phi_first,
- * rows f = i * n_psi + k (and f + psi_given when psi_given < n_psi) of each phi:
- * out[((j * n_theta * n_psi + f) * 3 + c) * n_leaves + n] = sum over the leaf's
- * samples of weight * radiance (weights normalised per leaf).
+ * light_leaf_means, work-item (n, b): leaf n, frame b. Output the grid entries
+ * g = (phi_first + j) * n_theta * n_psi + f, rows f = i * n_psi + k (and f + psi_given
+ * when psi_given < n_psi) of each phi, that lie in the span [first, first + span_rows)
+ * with first = phi_first * n_theta * n_psi + span_first (a chunk's span starts and
+ * ends inside a phi plane: the entries outside it are not computed):
+ * out[((g - first) * 3 + c) * n_leaves + n] = sum over the leaf's samples of
+ * weight * radiance (weights normalised per leaf).
  * The map comes as float4 texels (RGB and an unused fourth) so that a texel is one
  * aligned load; the lookup is kernels/envmap.h's (bilinear, columns wrapping). */
 #include "envmap.h"
@@ -52,6 +54,7 @@ __kernel void light_leaf_means(__global const float2* coords,  /* n_frames * n_l
                                const int width, const int height, const int n_frames,
                                const int n_leaves, const int phi_first, const int phi_count,
                                const int n_phi, const int psi_given, const int n_psi,
+                               const int span_first, const int span_rows,
                                __global const int* partner,  /* n_leaves */
                                __global float* out)
 {
@@ -86,7 +89,12 @@ __kernel void light_leaf_means(__global const float2* coords,  /* n_frames * n_l
     }
     int rows = n_frames / psi_given * n_psi;  /* n_theta * n_psi */
     int f = b / psi_given * n_psi + b % psi_given;
+    bool mirrored = psi_given < n_psi;
     for (int j = 0; j < phi_count; ++j) {
+        int row = j * rows + f - span_first, partner_row = row + psi_given;
+        bool wanted = row >= 0 && row < span_rows;
+        bool partner_wanted = mirrored && partner_row >= 0 && partner_row < span_rows;
+        if (!wanted && !partner_wanted) continue;
         int step = (phi_first + j) % n_phi;
         float4 acc = (float4)(0.0f);
         for (int s = 0; s < SAMPLES; ++s) {
@@ -98,12 +106,15 @@ __kernel void light_leaf_means(__global const float2* coords,  /* n_frames * n_l
                            + fy[s] * ((1.0f - fx[s]) * map[base10[s] + a]
                                       + fx[s] * map[base11[s] + e]));
         }
-        size_t at = ((size_t)(j * rows + f) * 3) * n_leaves + n;
-        out[at] = acc.x;
-        out[at + n_leaves] = acc.y;
-        out[at + 2 * n_leaves] = acc.z;
-        if (psi_given < n_psi) {
-            at = ((size_t)(j * rows + f + psi_given) * 3) * n_leaves + partner[n];
+        size_t at;
+        if (wanted) {
+            at = ((size_t)row * 3) * n_leaves + n;
+            out[at] = acc.x;
+            out[at + n_leaves] = acc.y;
+            out[at + 2 * n_leaves] = acc.z;
+        }
+        if (partner_wanted) {
+            at = ((size_t)partner_row * 3) * n_leaves + partner[n];
             out[at] = acc.x;
             out[at + n_leaves] = acc.y;
             out[at + 2 * n_leaves] = acc.z;

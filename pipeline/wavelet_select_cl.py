@@ -37,6 +37,7 @@ def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: i
     ctx, queue = cl.context(), cl.queue()
     flags = cl_.mem_flags.READ_WRITE
     energy = cl_.Buffer(ctx, flags, max(rows * size, 1) * 4)
+    candidates = cl_.Buffer(ctx, flags, max(rows * size, 1) * 4)  # its scratch
     threshold = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
     count_buf = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
     residual_buf = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
@@ -47,7 +48,8 @@ def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: i
             queue, (rows,), None, coefficients,
             cl.read_only_buffer(np.asarray(weights, np.float32)), np.int32(first_row),
             np.int32(rows), np.int32(size), np.int32(min(keep_first, size)), np.int32(budget),
-            np.float32(tolerance ** 2), energy, threshold, count_buf, residual_buf)
+            np.float32(tolerance ** 2), energy, candidates, threshold, count_buf,
+            residual_buf)
         cl_.enqueue_copy(queue, count, count_buf)
         cl_.enqueue_copy(queue, residual, residual_buf)
     offset = np.concatenate([[0], np.cumsum(count, dtype=np.int64)])

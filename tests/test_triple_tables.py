@@ -67,14 +67,17 @@ def test_envmap_kernel_matches_environment_map():
 def test_light_kernel_matches_numpy_twin(n_psi):
     """kernels/light_rotations.cl (φ steps as column shifts; for an even n_ψ, ψ + π as
     a leaf permutation) against the twin's leaf means in the grid's own frames (full
-    rotations), for φ indices 2..4. Tolerance 1e-5 of the largest texel: float32
+    rotations), for grid entries of φ indices 2..4 from the third of φ = 2 to the
+    second-last of φ = 4 (a span cut inside its planes, as a chunk's: the kernel
+    computes only the entries inside it). Tolerance 1e-5 of the largest texel: float32
     lookups (see above) and a 4-sample weighted sum."""
     from pipeline.stages.light_rotations import kernel_leaf_means
 
     rgb = _random_map(32, 64)
     grid = FrameGrid(8, 5, n_psi)
-    got = kernel_leaf_means(rgb, grid, 2, 3, LEVEL, 1)
-    frames = grid.frames().reshape(8, 5 * n_psi, 3, 3)[2:5].reshape(-1, 3, 3)
+    start, end = 2 * 5 * n_psi + 2, 5 * 5 * n_psi - 1
+    got = kernel_leaf_means(rgb, grid, start, end, LEVEL, 1)
+    frames = grid.frames()[start:end]
     expected = frame_leaf_means(rgb, frames, LEVEL, 1).reshape(got.shape)
     np.testing.assert_allclose(got, expected, atol=1e-5 * rgb.max())
 

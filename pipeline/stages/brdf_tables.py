@@ -170,7 +170,7 @@ def view_leaf_means_buffer(params: BrdfParams, grid: ViewGrid, leaf_level: int,
     source, perm = mirror_sources(grid, leaf_level)
     out = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, grid.size * leaves * 4)
     cl.kernel("brdf_tables.cl", "brdf_mirror_views", _defines(params, refine))(
-        cl.queue(), (leaves, grid.n_theta, grid.n_phi), None, base,
+        cl.queue(), (grid.n_theta, grid.n_phi), None, base,
         cl.read_only_buffer(source), cl.read_only_buffer(perm), np.int32(grid.n_theta),
         np.int32(leaves), out)
     return out
@@ -192,12 +192,20 @@ def glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int, r
     :func:`~pipeline.math.wavelet_rows.select_rows`, values (nnz, 1) float32 rounded as
     stored: float16 over the row's scale): what a chunk stores, and what the renderer
     re-samples for a γ edit at run time (so that it equals a fresh bake)."""
-    means = view_leaf_means_buffer(glossy_params(model, shape), grid, level, refine)
-    glossy = forward_device(means, grid.size, level)
-    rows = select_rows_buffer(glossy, 0, grid.size, 1, level, budget, tolerance, top,
-                              half=True)
+    rows = stored_glossy_rows(model, shape, grid, level, refine, budget, tolerance, top)
     scale = rows.pop("scale")
     return {**rows, "value": from_half(rows["count"], rows["value"], scale)}
+
+
+def stored_glossy_rows(model: str, shape: dict[str, Any], grid: ViewGrid, level: int,
+                       refine: int, budget: int, tolerance: float, top: int
+                       ) -> dict[str, np.ndarray]:
+    """:func:`glossy_rows` as stored: ``value`` (nnz, 1) float16 over ``scale`` (R,)
+    float32, as the device wrote them (wavelet_rows.to_half's rule)."""
+    means = view_leaf_means_buffer(glossy_params(model, shape), grid, level, refine)
+    glossy = forward_device(means, grid.size, level)
+    return select_rows_buffer(glossy, 0, grid.size, 1, level, budget, tolerance, top,
+                              half=True)
 
 
 def _section(ctx: AssembleContext, name: str, key: str) -> Any:
@@ -214,16 +222,18 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     diffuse = wavelet_basis(level).forward(diffuse_leaf_means(level, refine))
     # the clamped cosine's kink at the horizon needs ~1.5k coefficients for 1 %: one row
     # per material, so it is kept to the tolerance whatever the budget
-    parts = [select_rows(diffuse[None, None], level, diffuse.size, tolerance, top)]
-    if model != "lambert":
-        parts.append(glossy_rows(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS},
-                                 view_grid(ctx.params), level, refine,
-                                 int(ctx.params["triple.store_budget"]), tolerance, top))
+    row = select_rows(diffuse[None, None], level, diffuse.size, tolerance, top)
+    value, scale = to_half(row["count"], row["value"][:, 0])
+    parts = [{**row, "value": value, "scale": scale}]
+    if model != "lambert":  # stored as the device wrote them (no float32 round trip)
+        glossy = stored_glossy_rows(model, {k: _section(ctx, name, k) for k in SHAPE_KEYS},
+                                    view_grid(ctx.params), level, refine,
+                                    int(ctx.params["triple.store_budget"]), tolerance, top)
+        parts.append({**glossy, "value": glossy["value"][:, 0]})
     rows = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     ctx.meta.update(rows=len(rows["count"]), worst_residual=float(rows["residual"].max()),
                     most_coefficients=int(rows["count"].max()), entries=len(rows["index"]))
-    value, scale = to_half(rows["count"], rows["value"][:, 0])
-    return {**rows, "value": value, "scale": scale}
+    return rows
 
 
 def layout(ctx: AssembleContext) -> Layout:
