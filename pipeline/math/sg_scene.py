@@ -1,0 +1,78 @@
+"""What method sg's transport passes need of the scene at its mesh vertices: the Embree
+scene, vertex positions and normals, faces, each vertex's material and the ray offset.
+
+Vertices are the global vertex indices of the ``geometry`` artifact (all objects in scene
+order); a vertex belongs to the object whose vertex range holds it and takes that
+object's material. World frame, scene units. Rays leave a vertex from its position
+pushed ``offset`` along its (unit, smooth) normal.
+
+A value stored per vertex (a diffuse SH transfer) is read at a ray's hit by the hit
+face's barycentric blend, (1 − u − v)·value[f0] + u·value[f1] + v·value[f2] with Embree's
+u, v (:meth:`VertexScene.at_hits`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline.math.brdf import BrdfParams
+from pipeline.raytrace import Hits, RayTracer
+
+RAY_EPSILON = 1e-4  # ray origin offset along the normal, relative to the scene diagonal
+
+
+@dataclass
+class VertexScene:
+    """``positions``, unit ``normals`` (V, 3) float64, ``faces`` (F, 3) int64,
+    ``vertex_material`` (V,) int64 indices into ``materials``, the Embree ``tracer`` and
+    the ray ``offset`` (scene units)."""
+
+    tracer: RayTracer
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    vertex_material: np.ndarray
+    materials: list[BrdfParams]
+    offset: float
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, Any], materials: list[BrdfParams],
+                    tracer: RayTracer | None = None) -> VertexScene:
+        """From the geometry artifact's arrays (``vertices``, ``normals``, ``faces``,
+        ``object_ranges``, ``object_material``) and the BRDFs of its ``material_names``
+        in order; ``tracer``: an Embree scene of the same triangles, if one exists."""
+        positions = np.asarray(arrays["vertices"], np.float64)
+        normals = np.asarray(arrays["normals"], np.float64)
+        normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+        faces = np.asarray(arrays["faces"], np.int64)
+        vertex_material = np.zeros(len(positions), np.int64)
+        for (start, end, _, _), material in zip(np.asarray(arrays["object_ranges"]),
+                                                np.asarray(arrays["object_material"]),
+                                                strict=True):
+            vertex_material[start:end] = material
+        diagonal = float(np.linalg.norm(positions.max(0) - positions.min(0)))
+        return cls(tracer or RayTracer(positions, faces), positions, normals, faces,
+                   vertex_material, list(materials), RAY_EPSILON * diagonal)
+
+    def diffuse_albedo(self) -> np.ndarray:
+        """kd (V, 3) of every vertex's material."""
+        table = np.array([m.albedo for m in self.materials], np.float64).reshape(-1, 3)
+        return table[self.vertex_material]
+
+    def at_hits(self, values: np.ndarray, hits: Hits) -> np.ndarray:
+        """Per-vertex ``values`` (V, ...) blended at ray hits (N,) by the barycentrics of
+        the hit face; rows of missed rays (prim < 0) are 0."""
+        out = np.zeros((len(hits.prim),) + values.shape[1:], np.float64)
+        hit = hits.prim >= 0
+        corners = self.faces[hits.prim[hit]]                                   # (H, 3)
+        u = hits.u[hit].astype(np.float64)
+        v = hits.v[hit].astype(np.float64)
+        shape = (-1,) + (1,) * (values.ndim - 1)
+        out[hit] = ((1.0 - u - v).reshape(shape) * values[corners[:, 0]]
+                    + u.reshape(shape) * values[corners[:, 1]]
+                    + v.reshape(shape) * values[corners[:, 2]])
+        return out
