@@ -6,6 +6,12 @@ order); a vertex belongs to the object whose vertex range holds it and takes tha
 object's material. World frame, scene units. Rays leave a vertex from its position
 pushed ``offset`` along its (unit, smooth) normal.
 
+Rays that start on another surface (a vertex where a wall meets the floor, the bunny's
+lowest vertices on the ground) hit that surface at t ≈ 0 whichever way they go.
+:meth:`VertexScene.intersect` drops such a hit when the ray leaves the surface's back
+side (d·n_face > 0, counter-clockwise faces) within 2·offset, and traces on from just
+beyond it: the rays going away from the floor escape, those going into it stay blocked.
+
 A value stored per vertex (a diffuse SH transfer) is read at a ray's hit by the hit
 face's barycentric blend, (1 − u − v)·value[f0] + u·value[f1] + v·value[f2] with Embree's
 u, v (:meth:`VertexScene.at_hits`).
@@ -15,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -57,6 +64,30 @@ class VertexScene:
         diagonal = float(np.linalg.norm(positions.max(0) - positions.min(0)))
         return cls(tracer or RayTracer(positions, faces), positions, normals, faces,
                    vertex_material, list(materials), RAY_EPSILON * diagonal)
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """Unit geometric normals (F, 3) of the counter-clockwise faces."""
+        p = self.positions
+        cross = np.cross(p[self.faces[:, 1]] - p[self.faces[:, 0]],
+                         p[self.faces[:, 2]] - p[self.faces[:, 0]])
+        return cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """First hits of rays (N, 3) (unit directions), less the back-face hits within
+        2·offset of the origin (module docstring), which are traced on once from
+        offset beyond them."""
+        hits = self.tracer.intersect(origins, directions)
+        prim = np.maximum(hits.prim, 0)
+        again = np.flatnonzero((hits.prim >= 0) & (hits.t < 2.0 * self.offset)
+                               & (np.sum(directions * self.face_normals[prim], axis=1) > 0.0))
+        if len(again):
+            step = hits.t[again].astype(np.float64) + self.offset
+            more = self.tracer.intersect(origins[again] + step[:, None] * directions[again],
+                                         directions[again])
+            hits.t[again] = np.where(more.prim >= 0, more.t + step, np.inf)
+            hits.prim[again], hits.u[again], hits.v[again] = more.prim, more.u, more.v
+        return hits
 
     def diffuse_albedo(self) -> np.ndarray:
         """kd (V, 3) of every vertex's material."""

@@ -92,6 +92,20 @@ def visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
     return out
 
 
+def scene_visibility(scene: VertexScene, vertices: np.ndarray, directions: np.ndarray
+                     ) -> np.ndarray:
+    """V (P, S) bool as :func:`visibility` for global ``vertices`` (P,), traced through
+    ``VertexScene.intersect`` (a vertex lying on another surface sees past its back
+    side)."""
+    position, normal = scene.positions[vertices], scene.normals[vertices]
+    above = normal @ directions.T > 0.0
+    p, s = np.nonzero(above)
+    hits = scene.intersect(position[p] + scene.offset * normal[p], directions[s])
+    out = np.zeros(above.shape, bool)
+    out[p[hits.prim < 0], s[hits.prim < 0]] = True
+    return out
+
+
 def direct_glossy(normal: np.ndarray, tangent: np.ndarray, brdf: BrdfParams,
                   views: np.ndarray, directions: np.ndarray, visible: np.ndarray
                   ) -> np.ndarray:
@@ -145,7 +159,7 @@ def indirect_glossy_sh(scene: VertexScene, vertices: np.ndarray, views: np.ndarr
         weight[ok] = glossy(wi[ok], wo_j[ok], p) * wi[ok, 2] / density[ok]
         v = rows[pj]
         direction = _world(wi, normal[v], tangent[v])
-        hits = scene.tracer.intersect(scene.positions[vertices[v]]
+        hits = scene.intersect(scene.positions[vertices[v]]
                                       + scene.offset * normal[v], direction)
         at_y = scene.at_hits(diffuse_transfer, hits)                          # (J, 3, n²)
         contribution = (weight / samples)[:, None, None] * at_y
@@ -174,8 +188,7 @@ def glossy_transport(scene: VertexScene, vertices: np.ndarray, directions: np.nd
     glossy_rows = np.flatnonzero([scene.materials[m].model != "lambert" for m in material])
     if len(glossy_rows) == 0:
         return out
-    visible = visibility(scene.tracer, scene.positions[vertices[glossy_rows]],
-                         normal[glossy_rows], directions, scene.offset)
+    visible = scene_visibility(scene, vertices[glossy_rows], directions)
     for m in np.unique(material[glossy_rows]):
         sel = material[glossy_rows] == m
         rows = glossy_rows[sel]
