@@ -6,6 +6,7 @@ validates and repairs them.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -129,9 +130,22 @@ def _check_corner(path: Path, number: int, line: str, corner: str,
                            f"{kind} {i}, but {counts[kind]} are defined above it")
 
 
+_NORMAL_INDEX = re.compile(r"(-?\d+)/(-?\d*)/-?\d+")  # an OBJ corner v/vt/vn or v//vn
+
+
+def without_normal_indices(text: str) -> str:
+    """OBJ ``text`` with the normal index dropped from every face corner (v/vt/vn →
+    v/vt, v//vn → v). The geometry stage computes its own vertex normals and keeps none
+    of a file's; loading a file's per-face normals would split each vertex into one per
+    face normal (bunny_6.6kf.obj: 3301 vertices read as 19794 unshared face corners,
+    every face flat and no vertex shared)."""
+    return _NORMAL_INDEX.sub(lambda m: m[1] + (f"/{m[2]}" if m[2] else ""), text)
+
+
 def read_mesh(path: Path) -> RawMesh:
     """Load a mesh file (OBJ, PLY, STL, ...) without trimesh's merging or repair; an OBJ
-    file is checked line by line first (:func:`check_obj_text`)."""
+    file is checked line by line first (:func:`check_obj_text`) and read without its
+    normal indices (:func:`without_normal_indices`)."""
     import io
 
     import trimesh
@@ -142,7 +156,7 @@ def read_mesh(path: Path) -> RawMesh:
         raise PrtError(path, f"cannot read mesh ({exc.strerror or exc})") from None
     kind = path.suffix.lower().lstrip(".")
     if kind == "obj":
-        data = check_obj_text(path, data).encode("utf-8")
+        data = without_normal_indices(check_obj_text(path, data)).encode("utf-8")
     try:
         mesh = trimesh.load(io.BytesIO(data), file_type=kind, process=False, force="mesh")
     except Exception as exc:
@@ -159,8 +173,9 @@ def read_mesh(path: Path) -> RawMesh:
 
 def primitive_mesh(spec: dict[str, Any]) -> RawMesh:
     """A built-in primitive: ``plane`` (in the xz plane, normal +y, ``size`` [sx, sz],
-    with uv, a grid of ``segments`` × ``segments`` squares, default 1), ``sphere`` (icosphere of ``radius`` and ``subdivisions``), ``box``
-    (``size`` [sx, sy, sz], flat faces); all centred at the origin."""
+    with uv, a grid of ``segments`` × ``segments`` squares, default 1), ``sphere``
+    (icosphere of ``radius`` and ``subdivisions``), ``box`` (``size`` [sx, sy, sz], flat
+    faces); all centred at the origin."""
     import trimesh
 
     kind = spec["type"]

@@ -233,6 +233,22 @@ def test_well_formed_obj_reads_the_same(tmp_path):
     assert mesh.faces.shape == (2, 3) and np.isfinite(mesh.vertices).all()
 
 
+def test_obj_normals_do_not_split_vertices(tmp_path):
+    """Per-face normals (v//vn with one vn per face, as bunny_6.6kf.obj) leave the
+    vertices shared: 4 vertices, not 6 face corners; uv seams (v/vt) still split."""
+    from pipeline.meshio import read_mesh
+
+    path = tmp_path / "m.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0.1 1\n"
+                    "f 1//1 2//1 3//1\nf 2//2 4//2 -2//2\n")
+    mesh = read_mesh(path)
+    assert mesh.vertices.shape == (4, 3)
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 1\nvn 0 0 1\n"
+                    "f 1/1/1 2/1/1 3/1/1\nf 1/2/1 2/1/1 3/2/1\n")
+    assert len(read_mesh(path).vertices) == 5
+
+
 @pytest.mark.parametrize("damage", ["garbage", "truncated"])
 def test_a_damaged_mesh_in_a_scene(case, tmp_path, damage):
     """`prt run` with a garbage or a truncated OBJ: one line naming the mesh file; the

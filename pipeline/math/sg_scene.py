@@ -30,6 +30,19 @@ from pipeline.math.brdf import BrdfParams
 from pipeline.raytrace import Hits, RayTracer
 
 RAY_EPSILON = 1e-4  # ray origin offset along the normal, relative to the scene diagonal
+UNSEEN = BrdfParams("lambert", (0.0, 0.0, 0.0))  # a material whose section a chunk lacks
+
+
+def scene_materials(sections: Mapping[str, Any], names: list[str]) -> list[BrdfParams]:
+    """BRDF parameters of the geometry's ``material_names`` from a stage's resolved scene
+    sections ``materials.NAME`` (declared as ``materials.*``). A vertex-batch chunk sees
+    only its own object's material: the others stand as :data:`UNSEEN` (black Lambert),
+    which is right for what a chunk evaluates, its own vertices."""
+    out = []
+    for name in names:
+        m = sections.get(f"materials.{name}")
+        out.append(UNSEEN if m is None else BrdfParams.from_material(m["model"], m["albedo"], m))
+    return out
 
 
 @dataclass

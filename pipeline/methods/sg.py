@@ -3,10 +3,12 @@ vertex and view, integrated against a Gaussian-prefiltered environment map (pape
 issue 17). A skeleton so far: it bakes what exists and refuses to render.
 
 Stages (stages.yaml, ``sg.*``): ``sg.env_prefilter`` (the environment map convolved
-with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py). Not built yet:
-``sg.transport`` (per vertex and each of 92 views, the glossy transport over a sphere
-grid and the diffuse part in SH) and ``sg.fit`` (the Gaussians, pipeline/math/sg_fit.py),
-and the renderer: ``prt render --method sg`` bakes the prefiltered stack and then stops
+with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py), ``sg.diffuse``
+(per vertex, the diffuse transfer in order-5 SH with shadows and interreflections,
+pipeline/stages/sg_diffuse.py). Not built yet: ``sg.fit`` (per vertex and each of 92
+views, the glossy transport of pipeline/math/sg_transport.py fitted by Gaussians,
+pipeline/math/sg_fit.py),
+and the renderer: ``prt render --method sg`` bakes the stages above and then stops
 with a one-line error saying so; no frame is written.
 
 The lobe mathematics (pipeline/math/sg.py, kernels/sg.h) and the batched fit
@@ -27,8 +29,8 @@ from pipeline.method import Method
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
-BUILT = ("sg.env_prefilter",)
-NOT_BUILT = ("sg.transport", "sg.fit", "the renderer")
+BUILT = ("sg.env_prefilter", "sg.diffuse")
+NOT_BUILT = ("sg.fit", "the renderer")
 
 METHOD = Method(
     name="sg",
@@ -42,7 +44,7 @@ METHOD = Method(
     headline="rel_rmse_surfaces",
     lights=("environment",),
     check_scene="pipeline.methods.sg:check_scene",
-    renders=False,  # a skeleton until sg.transport, sg.fit and the renderer exist
+    renders=False,  # a skeleton until sg.fit and the renderer exist
 )
 
 
