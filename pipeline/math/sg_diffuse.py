@@ -107,7 +107,12 @@ def transfer(scene: VertexScene, samples: int, bounces: int, rng: np.random.Gene
                                order) for s in range(0, count, batch)]
     direct = np.concatenate([p[0] for p in parts])
     gather = sparse.vstack([p[1] for p in parts], format="csr")
-    kd = scene.diffuse_albedo()
+    return with_bounces(gather, scene.diffuse_albedo(), direct, bounces)
+
+
+def with_bounces(gather: sparse.csr_matrix, kd: np.ndarray, direct: np.ndarray,
+                 bounces: int) -> np.ndarray:
+    """t_0 + … + t_bounces (V, 3, n²) from the direct transfer t_0 ``direct``."""
     total, term = direct.copy(), direct
     for _ in range(bounces):
         term = bounce(gather, kd, term)
