@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import PROJECT
 
 from pipeline.math import sg_diffuse, sh
 from pipeline.math.brdf import BrdfParams
@@ -165,3 +166,59 @@ def test_bounces_add_up_and_zero_albedo_stays_dark():
     t0, gather = sg_diffuse.direct_and_gather(dark, everything, 64, np.random.default_rng(3))
     wall = dark.vertex_material == 1
     assert gather[np.flatnonzero(wall)].nnz == 0 and np.all(t0[wall] == 0)
+
+
+def test_stage_writes_the_transfer_and_ignores_glossy_edits(tmp_path):
+    """Stage sg.diffuse on a tiny scene (a subdivided floor and a glossy ball under a
+    constant sky of radiance 2): transfer (V, 3, 25) float32 with its attrs; a floor
+    corner, far from the ball, gives kd · 2 within 1 % (the ball hides ≈ 0.3 % of its
+    cosine-weighted sky and sends back a little); the floor vertex the ball touches gets
+    less than half of that. Editing the ball's ρs or γ leaves the stage
+    fresh (its key holds only kd); editing kd makes it stale."""
+    from helpers import constant_environment, write_scene
+
+    from pipeline.runner import plan, run
+    from pipeline.scene import load_scene
+    from pipeline.stagefile import load_stagefile
+    from pipeline.store import Workdir, open_artifact
+
+    doc = {
+        "format": "prt-scene/1", "name": "tiny_sg",
+        "camera": {"position": [0.0, 1.5, 4.0], "look_at": [0.0, 0.3, 0.0],
+                   "up": [0, 1, 0], "fov": 45, "width": 16, "height": 16},
+        "materials": {
+            "grey": {"model": "lambert", "albedo": [0.6, 0.5, 0.4]},
+            "shiny": {"model": "blinn_phong", "albedo": [0.2, 0.4, 0.6],
+                      "specular": 0.1, "gamma": 20}},
+        "objects": {
+            "floor": {"primitive": {"type": "plane", "size": [4, 4], "segments": 8},
+                      "material": "grey"},
+            "ball": {"primitive": {"type": "sphere", "radius": 0.35, "subdivisions": 2},
+                     "transform": {"translate": [0.0, 0.35, 0.0]}, "material": "shiny"}},
+        "lights": [{"type": "environment",
+                    "file": str(constant_environment(tmp_path / "sky.exr", [2.0] * 3))}],
+    }
+    stagefile = load_stagefile(PROJECT / "stages.yaml")
+    workdir = Workdir(tmp_path / "work")
+    scene = load_scene(write_scene(tmp_path, doc))
+    run(scene, stagefile, workdir, until="sg.diffuse", progress=False)
+    artifact = open_artifact(workdir.artifact("sg.diffuse"))
+    transfer = artifact.read("transfer")
+    positions = open_artifact(workdir.artifact("geometry")).read("vertices")
+    assert transfer.shape == (len(positions), 3, 25) and transfer.dtype == np.float32
+    assert artifact.attrs["order"] == 5 and artifact.attrs["bounces"] == 2
+    assert artifact.attrs["samples"] == 1024
+    radiance = transfer[:, :, 0] * np.sqrt(4.0 * np.pi) * 2.0        # L_0 = √(4π) · 2
+    corner = int(np.argmax(positions[:81, 0] + positions[:81, 2]))    # (2, 0, 2)
+    np.testing.assert_allclose(radiance[corner], [1.2, 1.0, 0.8], rtol=0.01)
+    under = int(np.argmin(np.linalg.norm(positions[:81], axis=1)))    # (0, 0, 0)
+    assert np.all(radiance[under] < 0.5 * radiance[corner])
+
+    def state(edit: dict) -> str:
+        edited = {**doc, "materials": {**doc["materials"],
+                                       "shiny": {**doc["materials"]["shiny"], **edit}}}
+        scene = load_scene(write_scene(tmp_path, edited, "edited.yaml"))
+        return {p.spec.name: p.state for p in plan(scene, stagefile, workdir)}["sg.diffuse"]
+
+    assert state({"specular": 0.05, "gamma": 40}) == "fresh"
+    assert state({"albedo": [0.3, 0.4, 0.6]}) == "stale"

@@ -11,6 +11,10 @@ lowest vertices on the ground) hit that surface at t ≈ 0 whichever way they go
 :meth:`VertexScene.intersect` drops such a hit when the ray leaves the surface's back
 side (d·n_face > 0, counter-clockwise faces) within 2·offset, and traces on from just
 beyond it: the rays going away from the floor escape, those going into it stay blocked.
+Not handled: a vertex whose normal points *into* a surface it touches (a sphere's lowest
+vertex on the floor, normal −y) starts its rays offset beyond that surface and sees the
+sky behind it. Only vertices within ``offset`` of another surface are affected: on
+bunny_sg, the bunny's lowest vertex.
 
 A value stored per vertex (a diffuse SH transfer) is read at a ray's hit by the hit
 face's barycentric blend, (1 − u − v)·value[f0] + u·value[f1] + v·value[f2] with Embree's
