@@ -36,13 +36,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from pipeline.images import read_environment  # noqa: E402
 from pipeline.math import sg, sg_diffuse, sh  # noqa: E402
 from pipeline.math.brdf import BrdfParams, scene_brdfs  # noqa: E402
+from pipeline.math.envmap import EnvironmentMap  # noqa: E402
 from pipeline.math.frames import tangent_from_normal  # noqa: E402
 from pipeline.math.sg_scene import VertexScene  # noqa: E402
 from pipeline.math.sg_transport import (  # noqa: E402
     direct_glossy,
     indirect_glossy_sh,
+    on_grid,
     scene_visibility,
     view_directions,
 )
@@ -84,11 +87,49 @@ def glossy_parts(scene: VertexScene, vertices: np.ndarray, directions: np.ndarra
         seconds, a, _ = timed(lambda b=batch: indirect_glossy_sh(
             scene, b, views, transfer, samples, rng))
         parts["indirect_paths"] += seconds
-        seconds, _, _ = timed(lambda a=a: [np.einsum("kcn,sn->ksc", x, y) for x in a])
+        seconds, _, _ = timed(lambda a=a: [on_grid(x, y) for x in a])
         parts["indirect_on_grid"] += seconds
     out = {k: v / len(vertices) for k, v in parts.items()}
     out["load"] = loads[len(loads) // 2]
     return out
+
+
+def indirect_shares(scene: VertexScene, vertices: np.ndarray, directions: np.ndarray,
+                    omega: np.ndarray, transfer: np.ndarray, environment: EnvironmentMap,
+                    coefficients: np.ndarray, samples: int) -> dict[str, float]:
+    """Where the glossy lobes of ``vertices`` go, and what indirect glossy adds under the
+    map, summed over the vertices and their views above the horizon (channel means):
+    ``blocked``: the share of the lobe's weight E[f cos / p] whose paths hit a surface,
+    ``on_glossy``: the share that hits a glossy (non-Lambertian) object — the light the
+    glossy–glossy approximation drops comes from there; ``indirect_over_direct``: the
+    indirect glossy radiance (paths through the stored diffuse transfer) over the direct.
+    The shares use indirect_glossy_sh itself with indicator transfers (Y_0 · 1 on the
+    chosen vertices), so they are the estimator's own paths."""
+    views = view_directions()
+    glossy_vertex = np.array([scene.materials[m].model != "lambert"
+                              for m in scene.vertex_material])
+    unit = np.zeros((len(scene.positions), 3, 25))
+    unit[:, :, 0] = 1.0                                   # t(ω) = Y_0: Σ_k t_k · √(4π) = 1
+    on_glossy = unit * glossy_vertex[:, None, None]
+    rng = np.random.default_rng(0)
+    hit = indirect_glossy_sh(scene, vertices, views, unit, samples, rng)[..., 0]
+    hit_glossy = indirect_glossy_sh(scene, vertices, views, on_glossy, samples, rng)[..., 0]
+    indirect = indirect_glossy_sh(scene, vertices, views, transfer, samples, rng)
+    normal = scene.normals[vertices]
+    tangent = tangent_from_normal(normal)
+    total = direct_glossy(normal, tangent, scene.materials[int(scene.vertex_material[
+        vertices[0]])], views, directions, (normal @ directions.T) > 0)      # V ≡ 1
+    lobe = np.einsum("pksc,s->pkc", total, omega)                            # E[w] ρs
+    visible = scene_visibility(scene, vertices, directions)
+    direct = direct_glossy(normal, tangent, scene.materials[int(scene.vertex_material[
+        vertices[0]])], views, directions, visible)
+    radiance = environment.radiance(directions)                              # (S, 3)
+    direct_radiance = np.einsum("pksc,sc,s->", direct, radiance, omega)
+    indirect_radiance = np.einsum("pkcn,nc->", indirect, coefficients)
+    root = np.sqrt(4.0 * np.pi)
+    return {"blocked": float(hit.sum() * root / lobe.sum()),
+            "on_glossy": float(hit_glossy.sum() * root / lobe.sum()),
+            "indirect_over_direct": float(indirect_radiance / direct_radiance)}
 
 
 def main() -> None:
@@ -113,6 +154,13 @@ def main() -> None:
     vertices = bunny[np.linspace(0, len(bunny) - 1, args.vertices).astype(int)]
     directions = sg.latlong_directions(55, 110)[0].reshape(-1, 3)
 
+    light = next(x for x in scene.lights if x.type == "environment")
+    rgb = read_environment(light.params["file"])
+    rotation = light.params.get("rotation", 0.0)
+    grid, omega = sg.latlong_directions(55, 110)
+    shares = indirect_shares(vscene, vertices, grid.reshape(-1, 3), omega.ravel(), transfer,
+                             EnvironmentMap(rgb, rotation), sh.project_latlong(rgb, rotation),
+                             args.samples)
     glossy = [glossy_parts(vscene, vertices, directions, transfer, args.samples, seed)
               for seed in range(args.repeats)]
     glossy_median = {k: statistics.median(g[k] for g in glossy)
@@ -146,7 +194,8 @@ def main() -> None:
             "seconds_per_vertex_median": glossy_median,
             "runs": glossy,
             "bunny_vertices": int(len(bunny)),
-            "estimated_bunny_seconds": glossy_median["total"] * len(bunny)},
+            "estimated_bunny_seconds": glossy_median["total"] * len(bunny),
+            "lobe_shares": shares},
         "sg_diffuse": {
             "samples": samples, "bounces": bounces, "runs": diffuse,
             "median_s": statistics.median(d["direct_and_gather_s"] + d["bounces_s"]
@@ -157,7 +206,7 @@ def main() -> None:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "sg_transport_cost.json").write_text(json.dumps(result, indent=1) + "\n")
-    print(json.dumps({"glossy_per_vertex": glossy_median,
+    print(json.dumps({"glossy_per_vertex": glossy_median, "lobe_shares": shares,
                       "diffuse_median_s": result["sg_diffuse"]["median_s"]}, indent=1))
 
 

@@ -18,8 +18,9 @@ once per vertex and grid direction (Embree); views with n·ωo ≤ 0 (below the 
 and directions below it give 0.
 
 **Indirect glossy transport** (:func:`indirect_glossy_sh`). Light reaching x from a
-surface point y (where V = 0) and reflected by x's glossy lobe towards ωo. Paper 003 §3
-traces BRDF-importance-sampled paths from x until they leave the scene. Here a path
+surface point y (where V = 0) and reflected by x's glossy lobe towards ωo. Paper 003 §4.1
+traces BRDF-importance-sampled paths from x "until it is absorbed or reflected off to
+infinity", recording each where it leaves. Here a path
 stops at its first hit y and takes y's *diffuse* outgoing radiance, which stage
 sg.diffuse has already expressed in spherical harmonics: radiance leaving y =
 Σ_k t_y[c, k] L_k = ∫ t_y(ωi) L(ωi) dωi with t_y(ωi) = Σ_k t_y[c, k] Y_k(ωi) (shadows and
@@ -32,10 +33,10 @@ diffuse interreflection included). So
 vertices. The estimate is a per-(vertex, view) SH vector (3, 25): a smooth, low-frequency
 function, evaluated on the grid at the end. **Approximation:** glossy-to-diffuse paths
 only; paths whose second vertex reflects glossily (glossy–glossy, e.g. the bunny seen in
-its own highlight) are dropped, as is the glossy part of the light leaving y. Paper 003
-keeps them but handles them with the same Gaussians, and §6 reports the glossy transport
-dominated by its direct part; the dropped share is the glossy albedo (≤ ρs·4 for
-Blinn-Phong) times what the glossy surfaces see of each other.
+its own highlight) are dropped, as is the glossy part of the light leaving y. The paper
+keeps them and gives no figure for their share; what is dropped is at most the glossy
+albedo of y (≤ 4ρs for Blinn-Phong, brdf.py) times the share of x's lobe that lands on
+glossy surfaces, measured for bunny_sg in NOTES.md (issue 17, third session).
 """
 
 from __future__ import annotations
@@ -111,13 +112,19 @@ def direct_glossy(normal: np.ndarray, tangent: np.ndarray, brdf: BrdfParams,
                   ) -> np.ndarray:
     """T (P, K, S, 3) of the module docstring for P vertices (unit normal and tangent
     (P, 3), one material), K views (K, 3) and S grid directions (S, 3) (global frame),
-    with visibility ``visible`` (P, S)."""
-    li = to_local(directions[None], normal[:, None], tangent[:, None])      # (P, S, 3)
-    lo = to_local(views[None], normal[:, None], tangent[:, None])           # (P, K, 3)
-    f = glossy(li[:, None], lo[:, :, None], brdf)                           # (P, K, S)
-    weight = f * (visible * np.maximum(li[..., 2], 0.0))[:, None]
-    weight = np.where((lo[..., 2] > 0.0)[..., None], weight, 0.0)
-    return weight[..., None] * np.asarray(brdf.specular)
+    with visibility ``visible`` (P, S). The BRDF is evaluated only where T can be
+    non-zero, views above the horizon × visible directions above it (about a quarter
+    of the table; the rest stays 0)."""
+    out = np.zeros((len(normal), len(views), len(directions), 3))
+    specular = np.asarray(brdf.specular)
+    for p in range(len(normal)):
+        lo = to_local(views, normal[p], tangent[p])                             # (K, 3)
+        li = to_local(directions, normal[p], tangent[p])                        # (S, 3)
+        k = np.flatnonzero(lo[:, 2] > 0.0)
+        s = np.flatnonzero(visible[p] & (li[:, 2] > 0.0))
+        f = glossy(li[s][None], lo[k][:, None], brdf) * li[s, 2]                # (k, s)
+        out[p, k[:, None], s[None]] = f[..., None] * specular
+    return out
 
 
 def _world(local: np.ndarray, normal: np.ndarray, tangent: np.ndarray) -> np.ndarray:
@@ -168,6 +175,13 @@ def indirect_glossy_sh(scene: VertexScene, vertices: np.ndarray, views: np.ndarr
     return out
 
 
+def on_grid(coefficients: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Σ_k A[k_view, c, k] Y_k(ω_s): (K, S, 3) from SH vectors ``coefficients`` (K, 3, n²)
+    and the basis at the grid ``basis`` (S, n²) (one matrix product)."""
+    k, c, n = coefficients.shape
+    return (coefficients.reshape(k * c, n) @ basis.T).reshape(k, c, -1).transpose(0, 2, 1)
+
+
 def glossy_transport(scene: VertexScene, vertices: np.ndarray, directions: np.ndarray,
                      diffuse_transfer: np.ndarray | None, samples: int,
                      rng: np.random.Generator) -> np.ndarray:
@@ -198,5 +212,5 @@ def glossy_transport(scene: VertexScene, vertices: np.ndarray, directions: np.nd
         a = indirect_glossy_sh(scene, vertices, views, diffuse_transfer, samples, rng)
         y = sh.basis(directions, int(round(np.sqrt(diffuse_transfer.shape[-1]))))
         for i in range(len(vertices)):  # one vertex at a time: (92, S, 3) temporaries
-            out[i] += np.einsum("kcn,sn->ksc", a[i], y).astype(np.float32)
+            out[i] += on_grid(a[i], y)
     return out
