@@ -4,7 +4,9 @@ so that the full transport is all diffuse and the transfer should carry all of i
 
 Run from the project root:  python benchmarks/sg_diffuse_check.py [--size 64]
 [--spp 8192] [--workdir W]
-Writes benchmarks/results/sg_diffuse_check/{results.json, compare.png}.
+Writes benchmarks/results/sg_diffuse_check/{results.json, compare.png} (left to right:
+the SH frame, the control without SH, the reference, |SH − reference| in red; one
+exposure, the surfaces' mean at 0.3).
 
 Per vertex, radiance = Σ_k transfer[v, c, k] L_k (L = sh.project_latlong of the map, its
 rotation and scale); a frame is the barycentric blend of it at each pixel's first hit
@@ -13,6 +15,8 @@ renderer's diffuse term will do. Compared with ``prt reference --transport full`
 the surface pixels (background excluded): relative RMSE ‖I − R‖ / ‖R‖ and the mean
 ratio ΣI / ΣR, for the whole surface, the bunny and the ground, at 0…4 bounces (the
 stage's artifact at its default; the others from the same rays, sg_diffuse.with_bounces).
+A control without SH (the map looked up per ray, the same gather matrix and bounces)
+separates the order-5 truncation from the rest (rays, bounces, vertex interpolation).
 The reference's own relative error estimate is recorded beside (its noise adds to the
 RMSE; the mean ratio is hardly affected by it).
 """
@@ -35,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 from pipeline.images import read_environment, read_exr, write_png  # noqa: E402
 from pipeline.math import sg_diffuse, sh  # noqa: E402
 from pipeline.math.camera import camera_rays  # noqa: E402
+from pipeline.math.envmap import EnvironmentMap  # noqa: E402
 from pipeline.runner import run, stage_params  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 from pipeline.stagefile import load_stagefile  # noqa: E402
@@ -55,6 +60,23 @@ def lambert_scene(workdir: Path) -> Path:
     path = workdir / "bunny_sg_lambert.yaml"
     path.write_text(text)
     return path
+
+
+def radiance_without_sh(scene, gather, environment: EnvironmentMap, samples: int,
+                        bounces: int, rng: np.random.Generator) -> np.ndarray:
+    """The control: per-vertex radiance (V, 3) of the same transport with the map looked
+    up per ray instead of through SH: r_0 = kd/N Σ_j V_j L(ω_j) over fresh cosine
+    directions, r_b = kd ⊙ (G r_{b−1}) with the stage's gather matrix G."""
+    kd = scene.diffuse_albedo()
+    direct = np.zeros((len(scene.positions), 3))
+    for start in range(0, len(scene.positions), 1024):
+        v = np.arange(start, min(start + 1024, len(scene.positions)))
+        d = sg_diffuse.cosine_directions(scene.normals[v], samples, rng).reshape(-1, 3)
+        o = np.repeat(scene.positions[v] + scene.offset * scene.normals[v], samples, axis=0)
+        escaped = (scene.intersect(o, d).prim < 0)[:, None]
+        light = (environment.radiance(d) * escaped).reshape(len(v), samples, 3)
+        direct[v] = kd[v] * light.mean(axis=1)
+    return sg_diffuse.with_bounces(gather, kd, direct[:, :, None], bounces)[:, :, 0]
 
 
 def metrics(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> dict[str, float]:
@@ -96,8 +118,9 @@ def main() -> None:
     vscene = vertex_scene(AssembleContext(params, sections, {"geometry": geometry}))
 
     light = next(x for x in scene.lights if x.type == "environment")
+    order = int(stored.attrs["order"])
     coefficients = sh.project_latlong(read_environment(light.params["file"]),
-                                      light.params.get("rotation", 0.0))  # (25, 3)
+                                      light.params.get("rotation", 0.0), order)  # (n², 3)
     scale = light.params.get("scale", 1.0)
     cam = scene.camera
     origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
@@ -119,11 +142,18 @@ def main() -> None:
     rng = np.random.default_rng(0)
     everything = np.arange(len(vscene.positions))
     direct, gather = sg_diffuse.direct_and_gather(vscene, everything,
-                                                  int(params["sg.diffuse_samples"]), rng)
+                                                  int(params["sg.diffuse_samples"]), rng,
+                                                  order)
     results = {"size": args.size, "reference": record, "stored_bounces":
                int(stored.attrs["bounces"]), "samples": int(stored.attrs["samples"]),
                "load": list(os.getloadavg()), "bounces": {}}
     stored_frame = frame(stored.read("transfer").astype(np.float64))
+    control = radiance_without_sh(vscene, gather, EnvironmentMap(
+        read_environment(light.params["file"]), light.params.get("rotation", 0.0), scale),
+        int(params["sg.diffuse_samples"]), int(stored.attrs["bounces"]), rng)
+    control_frame = np.where(surface[..., None], vscene.at_hits(control, hits).reshape(
+        args.size, args.size, 3), reference)
+    results["without_sh"] = {k: metrics(control_frame, reference, m) for k, m in masks.items()}
     results["stored"] = {k: metrics(stored_frame, reference, m) for k, m in masks.items()}
     for bounces in range(5):
         transfer = sg_diffuse.with_bounces(gather, vscene.diffuse_albedo(), direct, bounces)
@@ -132,9 +162,11 @@ def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     error = np.abs(stored_frame - reference).mean(axis=-1, keepdims=True)
-    heat = np.concatenate([error, 0.25 * error, 0.25 * error], axis=-1) * 4.0
-    write_png(OUT / "compare.png", np.concatenate([stored_frame, reference, heat], axis=1))
-    print(json.dumps({"stored": results["stored"],
+    heat = np.concatenate([error, 0.25 * error, 0.25 * error], axis=-1)
+    exposure = 0.3 / float(reference[surface].mean())   # the surfaces' mean at 0.3
+    write_png(OUT / "compare.png", np.concatenate([stored_frame, control_frame, reference,
+                                                   heat], axis=1), exposure=exposure)
+    print(json.dumps({"stored": results["stored"], "without_sh": results["without_sh"],
                       "surfaces_by_bounces": {b: r["surfaces"] for b, r in
                                               results["bounces"].items()}}, indent=1))
 

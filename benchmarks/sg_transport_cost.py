@@ -103,13 +103,13 @@ def indirect_shares(scene: VertexScene, vertices: np.ndarray, directions: np.nda
     ``on_glossy``: the share that hits a glossy (non-Lambertian) object — the light the
     glossy–glossy approximation drops comes from there; ``indirect_over_direct``: the
     indirect glossy radiance (paths through the stored diffuse transfer) over the direct.
-    The shares use indirect_glossy_sh itself with indicator transfers (Y_0 · 1 on the
-    chosen vertices), so they are the estimator's own paths."""
+    The shares use indirect_glossy_sh itself with indicator transfers (coefficient 0 = 1
+    on the chosen vertices), so they are the estimator's own paths."""
     views = view_directions()
     glossy_vertex = np.array([scene.materials[m].model != "lambert"
                               for m in scene.vertex_material])
     unit = np.zeros((len(scene.positions), 3, 25))
-    unit[:, :, 0] = 1.0                                   # t(ω) = Y_0: Σ_k t_k · √(4π) = 1
+    unit[:, :, 0] = 1.0               # A[..., 0] = ρs E[w · 1(path hits)] (t_0 = 1 at hits)
     on_glossy = unit * glossy_vertex[:, None, None]
     rng = np.random.default_rng(0)
     hit = indirect_glossy_sh(scene, vertices, views, unit, samples, rng)[..., 0]
@@ -126,9 +126,8 @@ def indirect_shares(scene: VertexScene, vertices: np.ndarray, directions: np.nda
     radiance = environment.radiance(directions)                              # (S, 3)
     direct_radiance = np.einsum("pksc,sc,s->", direct, radiance, omega)
     indirect_radiance = np.einsum("pkcn,nc->", indirect, coefficients)
-    root = np.sqrt(4.0 * np.pi)
-    return {"blocked": float(hit.sum() * root / lobe.sum()),
-            "on_glossy": float(hit_glossy.sum() * root / lobe.sum()),
+    return {"blocked": float(hit.sum() / lobe.sum()),
+            "on_glossy": float(hit_glossy.sum() / lobe.sum()),
             "indirect_over_direct": float(indirect_radiance / direct_radiance)}
 
 

@@ -1,7 +1,14 @@
-"""Stage ``sg.diffuse``: per vertex, the diffuse transfer of method sg in order-5
-spherical harmonics, shadows and ``sg.diffuse_bounces`` diffuse interreflections
-included (pipeline/math/sg_diffuse.py). Schema ``sg_diffuse``; one chunk, the whole
-scene.
+"""Stage ``sg.diffuse``: per vertex, the diffuse transfer of method sg in spherical
+harmonics of order ``sg.diffuse_order`` (5: paper 003's 25 coefficients), shadows and
+``sg.diffuse_bounces`` diffuse interreflections included (pipeline/math/sg_diffuse.py).
+Schema ``sg_diffuse``; one chunk, the whole scene.
+
+**Order.** Under a map with small bright sources (Grace's windows) order 5 misses much
+of the shadowed diffuse light: on bunny_sg's bunny the blue channel, which Grace keeps
+mostly in its windows, comes out ≈ 0 at order 5 (per-vertex relative RMS 96 %; red 11 %),
+8 gives 42 % / 5.5 %, 12 gives 20 % / 3 %, against ray-traced direct light (NOTES.md,
+issue 17, third session). The renderer takes the order from the artifact's ``order``
+attribute, so raising the param needs no other change.
 
 **Why one chunk.** Bounce b at a vertex gathers bounce b − 1 at the hits of its rays,
 which may be any vertex of the scene; so the bounces need every vertex's direct
@@ -24,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.math import sg_diffuse, sh
+from pipeline.math import sg_diffuse
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.sg_scene import VertexScene
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
@@ -51,13 +58,15 @@ def _count(ctx: AssembleContext, name: str, low: int) -> int:
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    """``transfer`` (V, 3, 25) float32 of every vertex."""
+    """``transfer`` (V, 3, order²) float32 of every vertex."""
     samples = _count(ctx, "sg.diffuse_samples", 1)
     bounces = _count(ctx, "sg.diffuse_bounces", 0)
-    transfer = sg_diffuse.transfer(vertex_scene(ctx), samples, bounces, ctx.rng, BATCH)
+    order = _count(ctx, "sg.diffuse_order", 1)
+    transfer = sg_diffuse.transfer(vertex_scene(ctx), samples, bounces, ctx.rng, BATCH, order)
     return {"transfer": transfer.astype(np.float32)}
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
-    return Output({"order": sh.ORDER, "bounces": int(ctx.params["sg.diffuse_bounces"]),
+    return Output({"order": int(ctx.params["sg.diffuse_order"]),
+                   "bounces": int(ctx.params["sg.diffuse_bounces"]),
                    "samples": int(ctx.params["sg.diffuse_samples"])})
