@@ -131,7 +131,8 @@ def _check_corner(path: Path, number: int, line: str, corner: str,
 
 def read_mesh(path: Path) -> RawMesh:
     """Load a mesh file (OBJ, PLY, STL, ...) without trimesh's merging or repair; an OBJ
-    file is checked line by line first (:func:`check_obj_text`)."""
+    file is checked line by line first (:func:`check_obj_text`); twin vertices are
+    welded (:func:`weld`)."""
     import io
 
     import trimesh
@@ -179,18 +180,14 @@ def weld(raw: RawMesh) -> RawMesh:
 
 def primitive_mesh(spec: dict[str, Any]) -> RawMesh:
     """A built-in primitive: ``plane`` (in the xz plane, normal +y, ``size`` [sx, sz],
-    with uv), ``sphere`` (icosphere of ``radius`` and ``subdivisions``), ``box``
-    (``size`` [sx, sy, sz], flat faces); all centred at the origin."""
+    with uv, a grid of ``segments`` × ``segments`` squares, default 1), ``sphere``
+    (icosphere of ``radius`` and ``subdivisions``), ``box`` (``size`` [sx, sy, sz], flat
+    faces); all centred at the origin."""
     import trimesh
 
     kind = spec["type"]
     if kind == "plane":
-        sx, sz = spec["size"]
-        vertices = np.array([[-sx / 2, 0, -sz / 2], [sx / 2, 0, -sz / 2],
-                             [sx / 2, 0, sz / 2], [-sx / 2, 0, sz / 2]])
-        faces = np.array([[0, 2, 1], [0, 3, 2]])
-        uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-        return RawMesh(vertices, faces, uv, "primitive plane")
+        return _plane(*spec["size"], spec.get("segments", 1))
     if kind == "sphere":
         mesh = trimesh.creation.icosphere(subdivisions=spec["subdivisions"],
                                           radius=spec["radius"])
@@ -201,3 +198,25 @@ def primitive_mesh(spec: dict[str, Any]) -> RawMesh:
     corners = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces].reshape(-1, 3)
     return RawMesh(corners, np.arange(len(corners), dtype=np.int64).reshape(-1, 3), None,
                    "primitive box")
+
+
+def _plane(sx: float, sz: float, segments: int) -> RawMesh:
+    """The xz plane [−sx/2, sx/2] × [−sz/2, sz/2] as n × n squares (n = ``segments``),
+    each cut along its (i, j)–(i+1, j+1) diagonal, counter-clockwise seen from +y;
+    u along +x, v along +z. Vertex (i, j) (i along x, j along z) is number j(n + 1) + i,
+    except that n = 1 keeps the order the plane had before ``segments`` existed, the
+    corners going round, (−,−), (+,−), (+,+), (−,+): the geometry of existing scenes
+    stays byte-equal, so nothing downstream of it re-bakes."""
+    t = np.linspace(0.0, 1.0, segments + 1)
+    u, v = np.meshgrid(t, t)                      # [j, i]: v along rows, u along columns
+    vertices = np.stack([(u.ravel() - 0.5) * sx, np.zeros(u.size), (v.ravel() - 0.5) * sz],
+                        axis=-1)
+    i, j = np.meshgrid(np.arange(segments), np.arange(segments))
+    a = (j * (segments + 1) + i).ravel()          # corner (i, j) of each square
+    b, c, d = a + 1, a + segments + 2, a + segments + 1   # (i+1, j), (i+1, j+1), (i, j+1)
+    faces = np.concatenate([np.stack([a, c, b], -1), np.stack([a, d, c], -1)])
+    uv = np.stack([u.ravel(), v.ravel()], -1)
+    if segments == 1:
+        order = np.array([0, 1, 3, 2])  # new number of old vertex k: order[k]
+        vertices, uv, faces = vertices[order], uv[order], np.argsort(order)[faces]
+    return RawMesh(vertices, faces, uv, "primitive plane")

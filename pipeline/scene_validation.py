@@ -526,10 +526,12 @@ MaterialFile = _union(tuple(_material_model(m, spec.params)
 
 
 class _Plane(_Section):
-    """A plane of ``size`` (x, z) centred at the origin."""
+    """A plane of ``size`` (x, z) centred at the origin, cut into ``segments`` ×
+    ``segments`` squares (two triangles each)."""
 
     type: Literal["plane"]
     size: Annotated[Vector, PlainValidator(lambda v: _vector(v, 2, 0.0))] = (1.0, 1.0)
+    segments: Annotated[int, PlainValidator(lambda v: _integer(v, 1))] = 1
 
 
 class _Sphere(_Section):
@@ -620,8 +622,11 @@ class _ObjectFile(_Section):
 
     def scene_object(self, name: str) -> tuple[SceneObject, dict[str, Any]]:
         """The SceneObject called ``name`` and its canonical dictionary."""
+        # a plane's default ``segments: 1`` is left out, so that the canonical form (and
+        # every key) of scenes written before the option stays as it was
         primitive = None if self.primitive is None else {
-            k: _plain(v) for k, v in self.primitive.model_dump().items()}
+            k: _plain(v) for k, v in self.primitive.model_dump().items()
+            if not (k == "segments" and v == 1)}
         canonical: dict[str, Any] = ({"mesh": str(self.mesh)} if self.mesh is not None
                                      else {"primitive": primitive})
         rows = IDENTITY if self.transform is None else self.transform.rows()

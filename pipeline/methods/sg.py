@@ -5,10 +5,10 @@ issue 17).
 Stages (stages.yaml, ``sg.*``): ``sg.env_prefilter`` (the environment map convolved
 with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py), ``sg.fit`` (per
 vertex and each of 92 views, the glossy transport fitted by Gaussians,
-pipeline/math/sg_fit.py) and ``sg.diffuse`` (the diffuse transfer in SH); shared:
-``geometry``. Renderer: pipeline/render/sg.py. Until ``sg.fit`` and ``sg.diffuse`` are
-in stages.yaml (:data:`STAGES_MERGED`), ``prt render --method sg`` bakes the
-prefiltered stack and then stops with a one-line error saying so; no frame is written.
+pipeline/stages/sg_fit.py: direct + indirect glossy computed in the chunk and fitted
+there, never stored) and ``sg.diffuse`` (the diffuse transfer in SH with shadows and
+interreflection, pipeline/stages/sg_diffuse.py); shared: ``geometry``. Renderer:
+pipeline/render/sg.py + kernels/sg_render.cl.
 
 Run-time option: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is blended
 over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``.
@@ -26,7 +26,6 @@ front: methods ``direct`` and ``d2i`` render them).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, NoReturn
 
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
@@ -34,17 +33,12 @@ from pipeline.method import Method, Option
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
-STAGES_MERGED = False  # True once sg.fit and sg.diffuse are in stages.yaml: sg renders
-READS = ("geometry", "sg.fit", "sg.diffuse", "sg.env_prefilter")
-NOT_BUILT = ("sg.diffuse",)
-
 METHOD = Method(
     name="sg",
     description="paper 003: glossy transport per vertex and view as spherical Gaussians, "
                 "a Gaussian-prefiltered environment",
-    renderer="pipeline.render.sg:sg_renderer" if STAGES_MERGED
-    else "pipeline.methods.sg:sg_renderer",
-    reads=READS if STAGES_MERGED else ("sg.env_prefilter", "sg.fit"),
+    renderer="pipeline.render.sg:sg_renderer",
+    reads=("geometry", "sg.fit", "sg.diffuse", "sg.env_prefilter"),
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views"),),
     sequences="pipeline.methods.sg:sequence",
@@ -55,7 +49,6 @@ METHOD = Method(
     headline="rel_rmse_surfaces",
     lights=("environment",),
     check_scene="pipeline.methods.sg:check_scene",
-    renders=STAGES_MERGED,
 )
 
 
@@ -79,9 +72,3 @@ def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str
     if kind not in ("rotate", "orbit") or not count.isdigit() or int(count) < 1:
         raise PrtError(None, f"--frames {spec}: expected rotate:N or orbit:N (N ≥ 1 frames)")
     return triple.sequence(scene, artifacts, spec)
-
-
-def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], **options: Any) -> NoReturn:
-    """Refuses while the stages a frame needs are not merged (:data:`STAGES_MERGED`)."""
-    raise PrtError(scene.path, f"method sg cannot render yet: {', '.join(NOT_BUILT)} "
-                   f"are not built (issue 17); baked so far: {', '.join(artifacts)}")

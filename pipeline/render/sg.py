@@ -188,9 +188,10 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
     lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
     count = np.ascontiguousarray(fit.read("count"), np.uint8)
     transfer = np.ascontiguousarray(diffuse.read("transfer"), np.float32)
+    order = int(diffuse.attrs.get("order", sh.ORDER))
     expected = {"sg.fit lobes": (lobes.shape, (vertex_count, len(views), SLOTS, FIELDS)),
                 "sg.fit count": (count.shape, (vertex_count,)),
-                "sg.diffuse transfer": (transfer.shape, (vertex_count, 3, sh.ORDER ** 2))}
+                "sg.diffuse transfer": (transfer.shape, (vertex_count, 3, order ** 2))}
     for what, (shape, want) in expected.items():
         if tuple(shape) != want:
             raise PrtError(what.split()[0], f"{what.split()[1]}: shape {tuple(shape)}, "
@@ -370,7 +371,8 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
     tracer = RayTracer(vertices, faces)
     device = SgDevice(tables, lambda_blend)
     env_map = np.ascontiguousarray(env_map, np.float32)
-    map_sh = sh.project_latlong(env_map)  # (25, 3), unrotated
+    order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
+    map_sh = sh.project_latlong(env_map, order=order)  # (order², 3), unrotated
     static: dict[str, Any] = {}
     cached: dict[tuple, SgGBuffer] = {}
 

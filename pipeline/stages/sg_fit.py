@@ -43,6 +43,7 @@ the runner refuses NaN) are those of the stored lobes.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -51,7 +52,8 @@ from pipeline.errors import PrtError
 from pipeline.math import sg, sg_coherence, sg_support
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.sg_fit import FitOptions, FitTargets, SGFit
-from pipeline.math.sg_transport import direct_glossy, view_directions, visibility
+from pipeline.math.sg_scene import UNSEEN, VertexScene
+from pipeline.math.sg_transport import glossy_transport, view_directions
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.stages.visibility import scene_tracer
 
@@ -115,17 +117,6 @@ def tangents(normals: np.ndarray) -> np.ndarray:
     helper = np.where(np.abs(normals[:, 1:2]) < 0.9, [0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
     t = np.cross(normals, helper)
     return t / np.linalg.norm(t, axis=1, keepdims=True)
-
-
-def transport(tracer, offset: float, positions: np.ndarray, normals: np.ndarray,
-              brdf: BrdfParams, views: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """T (G, 92, S, 3) float32 of G vertices: THE CALL TO SWAP for the full glossy
-    transport (direct + indirect, sg_transport.glossy_transport of the transport
-    helper). For now the direct glossy part: BRDF × visibility × cos, visibility traced
-    once per vertex and grid direction from p + offset·n."""
-    visible = visibility(tracer, positions, normals, directions, offset)
-    return direct_glossy(normals, tangents(normals), brdf, views, directions,
-                         visible).astype(np.float32)
 
 
 def flood_order(count: int, edges: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -310,24 +301,25 @@ def _coupled_refit(lobes: Lobes, group: np.ndarray, g_idx: np.ndarray, v_idx: np
         lobes.converged[p, v] = result.converged
 
 
-def fit_batch(tracer, offset: float, positions: np.ndarray, normals: np.ndarray,
+def fit_batch(transport: Callable[[np.ndarray], np.ndarray], normals: np.ndarray,
               edges: np.ndarray, brdf: BrdfParams | None, directions: np.ndarray,
               omega: np.ndarray, cfg: dict[str, Any]) -> tuple[Lobes, dict[str, Any]]:
-    """Steps 2–7 of the module docstring for one batch of P vertices: positions and
-    unit normals (P, 3), mesh ``edges`` (E, 2) among them (local indices), the glossy
-    BRDF (None: no glossy part). Returns the lobes and the chunk's report."""
+    """Steps 2–7 of the module docstring for one batch of P vertices: ``transport``
+    maps local vertex indices (G,) to their glossy transport T (G, 92, S, 3) on the grid
+    ``directions`` (the stage: sg_transport.glossy_transport, direct + indirect), unit
+    normals (P, 3), mesh ``edges`` (E, 2) among them (local indices), the glossy BRDF
+    (None: no glossy part). Returns the lobes and the chunk's report."""
     views = view_directions()
-    lobes = Lobes(len(positions), len(views), mirror(views, normals))
-    order, vertex_nbs = flood_order(len(positions), edges)
+    lobes = Lobes(len(normals), len(views), mirror(views, normals))
+    order, vertex_nbs = flood_order(len(normals), edges)
     view_nbs = sg_coherence.view_neighbours(views)
     flips_before = flips_after = {}
     relaxed = 0
     if brdf is not None:
-        done = np.zeros(len(positions), bool)
+        done = np.zeros(len(normals), bool)
         for g0 in range(0, len(order), GROUP):
             group = order[g0:g0 + GROUP]
-            t = transport(tracer, offset, positions[group], normals[group], brdf, views,
-                          directions)
+            t = transport(group)
             fit_group(lobes, group, t, views, view_nbs, vertex_nbs, done, directions,
                       omega, cfg)
             done[group] = True
@@ -338,7 +330,7 @@ def fit_batch(tracer, offset: float, positions: np.ndarray, normals: np.ndarray,
         lobes.permute(perm)
         flips_after = sg_coherence.count_flips(lobes.mean, lobes.active, lobes.count,
                                                edges, view_nbs)
-    report = {"vertices": len(positions), "glossy": brdf is not None,
+    report = {"vertices": len(normals), "glossy": brdf is not None,
               "counts": np.bincount(lobes.count, minlength=MAX_LOBES + 1).tolist(),
               "not_converged": int((~lobes.converged & lobes.active).sum()),
               "flips_before": flips_before, "flips_after": flips_after,
@@ -355,18 +347,38 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     material = attrs["material_names"][int(geometry.read("object_material")[obj])]
     cfg = settings(ctx.params)
     directions, omega = grid(ctx.params)
+    brdf = material_brdf(ctx, material)
+    scene = transport_scene(ctx) if brdf is not None else None
+    diffuse = ctx.inputs["sg.diffuse"].read("transfer")
+    samples = int(ctx.params["sg.indirect_samples"])
+
+    def transport(local: np.ndarray) -> np.ndarray:
+        return glossy_transport(scene, start + local, directions, diffuse, samples, ctx.rng)
+
     normals = geometry.read("normals")[start:end].astype(np.float64)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    positions = geometry.read("vertices")[start:end].astype(np.float64)
-    brdf = material_brdf(ctx, material)
-    tracer, _, offset = scene_tracer(geometry) if brdf is not None else (None, None, 0.0)
-    lobes, report = fit_batch(tracer, offset, positions, normals,
+    lobes, report = fit_batch(transport, normals,
                               batch_edges(geometry.read("faces"), start, end), brdf,
                               directions, omega, cfg)
     ctx.meta.update(report)
     packed = np.concatenate([lobes.weight, lobes.mean, lobes.sharpness[..., None]], axis=-1)
     return {"lobes": packed.astype(np.float32), "count": lobes.count.astype(np.uint8),
             "error": lobes.error.astype(np.float32)}
+
+
+def transport_scene(ctx: ChunkContext) -> VertexScene:
+    """The scene at its vertices for the transport (its Embree scene the one
+    ``scene_tracer`` keeps per process). Materials: the glossy BRDFs of the declared
+    sections (:func:`material_brdf`), black Lambert for the others: the transport reads
+    only its own vertices' glossy part (the light a path finds at a hit is the
+    sg.diffuse transfer, which holds the hit's albedo)."""
+    geometry = ctx.inputs["geometry"]
+    arrays = {name: geometry.read(name) for name in
+              ("vertices", "normals", "faces", "object_ranges", "object_material")}
+    tracer, _, _ = scene_tracer(geometry)
+    materials = [material_brdf(ctx, name) or UNSEEN
+                 for name in geometry.attrs["material_names"]]
+    return VertexScene.from_arrays(arrays, materials, tracer)
 
 
 def layout(ctx: AssembleContext) -> Layout:
@@ -394,7 +406,9 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
                "count_histogram": [int(c) for c in counts],
                "not_converged": int(sum(m["not_converged"] for _, m in metas)),
                "edges_within_batches": int(sum(m["edges"] for _, m in metas)),
-               "transport": "direct glossy (BRDF x visibility x cos); indirect not yet",
+               "transport": "direct glossy (BRDF x visibility x cos) + indirect glossy "
+                            "(glossy-to-diffuse paths through the sg.diffuse transfer)",
+               "indirect_samples": int(ctx.params["sg.indirect_samples"]),
                "weights": {"mean": cfg["mean"], "sigma": cfg["sigma"],
                            "spatial": cfg["spatial"]}},
         arrays={"views": view_directions()})
