@@ -349,6 +349,9 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_fi
         for stage, variant in taken.items():
             artifacts[stage] = (images.get(variant) or _baked(scene, workdir, variant))[stage]
         image, ms = _render(scene, artifacts, {})
+        heatmap(out / f"error_{_slug(name)}.png", metrics.error_map(image, ref.mean), 0.2,
+                "relative error per pixel, |I - R| / |R|",
+                f"triple, {name}, against env-direct {spp} spp", percent=True)
         result["variants"][name] = {"mixed": taken,
                                     "regions": split(image, ref, masks, default),
                                     "frame_ms": ms,
