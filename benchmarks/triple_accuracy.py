@@ -28,8 +28,9 @@ renders every variant's frame and compares it with one env-direct reference
 cuts' errors are their changes; no noise). ``--env FILE`` lights the scene with another
 map (a new lighting bake only).
 
-Mixed variants (``light only``, ...) take one stage's artifact from a variant and the
-others from the default bake: they split a variant that changes several stages.
+Mixed variants (``light only``, ...) take some stages' artifacts from variants and the
+others from the default bake: they split a variant that changes several stages, or join
+two (``--mixed`` names variants an earlier run baked under ``--workdir``).
 
 Writes ``OUT/results.json`` (a later run with other ``--variants`` adds to it), the
 default frame, the reference, heat maps of the default's error against the reference
@@ -83,14 +84,24 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "view grid 256x128 + brdf_refine 2": {"triple.view_grid": [256, 128],
                                          "triple.brdf_refine": 2},
     "texels_per_pixel 2": {"triple.texels_per_pixel": 2.0},
+    "texels_per_pixel 3": {"triple.texels_per_pixel": 3.0},
+    "frame grid 32x33x32": {"triple.frame_grid": [32, 33, 32]},
+    "frame grid 64x33x32": {"triple.frame_grid": [64, 33, 32]},
     "visibility_refine 2": {"triple.visibility_refine": 2},
     "leaf level 5": {"triple.leaf_level": 5, "triple.store_budget": 5120},
 }
-# mixed: (name, variant, stage taken from it; the rest from the default bake)
-MIXED = [("lossless lighting only", "rows near-lossless", "triple.light_rotations"),
-         ("lossless visibility only", "rows near-lossless", "triple.visibility"),
-         ("lossless BRDF only", "rows near-lossless", "triple.brdf_tables"),
-         ("cap off, lighting only", "lighting cap off", "triple.light_rotations")]
+# mixed: (name, {stage: the variant it is taken from}; the other stages from the default
+# bake); a variant baked by an earlier run (its folder under --workdir) is read back
+MIXED = [("lossless lighting only", {"triple.light_rotations": "rows near-lossless"}),
+         ("lossless visibility only", {"triple.visibility": "rows near-lossless"}),
+         ("lossless BRDF only", {"triple.brdf_tables": "rows near-lossless"}),
+         ("cap off, lighting only", {"triple.light_rotations": "lighting cap off"}),
+         ("frame grid 32x33x32 + texels_per_pixel 3",
+          {"triple.light_rotations": "frame grid 32x33x32",
+           "triple.atlas": "texels_per_pixel 3", "triple.visibility": "texels_per_pixel 3"}),
+         ("frame grid 64x33x32 + texels_per_pixel 3",
+          {"triple.light_rotations": "frame grid 64x33x32",
+           "triple.atlas": "texels_per_pixel 3", "triple.visibility": "texels_per_pixel 3"})]
 
 
 def _workdir(scene, root: Path) -> Workdir:
@@ -236,9 +247,11 @@ def _render(scene, artifacts, options: dict[str, Any]) -> tuple[np.ndarray, floa
 @click.option("--edge-frame", type=click.Path(path_type=Path),
               help="A frame (.npy, H×W×3) whose 3×3 contrast defines the shadow edges "
               "(default: the default frame; a smooth frame may have none).")
+@click.option("--mixed", default="", help="Comma-separated variants baked by an earlier "
+              "run whose MIXED combinations to render (besides those of --variants).")
 @click.option("--out", type=click.Path(path_type=Path), required=True)
 def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_file,
-         stale_reference, patch_spp, edge_frame, out):
+         stale_reference, patch_spp, edge_frame, mixed, out):
     out.mkdir(parents=True, exist_ok=True)
     method = get_method("triple")
     scene = job.open_scene(SCENE, (size, size))
@@ -302,6 +315,7 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_fi
                     "rows_bytes": rows_bytes(tables)}
                 write_png(out / f"budget_{selection}_{budget}.png", image)
                 _save(out, result)
+    mixed = [m for m in mixed.split(",") if m]
     names = list(VARIANTS) if variants == "all" else \
         [] if variants == "none" else variants.split(",")
     images = {}
@@ -328,21 +342,33 @@ def main(workdir, reference_dir, size, spp, check_spp, variants, budgets, env_fi
                 "relative change per pixel, |I - I_default| / |I_default|",
                 f"{name} against the default", percent=True)
         _save(out, result)
-    for name, variant, stage in MIXED:
-        if variant not in images:
+    for name, taken in MIXED:
+        if not set(taken.values()) <= set(images) | set(mixed):
             continue
         artifacts = dict(base_artifacts)
-        artifacts[stage] = images[variant][stage]
+        for stage, variant in taken.items():
+            artifacts[stage] = (images.get(variant) or _baked(scene, workdir, variant))[stage]
         image, ms = _render(scene, artifacts, {})
-        result["variants"][name] = {"mixed": [variant, stage],
+        heatmap(out / f"error_{_slug(name)}.png", metrics.error_map(image, ref.mean), 0.2,
+                "relative error per pixel, |I - R| / |R|",
+                f"triple, {name}, against env-direct {spp} spp", percent=True)
+        result["variants"][name] = {"mixed": taken,
                                     "regions": split(image, ref, masks, default),
-                                    "frame_ms": ms}
+                                    "frame_ms": ms,
+                                    "rows_bytes": rows_bytes(load_tables(
+                                        artifacts, _materials(artifacts))[0])}
         _save(out, result)
     result["loadavg_end"] = os.getloadavg()
     _save(out, result)
     _breakdown_png(out / "breakdown.png", result)
     print(json.dumps({k: v["regions"]["surfaces"]["corrected"]
                       for k, v in result.get("variants", {}).items()}, indent=1))
+
+
+def _baked(scene, workdir: Path, variant: str):
+    """The artifacts of ``variant`` as an earlier run baked them under ``workdir``."""
+    sc = scene.with_settings(VARIANTS[variant])
+    return job.method_artifacts(get_method("triple"), _workdir(sc, workdir / _slug(variant)))
 
 
 def _slug(name: str) -> str:
