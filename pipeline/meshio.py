@@ -131,8 +131,8 @@ def _check_corner(path: Path, number: int, line: str, corner: str,
 
 def read_mesh(path: Path) -> RawMesh:
     """Load a mesh file (OBJ, PLY, STL, ...) without trimesh's merging or repair; an OBJ
-    file is checked line by line first (:func:`check_obj_text`); twin vertices are
-    welded (:func:`weld`)."""
+    file is checked line by line first (:func:`check_obj_text`). Vertices split by the
+    file's normals stay split (hard edges); :func:`weld` joins them where a scene asks."""
     import io
 
     import trimesh
@@ -153,19 +153,20 @@ def read_mesh(path: Path) -> RawMesh:
     uv = getattr(mesh.visual, "uv", None)
     if uv is not None and len(uv) != len(mesh.vertices):
         uv = None
-    return weld(RawMesh(np.asarray(mesh.vertices, dtype=np.float64),
-                        np.asarray(mesh.faces, dtype=np.int64),
-                        None if uv is None else np.asarray(uv, dtype=np.float64), str(path)))
+    return RawMesh(np.asarray(mesh.vertices, dtype=np.float64),
+                   np.asarray(mesh.faces, dtype=np.int64),
+                   None if uv is None else np.asarray(uv, dtype=np.float64), str(path))
 
 
 def weld(raw: RawMesh) -> RawMesh:
     """``raw`` with vertices that are bit-identical in position and uv merged into the
     first of them (order of first appearance kept; a mesh without such twins comes back
-    unchanged). An OBJ file whose faces name per-face normals (``f v//vn``) is split by
-    trimesh into one vertex per (v, vn) pair; the geometry stage computes its own normals,
-    so those splits would only leave a faceted mesh whose vertices share no faces (per-
-    vertex methods then interpolate nothing across faces). Vertices that differ in uv —
-    texture seams — stay apart."""
+    unchanged): the scene's ``objects.NAME.smooth: true``. An OBJ file whose faces name
+    normals (``f v//vn``) is split by trimesh into one vertex per (v, vn) pair, which is
+    how a file keeps hard edges (the Cornell box's blocks); a file that gives every face
+    its own normal (bunny_6.6kf.obj: 19,794 corners for 3,301 positions) is faceted,
+    and per-vertex methods then interpolate nothing across faces. Vertices that differ
+    in uv — texture seams — stay apart."""
     keys = raw.vertices if raw.uv is None else np.hstack([raw.vertices, raw.uv])
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     if len(first) == len(keys):

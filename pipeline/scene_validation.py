@@ -6,7 +6,8 @@ A scene file holds these top-level keys::
     name: cornell_box
     camera:   {position, look_at, up, fov (vertical, degrees), width, height}
     materials: {NAME: {model, albedo, ...model parameters}}
-    objects:   {NAME: {mesh: PATH | primitive: {...}, transform: {...}, material: NAME}}
+    objects:   {NAME: {mesh: PATH | primitive: {...}, transform: {...}, material: NAME,
+                        smooth: BOOL}}
     lights:    [{type: point|spot|directional|quad|environment, ...}]
     settings:  {PARAM.KEY: value}   # overrides of stage parameter defaults
     methods:   [NAME, ...]          # optional: the rendering methods the scene is baked for
@@ -607,10 +608,13 @@ IDENTITY = tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
 
 
 class _ObjectFile(_Section):
-    """``objects.NAME``: a mesh file or a primitive, a transform and a material."""
+    """``objects.NAME``: a mesh file or a primitive, a transform and a material;
+    ``smooth: true`` welds a mesh file's vertices that share a position (and uv), so
+    that a file that splits them by per-face normals (hard edges) is shaded smooth."""
 
     material: Annotated[str, PlainValidator(_material_name)]
     mesh: Annotated[Path | None, PlainValidator(_file)] = None
+    smooth: bool = False
     primitive: Annotated[PrimitiveFile | None, _tagged("type", PRIMITIVES)] = None
     transform: _TransformFile | None = None
 
@@ -632,6 +636,8 @@ class _ObjectFile(_Section):
         rows = IDENTITY if self.transform is None else self.transform.rows()
         canonical["transform"] = _plain(rows)
         canonical["material"] = self.material
+        if self.smooth:  # left out when false: keys of scenes without it stay as they were
+            canonical["smooth"] = True
         return SceneObject(name, self.mesh, primitive, rows, self.material), canonical
 
 

@@ -233,17 +233,19 @@ def test_well_formed_obj_reads_the_same(tmp_path):
     assert mesh.faces.shape == (2, 3) and np.isfinite(mesh.vertices).all()
 
 
-def test_per_face_normals_are_welded_uv_seams_kept(tmp_path):
-    """Trimesh splits an OBJ vertex per (v, vn) pair; the reader welds bit-identical
-    positions back (the geometry stage computes its own normals), in order of first
-    appearance, but keeps vertices that differ in uv (a texture seam) apart. The shared
-    bunny_6.6kf.obj was 19,794 faceted vertices for 3,301 positions."""
-    from pipeline.meshio import read_mesh
+def test_weld_joins_per_face_normal_splits_keeps_uv_seams(tmp_path):
+    """Trimesh splits an OBJ vertex per (v, vn) pair, and read_mesh keeps the split (a
+    file's hard edges); ``weld`` (the scene's ``smooth: true``) joins bit-identical
+    positions back, in order of first appearance, but keeps vertices that differ in uv
+    (a texture seam) apart. The shared bunny_6.6kf.obj is 19,794 faceted vertices for
+    3,301 positions."""
+    from pipeline.meshio import read_mesh, weld
 
     quad = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
     path = tmp_path / "flat.obj"
     path.write_text(quad + "vn 0 0 1\nvn 0 0.1 1\nf 1//1 2//1 3//1\nf 2//2 4//2 3//2\n")
-    mesh = read_mesh(path)
+    assert len(read_mesh(path).vertices) == 6
+    mesh = weld(read_mesh(path))
     assert len(mesh.vertices) == 4
     assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
     assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
@@ -251,7 +253,7 @@ def test_per_face_normals_are_welded_uv_seams_kept(tmp_path):
     seam = tmp_path / "seam.obj"
     seam.write_text(quad + "vt 0 0\nvt 1 0\nvt 0 1\nvt 0.5 0.5\nvt 1 1\n"
                     "f 1/1 2/2 3/3\nf 2/4 4/5 3/3\n")
-    mesh = read_mesh(seam)
+    mesh = weld(read_mesh(seam))
     # vertex 2 appears with uv (1, 0) and (0.5, 0.5): two vertices; vertex 3 shares its uv
     assert len(mesh.vertices) == 5
     assert mesh.faces[0, 2] == mesh.faces[1, 2]
@@ -374,7 +376,8 @@ def test_a_material_or_feature_a_method_does_not_render(tmp_path):
     with pytest.raises(PrtError) as error:
         check_method_scene(diffuse_only, scene)
     assert error.value.problem == ("materials.shiny: method diffuse_only does not render "
-                                   "blinn_phong materials (methods that do: d2i, direct, triple)")
+                                   "blinn_phong materials (methods that do: d2i, direct, sg, "
+                                   "triple)")
     doc = small_scene_dict(size=8)
     doc["materials"]["shiny"] = {"model": "lambert"}
     doc["lights"][1]["object"] = "box"

@@ -1,6 +1,8 @@
 """Stage ``geometry``: every object's mesh in world space, validated, repaired and merged.
 
 Per object (one chunk each):
+  * with ``objects.NAME.smooth: true``, vertices sharing a position (and uv) welded
+    (meshio.weld: a file split by per-face normals is otherwise faceted);
   * vertices transformed by the object's 4×4 matrix; a mirroring transform (negative
     determinant) reverses face winding so normals keep pointing outward;
   * a vertex used by a face with a non-finite coordinate is an error (the mesh is
@@ -17,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import PrtError
+from pipeline.meshio import weld
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
@@ -25,6 +28,8 @@ DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     name = ctx.chunk.object
     raw = ctx.meshes[name]
+    if ctx.scene.get(f"objects.{name}.smooth"):
+        raw = weld(raw)
     section = ctx.scene[f"objects.{name}.transform"]
     matrix = np.asarray(section, dtype=np.float64)
     vertices, faces, uv = raw.vertices, raw.faces, raw.uv
