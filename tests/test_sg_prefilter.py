@@ -139,4 +139,5 @@ def test_render_bakes_every_sg_stage_and_writes_a_frame(tmp_path):
     assert open_artifact(work.artifact("sg.env_prefilter")).attrs["levels"] == \
         sg.prefilter_levels(9, 18).count
     assert open_artifact(work.artifact("sg.fit")).attrs["max_lobes"] == 3
-    assert open_artifact(work.artifact("sg.diffuse")).attrs["order"] == 5
+    assert open_artifact(work.artifact("sg.diffuse")).attrs["order"] == \
+        STAGEFILE.params["sg.diffuse_order"]
