@@ -205,8 +205,9 @@ def test_stage_writes_the_transfer_and_ignores_glossy_edits(tmp_path):
     artifact = open_artifact(workdir.artifact("sg.diffuse"))
     transfer = artifact.read("transfer")
     positions = open_artifact(workdir.artifact("geometry")).read("vertices")
-    assert transfer.shape == (len(positions), 3, 25) and transfer.dtype == np.float32
-    assert artifact.attrs["order"] == 5 and artifact.attrs["bounces"] == 2
+    order = stagefile.params["sg.diffuse_order"]
+    assert transfer.shape == (len(positions), 3, order ** 2) and transfer.dtype == np.float32
+    assert artifact.attrs["order"] == order and artifact.attrs["bounces"] == 2
     assert artifact.attrs["samples"] == 1024
     radiance = transfer[:, :, 0] * np.sqrt(4.0 * np.pi) * 2.0        # L_0 = √(4π) · 2
     corner = int(np.argmax(positions[:81, 0] + positions[:81, 2]))    # (2, 0, 2)

@@ -29,11 +29,11 @@ f = (1 − u − v, u, v)); ω_o = −ray direction (world, unit, towards the ey
 * *Integral.* ∫ w G(ω; μ, λ) L(ω) dω = w · sg.integral(λ) · P(Rᵀμ, σ = 1/√λ), P the
   stack looked up at the map-space mean (R the environment's rotation about +y,
   ``envmap.rotation_y``), times the light's ``scale``.
-* *Diffuse.* Σ_k (Σ_a f_a transfer[v_a, c, k]) L_k,c · scale, L = sh.project_latlong of
+* *Diffuse.* Σ_a f_a max(0, Σ_k transfer[v_a, c, k] L_k,c) · scale (negative SH ringing
+  clamped per vertex), L = sh.project_latlong of
   the map turned by the light's rotation (projected once, turned per frame by
-  ``sh.rotate_y``). Linear in the transfer, so it is Σ_a f_a D[v_a, c] with the
-  vertices' diffuse radiance D = Σ_k transfer L_k computed per frame on the host
-  (V × 75 products) instead of 225 per pixel.
+  ``sh.rotate_y``): the vertices' diffuse radiance D computed per frame on the host
+  (V × 3n² products) and interpolated in the kernel, instead of 3n² per pixel.
 * Pixels that miss see the environment map (bilinear, rotated, scaled).
 
 Camera rays, their hits and the view triangles are kept per camera (a G-buffer), so an
@@ -232,10 +232,17 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
         ok = (slots > s) & (length > 0)
         mu_map = (mu[ok] / length[ok, None]) @ turn  # Rᵀμ, as rows
         out[ok] += sg.env_integral(stack, tables.levels, mu_map, lam[ok], w[ok])
-    transfer = np.einsum("pa,pack->pck", bary.astype(np.float64),
-                         tables.transfer[corner].astype(np.float64))
-    out += np.einsum("pck,kc->pc", transfer, light_sh)
+    diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh)[corner]
+    out += np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse)
     return scale * out
+
+
+def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
+    """The vertices' diffuse radiance D (V, 3) = max(0, Σ_k transfer[v, c, k]
+    light_sh[k, c]) (without the light's scale). A truncated SH product can ring below
+    zero next to a bright window's shadow (Grace at order 5: whole patches of the bunny
+    and the ground); radiance cannot, so D is clamped, as PRT renderers do."""
+    return np.maximum(np.einsum("vck,kc->vc", transfer, light_sh), 0.0)
 
 
 @dataclass
@@ -261,9 +268,8 @@ class SgDevice:
                                 {"LAMBDA_LOG": int(self.lambda_blend == "log")})
 
     def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
-        """A device buffer of the vertices' diffuse radiance D (V, 3) float32 =
-        Σ_k transfer[v, c, k] light_sh[k, c] (without the light's scale)."""
-        d = np.einsum("vck,kc->vc", self.tables.transfer, light_sh.astype(np.float32))
+        """A device buffer of :func:`vertex_diffuse` (V, 3) float32."""
+        d = vertex_diffuse(self.tables.transfer, light_sh.astype(np.float32))
         return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
 
     def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
