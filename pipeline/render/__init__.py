@@ -33,3 +33,10 @@ class Frame:
     @property
     def width(self) -> int:
         return int(self.rgb.shape[1])
+
+
+def camera_key(cam) -> tuple:
+    """What a per-camera G-buffer depends on (position, look_at, up, fov, size): renderers
+    keep their last camera's traced buffers under this key."""
+    return (tuple(cam.position), tuple(cam.look_at), tuple(cam.up), cam.fov, cam.width,
+            cam.height)

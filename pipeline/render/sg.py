@@ -59,7 +59,7 @@ from pipeline.math.envmap import rotation_y
 from pipeline.math.geodesic import icosahedron
 from pipeline.math.sg_transport import view_directions
 from pipeline.raytrace import RayTracer
-from pipeline.render import Frame
+from pipeline.render import Frame, camera_key
 from pipeline.render.triple_gbuffer import WORK_GROUP
 from pipeline.scene import Scene
 from pipeline.stages.env_prefilter import read_stack
@@ -385,8 +385,7 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
         cam = scene.camera
-        key = (tuple(cam.position), tuple(cam.look_at), tuple(cam.up), cam.fov, cam.width,
-               cam.height)
+        key = camera_key(cam)
         was_cached = key in cached
         if not was_cached:
             cached.clear()

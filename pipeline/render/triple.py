@@ -62,7 +62,7 @@ from pipeline.math.sphwavelet import (
 )
 from pipeline.math.wavelet_rows import from_half
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
-from pipeline.render import Frame
+from pipeline.render import Frame, camera_key
 from pipeline.render.triple_dense import DenseTables, dense_level
 from pipeline.render.triple_gbuffer import (
     WORK_GROUP,
@@ -549,8 +549,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
         cam = scene.camera
-        key = (tuple(cam.position), tuple(cam.look_at), tuple(cam.up), cam.fov, cam.width,
-               cam.height)
+        key = camera_key(cam)
         was_cached = key in cached
         if not was_cached:  # a new camera: trace it (the previous one is dropped)
             cached.clear()
