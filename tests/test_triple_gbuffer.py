@@ -6,14 +6,22 @@ texels left empty."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
-from test_triple_render import synthetic_tables
+from test_triple_render import LEVEL, random_rows, synthetic_tables
 
 from pipeline import cl
 from pipeline.math.envmap import EnvironmentMap
+from pipeline.math.geodesic import geodesic_levels
 from pipeline.render.triple import Atlas, shade_gbuffer, shade_numpy
-from pipeline.render.triple_dense import DenseTables, dense_level, shade_dense_numpy
+from pipeline.render.triple_dense import (
+    DenseTables,
+    dense_level,
+    kept_triangles,
+    shade_dense_numpy,
+)
 from pipeline.render.triple_gbuffer import (
     GBuffer,
     LookupTables,
@@ -101,19 +109,40 @@ def test_device_lookups_match_numpy_twin():
         expected.brdf_weight[above, 0] > 0)
 
 
+def below_horizon_free_brdf(rng, tables):
+    """``tables`` with BRDF rows that are zero on every leaf whose centroid lies below
+    the local horizon, as real ρ̃ = BRDF × cos θ_i rows are (random above it)."""
+    above = geodesic_levels(LEVEL)[LEVEL].centroids[:, 2] > 0
+    rows = random_rows(rng, tables.brdf.rows, 1, 10_000, mask=above)
+    return dataclasses.replace(tables, brdf=rows)
+
+
+@pytest.mark.parametrize("horizon", [False, True])
 @pytest.mark.parametrize("budget", [20, 50, 80, 320])
-def test_dense_top_only_equals_sparse_triple_products(budget):
+def test_dense_top_only_equals_sparse_triple_products(budget, horizon):
     """The dense path (triangle values of the rows cut top-only, lookups on the device)
     against the float64 sparse triple products of the same cut rows. Tolerance: the
     lookups' weights (above, ≤ 1e-4) and float32 sums over ≤ 320 triangles: 2e-4 of the
-    largest pixel; the float64 twin of the dense sum to 1e-5 (float32 tables)."""
+    largest pixel; the float64 twin of the dense sum to 1e-5 (float32 tables). With
+    random BRDF rows every triangle is kept; with rows zero below the horizon
+    (``horizon``) only the triangles above it are (12 / 44 / 168 of 20 / 80 / 320),
+    except at budget 50: a cut inside level 1 leaves the rows non-zero below the
+    horizon, which the check finds (every triangle kept)."""
     rng = np.random.default_rng(7)
-    tables = synthetic_tables(rng).truncated("top-only", budget)
+    tables = synthetic_tables(rng)
+    if horizon:
+        tables = below_horizon_free_brdf(rng, tables)
+    tables = tables.truncated("top-only", budget)
     gbuffer, atlas = synthetic_gbuffer(rng, 64)
     lookup = lookup_tables(tables, atlas)
     level = dense_level("top-only", budget)
     assert 20 * 4 ** level >= budget > 20 * 4 ** level // 4
     dense = DenseTables.from_tables(tables, level)
+    all_triangles = 20 * 4 ** level
+    only_above = horizon and budget == all_triangles
+    kept = kept_triangles(LEVEL, level) if only_above else np.arange(all_triangles)
+    np.testing.assert_array_equal(dense.kept, kept)
+    assert len(kept) == ({0: 12, 1: 44, 2: 168}[level] if only_above else all_triangles)
     rgb, times, moved = shade_gbuffer(tables, dense, gbuffer, lookup, TURN, {})
     host = lookups_numpy(gbuffer, tables, lookup, TURN)
     pixels = np.arange(0, 64, 3)

@@ -21,10 +21,14 @@ from pipeline.render.triple import (
 LEVEL = 2
 
 
-def random_rows(rng, count: int, channels: int, budget: int) -> WaveletRows:
-    """``count`` random smooth-ish functions, transformed and truncated to ``budget``."""
+def random_rows(rng, count: int, channels: int, budget: int,
+                mask: np.ndarray | None = None) -> WaveletRows:
+    """``count`` random smooth-ish functions, transformed and truncated to ``budget``;
+    zero on the leaves where ``mask`` (leaves,) is False."""
     basis = wavelet_basis(LEVEL)
     leaf = rng.normal(size=(count, channels, basis.size)) + 2.0
+    if mask is not None:
+        leaf *= mask
     coefficients = basis.forward(leaf)
     rows = select_rows(coefficients, LEVEL, budget, 0.0, 0)
     value = rows["value"][:, 0] if channels == 1 else rows["value"]

@@ -14,6 +14,14 @@ triangle values once, when the tables are cut (:func:`triangle_values`), and a p
 sums its weighted rows triangle by triangle — no merge, no tree walk. A budget that is
 not 20·4^k uses the next level (the coefficients it dropped stay zero: still exact).
 
+**Only the triangles above the horizon.** ρ̃ = BRDF × cos θ_i is zero below the local
+horizon (every BRDF of pipeline/math/brdf.py is), so a triangle lying wholly in z ≤ 0 of
+the local frame adds nothing to the sum: those (36 of level 1's 80, 152 of level 2's 320)
+are left out of all three tables (:func:`kept_triangles`), which cuts the kernel's loop
+and the tables' bytes by ≈ 40 %. The BRDF rows' values there are the float16 rounding of
+zero (≤ 2·10⁻⁴ of the row's largest on bunny_grace); :meth:`DenseTables.from_tables`
+checks it and keeps every triangle where a table says otherwise.
+
 The path is used for top-only budgets ≤ :data:`DENSE_MAX` (the 320 triangles of level
 2): at level 3 the dense tables would take 1280 floats per row (Grace's 16 384 lighting
 rows alone 250 MB, the bunny's 54 k visibility rows 276 MB); ``adaptive`` selections
@@ -36,6 +44,7 @@ if TYPE_CHECKING:
     from pipeline.render.triple import PixelLookups, TripleTables, WaveletRows
 
 DENSE_MAX = 320  # 20·4^2: the largest top-only budget the dense path serves
+BELOW_HORIZON_TOLERANCE = 1e-3  # BRDF value on a left-out triangle / the row's largest
 
 
 def dense_level(selection: str, budget: int) -> int | None:
@@ -65,6 +74,25 @@ def _level_matrix(leaf_level: int, level: int) -> tuple[np.ndarray, np.ndarray]:
     return leaves[:, ::per], areas.sum(axis=1)
 
 
+@cache
+def kept_triangles(leaf_level: int, level: int) -> np.ndarray:
+    """Indices (K,) of the level-``level`` triangles with a corner above the local
+    horizon (z > 0): a geodesic triangle whose three corners lie in z ≤ 0 lies there
+    whole (its edges are great-circle arcs, which stay in a closed hemisphere)."""
+    geo = geodesic_levels(leaf_level)[level]
+    below = (geo.vertices[geo.faces][..., 2] <= 0.0).all(axis=1)
+    return np.flatnonzero(~below)
+
+
+def _padded(values: np.ndarray, kept: np.ndarray, width: int) -> np.ndarray:
+    """``values`` (rows, T, ...) at the ``kept`` triangles, zero-padded to a multiple of
+    ``width`` triangles (the kernel sums ``width`` at a time), float32."""
+    count = -(-len(kept) // width) * width
+    out = np.zeros((len(values), count, *values.shape[2:]), np.float32)
+    out[:, :len(kept)] = values[:, kept]
+    return out
+
+
 def triangle_values(rows: WaveletRows, basis: WaveletBasis, level: int) -> np.ndarray:
     """Every row's values on the 20·4^level triangles, (rows, T) for grey rows or
     (rows, T, 3) for RGB, float32; ``rows`` must hold no index ≥ T (top-only cut)."""
@@ -85,22 +113,25 @@ def triangle_values(rows: WaveletRows, basis: WaveletBasis, level: int) -> np.nd
 
 @dataclass
 class DenseTables:
-    """Per-triangle tables of one level, float32: ``light`` (rows, 3, T) × the
+    """Per-triangle tables of one level on its ``kept`` triangles (zero-padded to T, a
+    multiple of the kernel's vector width), float32: ``light`` (rows, 3, T) × the
     triangles' solid angles (channels planar: the kernel loads W triangles of a channel
     at once), ``visibility`` (rows, T), ``brdf`` (rows, T)."""
 
     level: int
+    kept: np.ndarray  # (K,) the level's triangles the tables hold (kept_triangles)
     light: np.ndarray
     visibility: np.ndarray
     brdf: np.ndarray
 
     @property
     def triangles(self) -> int:
+        """Triangles per row the kernel sums (TRIPLE_T): those kept, padded."""
         return self.light.shape[2]
 
     @property
     def vector_width(self) -> int:
-        """Triangles the kernel sums at a time (TRIPLE_W): 8 where T allows (20: 4)."""
+        """Triangles the kernel sums at a time (TRIPLE_W): 8 where T allows, else 4."""
         return 8 if self.triangles % 8 == 0 else 4
 
     @cached_property
@@ -110,17 +141,41 @@ class DenseTables:
 
     @classmethod
     def from_tables(cls, tables: TripleTables, level: int) -> DenseTables:
-        """The per-triangle values of ``tables`` (rows cut top-only to ≤ 20·4^level)."""
-        _, area = _level_matrix(tables.basis.leaf_level, level)
+        """The per-triangle values of ``tables`` (rows cut top-only to ≤ 20·4^level) on
+        the triangles that can be above the horizon (module docstring), or on all of
+        them where the BRDF rows are not zero below it."""
+        leaf_level = tables.basis.leaf_level
+        _, area = _level_matrix(leaf_level, level)
+        brdf = triangle_values(tables.brdf, tables.basis, level)
+        kept = _kept_for(brdf, leaf_level, level)
+        width = 4 if level == 0 else 8  # level 0 holds 12 (or 20) triangles
         light = triangle_values(tables.light, tables.basis, level) * area[:, None]
-        return cls(level, np.ascontiguousarray(light.transpose(0, 2, 1), np.float32),
-                   triangle_values(tables.visibility, tables.basis, level),
-                   triangle_values(tables.brdf, tables.basis, level))
+        return cls(level, kept, np.ascontiguousarray(
+            _padded(light, kept, width).transpose(0, 2, 1)),
+            _padded(triangle_values(tables.visibility, tables.basis, level), kept, width),
+            _padded(brdf, kept, width))
 
     def with_brdf(self, brdf: WaveletRows, basis: WaveletBasis) -> DenseTables:
-        """These tables with the BRDF rows replaced (a run-time γ edit)."""
-        return DenseTables(self.level, self.light, self.visibility,
-                           triangle_values(brdf, basis, self.level))
+        """These tables with the BRDF rows replaced (a run-time γ edit); the triangles
+        kept stay (an edited BRDF is zero below the horizon too: checked)."""
+        values = triangle_values(brdf, basis, self.level)
+        if not np.array_equal(_kept_for(values, basis.leaf_level, self.level), self.kept):
+            raise ValueError("with_brdf: the edited BRDF is not zero below the horizon")
+        return DenseTables(self.level, self.kept, self.light, self.visibility,
+                           _padded(values, self.kept, self.vector_width))
+
+
+def _kept_for(brdf: np.ndarray, leaf_level: int, level: int) -> np.ndarray:
+    """:func:`kept_triangles`, or every triangle where some BRDF row (rows, T) is not
+    zero (to :data:`BELOW_HORIZON_TOLERANCE` of its largest value) on the others."""
+    kept = kept_triangles(leaf_level, level)
+    dropped = np.ones(brdf.shape[1], bool)
+    dropped[kept] = False
+    largest = np.abs(brdf).max(axis=1)
+    if np.any(np.abs(brdf[:, dropped]).max(axis=1, initial=0.0)
+              > BELOW_HORIZON_TOLERANCE * largest):
+        return np.arange(brdf.shape[1])
+    return kept
 
 
 def shade_dense_numpy(dense: DenseTables, lookups: PixelLookups) -> np.ndarray:
