@@ -59,7 +59,7 @@ from pipeline.math.envmap import rotation_y
 from pipeline.math.geodesic import icosahedron
 from pipeline.math.sg_transport import view_directions
 from pipeline.raytrace import RayTracer
-from pipeline.render import Frame, camera_key
+from pipeline.render import Frame, camera_key, scatter_pixels
 from pipeline.render.triple_gbuffer import WORK_GROUP
 from pipeline.scene import Scene
 from pipeline.stages.env_prefilter import read_stack
@@ -400,8 +400,9 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
         rgb = np.zeros((cam.width * cam.height, 3), np.float32)
         shade_ms = background_ms = 0.0
         if len(gbuffer.pixel):
-            rgb[gbuffer.pixel], shade_ms = device.shade(pixels, len(gbuffer.pixel),
-                                                        vertex_diffuse, degrees, scale)
+            shaded, shade_ms = device.shade(pixels, len(gbuffer.pixel), vertex_diffuse,
+                                            degrees, scale)
+            scatter_pixels(rgb, gbuffer.pixel, shaded)
         if len(gbuffer.miss_pixel):
             if "map" not in static:
                 static["map"] = cl.read_only_buffer(env_map)
@@ -413,7 +414,7 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                                    np.float32(np.cos(a)), np.float32(np.sin(a)),
                                    np.float32(scale), np.int32(len(miss)), out=miss,
                                    local=WORK_GROUP)
-            rgb[gbuffer.miss_pixel] = miss
+            scatter_pixels(rgb, gbuffer.miss_pixel, miss)
         t3 = time.perf_counter()
         timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
                    "trace_ms": 0.0 if was_cached else gbuffer.trace_ms,

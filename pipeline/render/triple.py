@@ -62,7 +62,7 @@ from pipeline.math.sphwavelet import (
 )
 from pipeline.math.wavelet_rows import from_half
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
-from pipeline.render import Frame, camera_key
+from pipeline.render import Frame, camera_key, scatter_pixels
 from pipeline.render.triple_dense import DenseTables, dense_level
 from pipeline.render.triple_gbuffer import (
     WORK_GROUP,
@@ -569,7 +569,8 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                                                     lookup, turn, static)
         scale = float(light.get("scale", 1.0))
         rgb = np.empty((cam.width * cam.height, 3), np.float32)
-        rgb[gbuffer.pixel] = shaded * scale
+        shaded *= scale
+        scatter_pixels(rgb, gbuffer.pixel, shaded)
         background_ms = 0.0
         if len(gbuffer.miss_pixel):
             if "map" not in static:
@@ -581,7 +582,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                                    np.int32(env_map.shape[0]), gbuffer.miss_device,
                                    np.float32(turn), np.float32(scale), np.int32(len(miss)),
                                    out=miss, local=WORK_GROUP)
-            rgb[gbuffer.miss_pixel] = miss
+            scatter_pixels(rgb, gbuffer.miss_pixel, miss)
         t3 = time.perf_counter()
         shading_ms = kernel_times["lookup_ms"] + kernel_times["kernel_ms"]
         timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
