@@ -208,19 +208,20 @@ __kernel void triple_shade_dense(__global const float* light, __global const flo
 }
 
 /* Background of the pixels that miss: the environment map (rotated by turn about +y,
- * × scale) in their world directions (n · 3); envmap.h's lookup with its two angles by
- * triple_atan2 (u = atan2(x, −z)/2π, v = arccos(y)/π = atan2(√(x² + z²), y)/π). */
+ * × scale) at their map coordinates in the unrotated map (n · 2, (u, v) as envmap.py's
+ * direction_to_uv, per camera): the turn only shifts u by turn/2π (the map-space
+ * direction is R_y(−turn) d, whose atan2(x, −z) is d's plus turn), so no trigonometry
+ * per frame; envmap.h's bilinear lookup. */
 __kernel void triple_background(__global const float* rgb, const int width, const int height,
-                                __global const float* direction, const float turn,
+                                __global const float* uv, const float turn,
                                 const float scale, const int n, __global float* out)
 {
     int i = get_global_id(0);
     if (i >= n) return;
-    float3 d = envmap_from_world(vload3(i, direction), cos(turn), sin(turn));
-    float u = triple_atan2(d.x, -d.z) * (0.5f / TRIPLE_PI);
+    float2 c = vload2(i, uv);
+    float u = c.x + turn * (0.5f / TRIPLE_PI);
     u -= floor(u);
-    float v = triple_atan2(sqrt(d.x * d.x + d.z * d.z), d.y) * (1.0f / TRIPLE_PI);
-    float x = u * width - 0.5f, y = v * (height - 1);
+    float x = u * width - 0.5f, y = c.y * (height - 1);
     float x0 = floor(x), y0 = floor(y);
     vstore3(scale * envmap_bilinear(rgb, width, height, (int)x0, (int)y0, x - x0, y - y0),
             i, out);

@@ -175,18 +175,22 @@ def test_dense_level_and_sparse_fallbacks():
 
 
 def test_background_kernel_matches_environment_map():
-    """triple_background: the map rotated by the turn and scaled, as EnvironmentMap;
-    float32 bilinear lookups: 1e-4 relative."""
+    """triple_background: the map rotated by the turn and scaled, as EnvironmentMap,
+    from the G-buffer's per-camera (u, v) of the unrotated map, for turns of either
+    sign and past a full turn; float32 bilinear lookups: 1e-4 relative."""
     rng = np.random.default_rng(3)
     rgb = rng.uniform(0.0, 4.0, size=(16, 32, 3)).astype(np.float32)
     d = unit(rng.normal(size=(100, 3))).astype(np.float32)
-    out = np.empty((100, 3), np.float32)
+    gbuffer, _ = synthetic_gbuffer(rng, 4)
+    gbuffer = dataclasses.replace(gbuffer, miss=d)
     kernel = cl.kernel("triple.cl", "triple_background", {"SW_LEVELS": 2})
-    cl.run(kernel, 100, cl.read_only_buffer(rgb), np.int32(32), np.int32(16),
-           cl.read_only_buffer(d), np.float32(np.radians(40.0)), np.float32(1.5),
-           np.int32(100), out=out)
-    expected = EnvironmentMap(rgb, 40.0, 1.5).radiance(d.astype(np.float64))
-    assert np.allclose(out, expected, rtol=1e-4, atol=1e-4)
+    for degrees in (40.0, -75.0, 400.0):
+        out = np.empty((100, 3), np.float32)
+        cl.run(kernel, 100, cl.read_only_buffer(rgb), np.int32(32), np.int32(16),
+               gbuffer.miss_uv_device, np.float32(np.radians(degrees)), np.float32(1.5),
+               np.int32(100), out=out)
+        expected = EnvironmentMap(rgb, degrees, 1.5).radiance(d.astype(np.float64))
+        assert np.allclose(out, expected, rtol=1e-4, atol=1e-4)
 
 
 def test_renderer_caches_the_camera_and_follows_gamma_edits(tmp_path):

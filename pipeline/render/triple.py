@@ -579,7 +579,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
             kernel = cl.kernel("triple.cl", "triple_background",
                                {"SW_LEVELS": tables.basis.leaf_level})
             background_ms = cl.run(kernel, len(miss), static["map"], np.int32(env_map.shape[1]),
-                                   np.int32(env_map.shape[0]), gbuffer.miss_device,
+                                   np.int32(env_map.shape[0]), gbuffer.miss_uv_device,
                                    np.float32(turn), np.float32(scale), np.int32(len(miss)),
                                    out=miss, local=WORK_GROUP)
             scatter_pixels(rgb, gbuffer.miss_pixel, miss)

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pipeline import cl
+from pipeline.math.envmap import direction_to_uv
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
 
 if TYPE_CHECKING:
@@ -103,8 +104,13 @@ class GBuffer:
         return out, cl.event_ms(event)
 
     @cached_property
-    def miss_device(self) -> Any:
-        return cl.read_only_buffer(self.miss)
+    def miss_uv_device(self) -> Any:
+        """The missing rays' map coordinates (M, 2) float32 (u, v) in an unrotated map
+        (envmap.direction_to_uv), on the device: a turn of the map about +y only adds
+        turn/2π to u (kernel ``triple_background``), so the trigonometry runs once per
+        camera."""
+        u, v = direction_to_uv(self.miss.astype(np.float64))
+        return cl.read_only_buffer(np.stack([u, v], axis=-1).astype(np.float32))
 
 
 def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,
