@@ -7,12 +7,13 @@ import pytest
 
 from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.sphwavelet import depth_first_keys, wavelet_basis
-from pipeline.math.wavelet_rows import select_rows
+from pipeline.math.wavelet_rows import select_rows, to_half
 from pipeline.render.triple import (
     PixelLookups,
     TripleTables,
     WaveletRows,
     brdf_lookups,
+    read_rows,
     shade,
     shade_numpy,
     texel_lookups,
@@ -108,3 +109,39 @@ def test_run_time_truncation_keeps_the_budget_in_depth_first_order(selection):
             dropped = np.setdiff1d(np.flatnonzero(weight), index)
             if len(dropped):
                 assert weight[dropped].max() <= weight[index].min() + 1e-6
+
+
+class StoredRows:
+    """An artifact as ``read_rows`` reads it: count, index, float16 value and row scale."""
+
+    def __init__(self, rows: WaveletRows) -> None:
+        count = np.diff(rows.start.astype(np.int64))
+        value, scale = to_half(count, rows.value)
+        self.arrays = {"count": count, "index": rows.index, "value": value, "scale": scale}
+        self.names = list(self.arrays)
+
+    def read(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_rows_cut_while_reading_equal_the_cut_of_all_rows(channels):
+    """The renderer's top-only cut made while reading (before the float16 expansion)
+    gives the same rows, bit for bit, as reading everything and cutting after; empty
+    rows and rows with nothing below the budget included."""
+    rng = np.random.default_rng(11)
+    rows = random_rows(rng, 12, channels, 150)
+    count = np.diff(rows.start.astype(np.int64))
+    count[3] = 0  # an empty row
+    keep = np.ones(len(rows.index), bool)
+    keep[rows.start[5]:rows.start[6]] = rows.index[rows.start[5]:rows.start[6]] >= 80
+    count[5] = keep[rows.start[5]:rows.start[6]].sum()
+    keep[rows.start[3]:rows.start[4]] = False
+    rows = WaveletRows.from_counts(count, rows.index[keep], rows.value[keep])
+    stored = StoredRows(rows)
+    for budget in (20, 80, 320):
+        cut = read_rows(stored, budget)
+        expected = read_rows(stored).truncated(wavelet_basis(LEVEL), "top-only", budget)
+        for name in ("start", "index", "value"):
+            np.testing.assert_array_equal(getattr(cut, name), getattr(expected, name))
+    assert len(read_rows(stored, 80).index) < len(rows.index)

@@ -347,14 +347,21 @@ def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
 # ------------------------------------------------------------------------- artifacts
 
 
-def _rows(artifact: Artifact) -> WaveletRows:
+def read_rows(artifact: Artifact, below: int = 0) -> WaveletRows:
     """The CSR rows of a triple artifact (``count``, ``index``, ``value``; rows stored
     back to back); float16 values with a per-row ``scale`` (triple_lighting and
-    triple_brdf v2) are expanded to float32."""
-    count, value = artifact.read("count"), artifact.read("value")
+    triple_brdf v2) are expanded to float32. With ``below`` > 0 only the entries of
+    index < ``below`` are kept (a top-only cut), before the expansion: a renderer of 80
+    coefficients expands 1/16 of a 1,280-coefficient table."""
+    count, index, value = artifact.read("count"), artifact.read("index"), artifact.read("value")
+    if below > 0:
+        kept = np.flatnonzero(index < below)  # ~budget/stored of the entries
+        row = np.searchsorted(np.cumsum(count, dtype=np.int64), kept, side="right")
+        count = np.bincount(row, minlength=len(count))
+        index, value = index[kept], value[kept]
     if "scale" in artifact.names:
         value = from_half(count, value, artifact.read("scale"))
-    return WaveletRows.from_counts(count, artifact.read("index"), value)
+    return WaveletRows.from_counts(count, index, value)
 
 
 @dataclass
@@ -433,10 +440,11 @@ def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: Sc
                    shading.material_b, shading.blend, np.flatnonzero(~hit), directions[~hit])
 
 
-def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str]
-                ) -> tuple[TripleTables, Atlas]:
+def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str],
+                below: int = 0) -> tuple[TripleTables, Atlas]:
     """The baked tables and the atlas, from the artifacts of ``triple.atlas``,
-    ``triple.visibility``, ``triple.light_rotations`` and ``triple.brdf_tables``."""
+    ``triple.visibility``, ``triple.light_rotations`` and ``triple.brdf_tables``; with
+    ``below`` > 0 every row already cut top-only to that budget (:func:`_rows`)."""
     light, brdf = artifacts["triple.light_rotations"], artifacts["triple.brdf_tables"]
     atlas, visibility = artifacts["triple.atlas"], artifacts["triple.visibility"]
     names = brdf.attrs["material_names"]
@@ -446,8 +454,9 @@ def load_tables(artifacts: Mapping[str, Artifact], material_names: list[str]
     diffuse = row_start[order]
     glossy = np.where(np.diff(row_start)[order] > 1, row_start[order] + 1, -1)
     tables = TripleTables(wavelet_basis(int(light.attrs["leaf_level"])),
-                          FrameGrid(*light.attrs["frame_grid"]), views, _rows(light),
-                          _rows(visibility), _rows(brdf), glossy, diffuse)
+                          FrameGrid(*light.attrs["frame_grid"]), views,
+                          *(read_rows(a, below) for a in (light, visibility, brdf)), glossy,
+                          diffuse)
     sizes = atlas.attrs["texture_sizes"]
     objects = list(sizes)
     return tables, Atlas(atlas.read("face_uv"),
@@ -486,8 +495,11 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                        "number of coefficients")
     geo = artifacts["geometry"]
     material_names = geo.attrs["material_names"]
-    tables, atlas = load_tables(artifacts, material_names)
-    if budget > 0:
+    # a top-only budget is cut while reading (the expansion to float32 is most of the
+    # load); an adaptive one needs every stored entry's magnitude first
+    tables, atlas = load_tables(artifacts, material_names,
+                                budget if selection == "top-only" else 0)
+    if budget > 0 and selection != "top-only":
         tables = tables.truncated(selection, budget)
     brdf_attrs = artifacts["triple.brdf_tables"].attrs
     baked_shapes = {n: _shape(scene, n) for n in material_names}
