@@ -131,6 +131,11 @@ class SGFit:
     def sigma(self) -> np.ndarray:
         return sg.sigma_of(self.sharpness)
 
+    def subset(self, index: np.ndarray) -> SGFit:
+        """The fits of the functions ``index`` (a mask or indices over F)."""
+        return SGFit(self.mean[index], self.sharpness[index], self.weight[index],
+                     self.energy[index], self.iterations[index], self.converged[index])
+
 
 @dataclass
 class _Problem:
@@ -265,7 +270,7 @@ def _energy(problem: _Problem, x: np.ndarray, derivatives: bool):
     return energy, (phi, r, prior_r, prior_j, w)
 
 
-def _normal_equations(problem: _Problem, parts) -> tuple[np.ndarray, np.ndarray]:
+def _normal_equations(parts) -> tuple[np.ndarray, np.ndarray]:
     """JᵀJ (F, P, P) and Jᵀr (F, P) from the fields' Gram matrix (module docstring)."""
     phi, r, prior_r, prior_j, w = parts
     f, n, _, s = phi.shape
@@ -366,6 +371,27 @@ def _initial(directions: np.ndarray, omega: np.ndarray, values: np.ndarray,
     return mean, lam
 
 
+def grown_start(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
+                fit: SGFit, default_mean: np.ndarray) -> SGFit:
+    """A start for N + 1 lobes from a fit of N: the N fitted lobes, then one lobe placed
+    by the windowed moments (:func:`_initial`, module docstring) on what they leave,
+    T − T̃ (channel mean, clipped at 0). ``values`` (F, S, C) on the grid ``directions``
+    (S, 3), ``solid_angles`` (S,); ``default_mean`` (F, 3) for a function with nothing
+    left. Weights are zero: :func:`fit` re-solves them by least squares. Cheaper than a
+    fresh start: the N lobes are already at their minimum, LM moves them little."""
+    cos = fit.mean @ directions.T                                          # (F, N, S)
+    g = np.exp(fit.sharpness[..., None] * (cos - 1.0))
+    residual = values - np.einsum("fns,fnc->fsc", g, fit.weight)
+    n = fit.mean.shape[1]
+    mean, lam = _initial(directions, np.asarray(solid_angles, np.float64), residual,
+                         FitOptions(lobes=1), np.asarray(default_mean, np.float64),
+                         len(directions))
+    f, c = len(values), values.shape[2]
+    return SGFit(np.concatenate([fit.mean, mean], axis=1),
+                 np.concatenate([fit.sharpness, lam], axis=1), np.zeros((f, n + 1, c)),
+                 np.zeros(f), np.zeros(f, np.int64), np.ones(f, bool))
+
+
 def _least_squares_weights(problem: _Problem, theta: np.ndarray) -> np.ndarray:
     """Weights (F, N, C) minimising D for fixed lobes, clipped at 0."""
     e = _fields(problem, theta, False)[0][:, :, 0]                       # (F, N, S)
@@ -440,11 +466,13 @@ def _lm(problem: _Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     iterations = np.zeros(f, np.int64)
     converged = energy <= 0
     active = np.flatnonzero(~converged)
-    h, g = _normal_equations(problem, parts)
+    h, g = _normal_equations(parts)
+    sub = problem
     for _ in range(o.max_iterations):
         if not len(active):
             break
-        sub = problem.subset(active)
+        if len(active) != len(sub.y):  # the active set only shrinks
+            sub = problem.subset(active)
         ha, ga = h[active], g[active]
         diag = np.einsum("fpp->fp", ha) + _EPS
         damped = ha + (nu[active, None] * diag)[:, :, None] * np.eye(p)
@@ -461,8 +489,7 @@ def _lm(problem: _Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
         x[idx] = trial[better]
         energy[idx] = trial_energy[better]
         if better.any():
-            hb, gb = _normal_equations(sub.subset(np.flatnonzero(better)),
-                                       tuple(a[better] for a in trial_parts))
+            hb, gb = _normal_equations(tuple(a[better] for a in trial_parts))
             h[idx], g[idx] = hb, gb
         nu[active] = np.where(better, nu[active] / 3, nu[active] * 2)
         finished = done_small | done_zero | stuck

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.math import sg, sg_coherence, sg_support
+from pipeline.math import sg, sg_coherence, sg_fit, sg_support
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.sg_fit import FitOptions, FitTargets, SGFit
 from pipeline.math.sg_scene import UNSEEN, VertexScene
@@ -210,10 +210,15 @@ def fit_group(lobes: Lobes, group: np.ndarray, t: np.ndarray, views: np.ndarray,
     values = t[g_idx, v_idx] / norm[:, None, None].astype(np.float32)   # float32
     default = lobes.mean[group[g_idx], v_idx, 0]
     need = np.ones(len(group), bool)
+    result = previous = None   # the last fit and the functions it covered (mask)
     for n in range(1, cfg["max_lobes"] + 1):
         sel = need[g_idx]
-        result, err = _fit(values[sel], directions, omega, FitOptions(lobes=n, fields=FIELDS_DTYPE,
-                                                            tolerance=STOP), default[sel])
+        start = None if result is None else sg_fit.grown_start(
+            directions, omega, values[sel], result.subset(sel[previous]), default[sel])
+        result, err = _fit(values[sel], directions, omega,
+                           FitOptions(lobes=n, fields=FIELDS_DTYPE, tolerance=STOP),
+                           default[sel], start=start)
+        previous = sel
         gs, vs = group[g_idx[sel]], v_idx[sel]
         lobes.count[gs] = n
         lobes.mean[gs, vs, :n] = result.mean
@@ -301,7 +306,7 @@ def _coupled_refit(lobes: Lobes, group: np.ndarray, g_idx: np.ndarray, v_idx: np
         lobes.converged[p, v] = result.converged
 
 
-def fit_batch(transport: Callable[[np.ndarray], np.ndarray], normals: np.ndarray,
+def fit_batch(transport: Callable[[np.ndarray], np.ndarray] | None, normals: np.ndarray,
               edges: np.ndarray, brdf: BrdfParams | None, directions: np.ndarray,
               omega: np.ndarray, cfg: dict[str, Any]) -> tuple[Lobes, dict[str, Any]]:
     """Steps 2–7 of the module docstring for one batch of P vertices: ``transport``
@@ -348,13 +353,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     cfg = settings(ctx.params)
     directions, omega = grid(ctx.params)
     brdf = material_brdf(ctx, material)
-    scene = transport_scene(ctx) if brdf is not None else None
-    diffuse = ctx.inputs["sg.diffuse"].read("transfer")
-    samples = int(ctx.params["sg.indirect_samples"])
-
-    def transport(local: np.ndarray) -> np.ndarray:
-        return glossy_transport(scene, start + local, directions, diffuse, samples, ctx.rng)
-
+    transport = chunk_transport(ctx, start, directions) if brdf is not None else None
     normals = geometry.read("normals")[start:end].astype(np.float64)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     lobes, report = fit_batch(transport, normals,
@@ -364,6 +363,22 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     packed = np.concatenate([lobes.weight, lobes.mean, lobes.sharpness[..., None]], axis=-1)
     return {"lobes": packed.astype(np.float32), "count": lobes.count.astype(np.uint8),
             "error": lobes.error.astype(np.float32)}
+
+
+def chunk_transport(ctx: ChunkContext, start: int, directions: np.ndarray
+                    ) -> Callable[[np.ndarray], np.ndarray]:
+    """The chunk's transport function: local vertex indices (G,) (global ``start`` +
+    local) to their glossy transport T (G, 92, S, 3) on ``directions`` (S, 3), direct +
+    indirect (sg_transport.glossy_transport, ``sg.indirect_samples`` paths per view,
+    drawn from ``ctx.rng``)."""
+    scene = transport_scene(ctx)
+    diffuse = ctx.inputs["sg.diffuse"].read("transfer")
+    samples = int(ctx.params["sg.indirect_samples"])
+
+    def transport(local: np.ndarray) -> np.ndarray:
+        return glossy_transport(scene, start + local, directions, diffuse, samples, ctx.rng)
+
+    return transport
 
 
 def transport_scene(ctx: ChunkContext) -> VertexScene:
