@@ -8,12 +8,10 @@ Run from the project root:
     python benchmarks/sg_fit_stage.py [--vertices 12] [--trf 24] [--grid 55 110]
 Writes benchmarks/results/sg_fit_stage.json.
 
-Data: the coarse bunny (${PRT_DATA}/meshes/bunny_6.6kf.obj, its 3,301 distinct
-positions as vertices, Blinn–Phong γ 60, ρs 0.1 —
-bunny_grace's bunny material) on a diffuse ground, a test-local scene; ``--vertices``
-vertices spread evenly over the bunny's vertex order; their direct glossy transport
-(BRDF × Embree visibility × cos, sg_stage.transport) for the 92 views on the lat-long
-grid ``--grid``; the functions with data (views above the horizon, T ≠ 0) are fitted
+Data: scenes/bunny_sg.yaml baked to sg.diffuse in ``--workdir`` (benchmarks/sg_bunny.py);
+``--vertices`` bunny vertices from a breadth-first walk; their glossy transport, direct
++ indirect, by the stage's own function, for the 92 views on the lat-long grid
+``--grid``; the functions with data (views above the horizon, T ≠ 0) are fitted
 after dividing by their norm (as the stage does). Reported per path and N = 1, 2, 3:
 milliseconds per function (median of 3 repeats of the whole set; trf: on the first
 ``--trf`` functions, one repeat), the relative L² error on the whole grid (median,
@@ -38,39 +36,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from sg_bunny import bunny_patch  # noqa: E402
 
 from pipeline.executors import one_blas_thread  # noqa: E402
-from pipeline.math import sg, sg_coherence, sg_fit, sg_support  # noqa: E402
-from pipeline.math.brdf import BrdfParams  # noqa: E402
+from pipeline.math import sg_coherence, sg_fit, sg_support  # noqa: E402
 from pipeline.math.sg_transport import view_directions  # noqa: E402
-from pipeline.meshio import primitive_mesh, read_mesh  # noqa: E402
-from pipeline.raytrace import RayTracer  # noqa: E402
-from pipeline.scene import shared_data_dir  # noqa: E402
 from pipeline.stages import sg_fit as stage  # noqa: E402
-
-BUNNY = BrdfParams("blinn_phong", (0.55, 0.45, 0.35), (0.1, 0.1, 0.1), gamma=60.0)
-
-
-def scene_arrays(mesh: str = "bunny_6.6kf.obj"
-                 ) -> tuple[RayTracer, np.ndarray, np.ndarray, float, int, np.ndarray]:
-    """Tracer of bunny + ground, the bunny's vertices and unit area-weighted normals,
-    the ray offset, the bunny's vertex count and its faces. The mesh's vertices are
-    merged by position first: bunny_6.6kf.obj stores every face corner apart (19,794
-    vertices, 3,301 positions), which the geometry stage keeps as they are."""
-    bunny = read_mesh(shared_data_dir() / "meshes" / mesh)
-    v, inverse = np.unique(bunny.vertices, axis=0, return_inverse=True)
-    f = inverse.reshape(-1)[bunny.faces]
-    ground = primitive_mesh({"type": "plane", "size": [6, 6]})
-    gv = ground.vertices + [0.0, v[:, 1].min(), 0.0]
-    tracer = RayTracer(np.concatenate([v, gv]).astype(np.float32),
-                       np.concatenate([f, ground.faces + len(v)]).astype(np.int32))
-    normals = np.zeros_like(v)
-    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    for i in range(3):
-        np.add.at(normals, f[:, i], cross)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    diagonal = float(np.linalg.norm(v.max(0) - v.min(0)))
-    return tracer, v.astype(np.float64), normals, 1e-4 * diagonal, len(v), f
 
 
 def timed(fn, repeats: int):
@@ -95,25 +68,23 @@ def main() -> None:
     ap.add_argument("--trf", type=int, default=24)
     ap.add_argument("--grid", type=int, nargs=2, default=[55, 110])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--workdir", default=str(ROOT / ".prt" / "bench_sg_fit"))
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/sg_fit_stage.json"))
     args = ap.parse_args()
     one_blas_thread()
-    tracer, positions, normals, offset, vertex_count, _ = scene_arrays()
-    pick = np.linspace(0, vertex_count - 1, args.vertices).astype(np.int64)
-    directions, omega = (a.reshape(-1, *a.shape[2:]) for a in
-                         sg.latlong_directions(*args.grid))
-    omega = omega.ravel()
+    patch = bunny_patch(Path(args.workdir), args.vertices, {"sg.fit_grid": args.grid})
+    directions, omega, normals = patch.directions, patch.omega, patch.normals
+    vertex_count = patch.bunny_vertices
     views = view_directions()
     t_start = time.perf_counter()
-    t = stage.transport(tracer, offset, positions[pick], normals[pick], BUNNY, views,
-                        directions)
+    t = patch.transport(np.arange(args.vertices))
     transport_s = time.perf_counter() - t_start
     strength = np.einsum("gvsc,s->gv", t.astype(np.float64) ** 2, omega)
     g_idx, v_idx = np.nonzero(strength > 0)
     values = t[g_idx, v_idx].astype(np.float64) / np.sqrt(strength[g_idx, v_idx])[:, None, None]
     values32 = values.astype(np.float32)   # as the stage holds them
     f = len(values)
-    report = {"scene": "bunny_6.6kf, Blinn-Phong gamma 60, rho_s 0.1, ground, direct glossy",
+    report = {"scene": "scenes/bunny_sg.yaml, direct + indirect glossy (the stage's)",
               "grid": args.grid, "directions": len(directions), "vertices": args.vertices,
               "functions": f, "transport_seconds": transport_s,
               "transport_load": os.getloadavg()[0], "paths": {}}
@@ -163,7 +134,7 @@ def main() -> None:
     cfg = stage.settings({"sg.fit_tolerance": 0.1, "sg.fit_max_lobes": 3,
                           "sg.fit_mean_weight": 0.01, "sg.fit_sigma_weight": 0.01,
                           "sg.fit_spatial_weight": 0.1, "sg.fit_relaxation_sweeps": 4})
-    lobes = stage.Lobes(args.vertices, len(views), stage.mirror(views, normals[pick]))
+    lobes = stage.Lobes(args.vertices, len(views), stage.mirror(views, normals))
     view_nbs = sg_coherence.view_neighbours(views)
     nbs = [np.array([], np.int64)] * args.vertices
     done = np.zeros(args.vertices, bool)
