@@ -479,13 +479,18 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
               show_default=True,
               help="center: paths through pixel centres (as the methods render); box: "
                    "jittered over the pixel (as Mitsuba's box filter).")
+@click.option("--lobe", type=click.Choice(["all", "glossy", "diffuse"]), default="all",
+              show_default=True,
+              help="The part of the BRDF at the first surface a camera ray meets: all, "
+                   "glossy only, or diffuse only (glossy + diffuse = all less the light "
+                   "the camera sees directly).")
 @click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
               help="Material edit as for `prt render` (repeatable).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON line of statistics.")
 @WORKDIR
 @QUIET
-def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_filter, edits,
-                  as_json, workdir, quiet) -> None:
+def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_filter, lobe,
+                  edits, as_json, workdir, quiet) -> None:
     """Render a converged Monte-Carlo reference image (cached in the work directory)."""
     from pipeline import job
     from pipeline.images import check_writable, write_exr, write_png
@@ -497,12 +502,12 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
     sc = with_material_edits(job.open_scene(scene, parse_size(size)), list(edits))
     check_writable(out)
     settings = ReferenceSettings(transport=transport, tolerance=tolerance, max_spp=max_spp,
-                                 seed=seed, pixel_filter=pixel_filter)
+                                 seed=seed, pixel_filter=pixel_filter, lobe=lobe)
     result = job.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)
     image = result.image
     write_exr(out, image.mean)
     write_png(out.with_suffix(".png"), image.mean)
-    stats = {"transport": transport, "spp": image.spp, "estimate": image.estimate,
+    stats = {"transport": transport, "lobe": lobe, "spp": image.spp, "estimate": image.estimate,
              "seconds": round(image.seconds, 3), "rays": image.rays,
              "cached": result.cached, "artifact": str(result.artifact), "exr": str(out)}
     out.with_suffix(".json").write_text(json.dumps(stats, indent=1))

@@ -22,9 +22,10 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
   256, 1024, ... paths per pixel (up to the cap) until that error is at most a third of
   the method's, so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
-* per component the method declares (d2i: ``indirect``): ``rel_rmse_<name>``, that
-  image (the frame less the frame of the method the component subtracts) against the
-  component's reference transport on those pixels, tightened the same way, and
+* per component the method declares (d2i: ``indirect``; sg: ``glossy``, ``diffuse``):
+  ``rel_rmse_<name>``, that image (the frame less the frame of the method the component
+  subtracts, or the frame rendered with the component's options) against the
+  component's reference transport and lobe on those pixels, tightened the same way, and
   ``<name>_mean_ratio`` (mean radiance over the reference's);
 * ``kernel_gbs`` = ``kernel_bytes`` / the time of the kernels that moved them
   (``counted_kernel_ms``), and ``bandwidth_fraction`` of the memory-bandwidth probe run
@@ -67,7 +68,7 @@ from pipeline.charts import heatmap, write_charts
 from pipeline.errors import PrtError
 from pipeline.graph import with_upstream
 from pipeline.images import write_exr, write_png
-from pipeline.method import Method, check_method_scene, get_method, scene_methods
+from pipeline.method import Component, Method, check_method_scene, get_method, scene_methods
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene
 from pipeline.store import Workdir, read_record
@@ -332,8 +333,8 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
     components: dict[str, Any] = {}
     for name, component in method.components.items():
         _step(f"  component {name}: reference {component.transport}")
-        components.update(_component_record(sc, wd, workdir, name, component, frame.rgb,
-                                            surfaces, settings, quiet))
+        components.update(_component_record(sc, wd, workdir, method, options, name,
+                                            component, frame.rgb, surfaces, settings, quiet))
     headline_mask = surfaces if method.headline == "rel_rmse_surfaces" else None
     headline = errors["rel_rmse"] if headline_mask is None else surface_error
     slug = _slug(budget)
@@ -406,7 +407,7 @@ def summary_lines(records: list[dict[str, Any]]) -> list[str]:
 
 def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: np.ndarray,
                          masks: list[np.ndarray | None], settings: EvaluateSettings,
-                         quiet: bool) -> Any:
+                         quiet: bool, lobe: str = "all") -> Any:
     """The reference image of ``transport`` whose estimated error, over each of ``masks``
     (None: every pixel), is at most a third of ``image``'s error there, or the one at
     the sample cap. A noisier reference would measure itself; the masks matter because
@@ -416,7 +417,8 @@ def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: 
     spp = min(REFERENCE_FIRST_SPP, settings.reference_max_spp)
     while True:
         ref = job.reference(scene, workdir, ReferenceSettings(
-            transport, tolerance=0.0, min_spp=spp, max_spp=spp), quiet=quiet).image
+            transport, tolerance=0.0, min_spp=spp, max_spp=spp, lobe=lobe),
+            quiet=quiet).image
         full = np.ones(image.shape[:2], bool)
         ratios = [_noise(ref, full if m is None else m)
                   / max(metrics.relative_rmse(image, ref.mean, m), 1e-12) for m in masks]
@@ -425,18 +427,24 @@ def _converged_reference(scene: Scene, workdir: Workdir, transport: str, image: 
         spp = min(4 * spp, settings.reference_max_spp)
 
 
-def _component_record(scene: Scene, wd: Workdir, workdir: Workdir, name: str,
-                      component: Any, frame: np.ndarray, surfaces: np.ndarray,
-                      settings: EvaluateSettings, quiet: bool) -> dict[str, Any]:
-    """A component of the frame (the frame less the frame of the method it subtracts,
-    which shares its shader for the rest; d2i: its indirect image) against the
-    component's reference transport, on ``surfaces``: ``rel_rmse_<name>``, that
-    reference's noise, and the ratio of mean radiances ``<name>_mean_ratio``."""
-    other = get_method(component.subtract)
-    job.bake(scene, wd, quiet=quiet, methods=[other])
-    image = frame - job.render_frame(scene, wd, other.name).rgb
+def _component_record(scene: Scene, wd: Workdir, workdir: Workdir, method: Method,
+                      options: dict[str, Any], name: str, component: Component,
+                      frame: np.ndarray, surfaces: np.ndarray, settings: EvaluateSettings,
+                      quiet: bool) -> dict[str, Any]:
+    """A component of the frame (pipeline/method.py Component: the frame less the frame
+    of the method it subtracts, or the method's frame with the component's options on
+    top of the budget's ``options``) against the component's reference, on
+    ``surfaces``: ``rel_rmse_<name>``, that reference's noise, and the ratio of mean
+    radiances ``<name>_mean_ratio``."""
+    if component.subtract:
+        other = get_method(component.subtract)
+        job.bake(scene, wd, quiet=quiet, methods=[other])
+        image = frame - job.render_frame(scene, wd, other.name).rgb
+    else:
+        image = job.render_frame(scene, wd, method.name,
+                                 options | dict(component.options)).rgb
     ref = _converged_reference(scene, workdir, component.transport, image, [surfaces],
-                               settings, quiet)
+                               settings, quiet, component.lobe)
     return {f"rel_rmse_{name}": metrics.relative_rmse(image, ref.mean, surfaces),
             f"reference_rel_rmse_{name}": _noise(ref, surfaces),
             f"reference_spp_{name}": ref.spp,

@@ -445,7 +445,8 @@ def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
              "geometry": geometry_key, "settings": dataclasses.asdict(settings),
              "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}}
     key = digest(parts)
-    path = workdir.root / "reference" / f"{settings.transport}-{key[:16]}.zarr"
+    lobe = "" if settings.lobe == "all" else f"-{settings.lobe}"
+    path = workdir.root / "reference" / f"{settings.transport}{lobe}-{key[:16]}.zarr"
     record = read_record(path)
     if record is not None and record.get("key") == key:
         stored = open_artifact(path, "reference")

@@ -73,12 +73,17 @@ class Option:
 
 @dataclass(frozen=True)
 class Component:
-    """A part of a method's image that evaluate measures on its own: the method's frame
-    less the frame of ``subtract`` (a method sharing its shader for the rest), against
-    the reference transport ``transport`` (d2i: its indirect light)."""
+    """A part of a method's image that evaluate measures on its own, against the
+    reference transport ``transport`` with ``lobe`` of the BRDF at the first surface
+    (pipeline/reference.py LOBES): the method's frame less the frame of ``subtract`` (a
+    method sharing its shader for the rest; d2i: its indirect light), or, without
+    ``subtract``, the method's frame with the run-time ``options`` (sg: its glossy
+    lobes, ``(("component", "glossy"),)``)."""
 
-    subtract: str
     transport: str
+    subtract: str | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+    lobe: str = "all"
 
 
 @dataclass(frozen=True)

@@ -75,7 +75,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -89,6 +89,12 @@ from pipeline.scene import Scene
 from pipeline.surface_detail import SceneDetail
 
 TRANSPORTS = ("direct", "env-direct", "first-glossy", "first-glossy-indirect", "full")
+# the part of the BRDF at the first surface a camera path meets (later vertices: as the
+# transport has them): all of it, its glossy part only (the diffuse albedo set to 0), or
+# its diffuse part only (a Lambertian BRDF of the material's albedo). A lobe's image
+# holds reflected light only (no emitter or environment seen directly): glossy +
+# diffuse = all less that, per path (method sg's glossy and diffuse images, apart)
+LOBES = ("all", "glossy", "diffuse")
 PIXEL_FILTERS = ("center", "box")
 RAY_EPSILON = 1e-4  # origin offset, relative to the scene diagonal
 PATHS_PER_PASS = 1 << 17
@@ -99,7 +105,8 @@ class ReferenceSettings:
     """How to render: ``transport`` (one of :data:`TRANSPORTS`), stop at estimated
     relative RMSE ``tolerance`` (a fraction, over the surface pixels: see the module
     docstring) or ``max_spp`` paths per pixel, never before ``min_spp``; ``max_depth``
-    bounds the shading vertices per path (-1: none)."""
+    bounds the shading vertices per path (-1: none); ``lobe`` (one of :data:`LOBES`): the
+    part of the BRDF at the first surface."""
 
     transport: str = "full"
     tolerance: float = 0.01
@@ -110,11 +117,14 @@ class ReferenceSettings:
     rr_depth: int = 5
     pixel_filter: str = "center"
     spp_per_pass: int | None = None  # default: about PATHS_PER_PASS paths per pass
+    lobe: str = "all"
 
     def __post_init__(self) -> None:
         if self.transport not in TRANSPORTS:
             raise ValueError(f"unknown transport {self.transport!r} "
                              f"(transports: {', '.join(TRANSPORTS)})")
+        if self.lobe not in LOBES:
+            raise ValueError(f"unknown lobe {self.lobe!r} (lobes: {', '.join(LOBES)})")
         if self.pixel_filter not in PIXEL_FILTERS:
             raise ValueError(f"unknown pixel filter {self.pixel_filter!r}")
         if not (self.tolerance >= 0 and self.max_spp >= 1 and self.min_spp >= 1):
@@ -173,6 +183,7 @@ class TransportScene:
         self.materials = scene_brdfs(scene, list(geometry["material_names"]))
         self.detail = SceneDetail(scene, list(geometry["material_names"]))
         self.lambert = [BrdfParams("lambert", p.albedo) for p in self.materials]
+        self.glossy = [replace(p, albedo=(0.0, 0.0, 0.0)) for p in self.materials]
         self.tracer = RayTracer(v, faces)
         self.epsilon = RAY_EPSILON * float(np.linalg.norm(v.max(0) - v.min(0)))
         self.camera = scene.camera
@@ -264,6 +275,10 @@ class PathTracer:
         self.lambert_bounces = settings.transport in ("first-glossy", "first-glossy-indirect")
         # vertices (0: seen from the camera) whose light arrives without a bounce
         self.skip_direct = settings.transport == "first-glossy-indirect"
+        self.first_table = {"all": ts.materials, "glossy": ts.glossy,
+                            "diffuse": ts.lambert}[settings.lobe]
+        # one lobe's image holds reflected light only: not what the camera sees directly
+        self.lobe_only = settings.lobe != "all"
         self.rays = 0
 
     # ------------------------------------------------------------------------ lights
@@ -378,8 +393,8 @@ class PathTracer:
                 sees_light[alive[emitted]] = True
             if self.one_vertex and depth == 1 or depth == self.s.max_depth:
                 break
-            table = self.ts.lambert if self.lambert_bounces and depth > 0 \
-                else self.ts.materials
+            table = self.first_table if depth == 0 else \
+                self.ts.lambert if self.lambert_bounces else self.ts.materials
             if not (self.skip_direct and depth == 0):
                 radiance[alive] += throughput * self.next_event(vtx, table, rng)
             wi_local, brdf_pdf, weight = self._sample_brdf(vtx, table, rng)
@@ -412,7 +427,7 @@ class PathTracer:
         """Add the environment's radiance to escaped paths; whether this transport
         counts it at this depth."""
         if not self.ts.environments or (self.one_vertex and depth > 1) \
-                or (self.skip_direct and depth <= 1):
+                or (self.skip_direct and depth <= 1) or (self.lobe_only and depth == 0):
             return False
         for env in self.ts.environments:
             weight = np.ones(len(d)) if depth == 0 else _power(brdf_pdf, env.pdf(d))
@@ -424,7 +439,7 @@ class PathTracer:
         """Add emitted radiance where the paths hit an emitter; (N,) bool, True where
         an emitter sends radiance back along the path (before MIS weights)."""
         emitted = np.zeros(len(index), bool)
-        if self.skip_direct and depth <= 1:
+        if self.skip_direct and depth <= 1 or self.lobe_only and depth == 0:
             return emitted
         ts = self.ts
         obj = ts.face_object[vtx.prim]

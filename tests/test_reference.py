@@ -300,3 +300,29 @@ def test_first_glossy_indirect_is_first_glossy_less_direct(small_cornell):
     # The luminaire seen from the camera is an emitter pixel only where its light counts.
     assert results["first-glossy"].emitter_pixels.any()
     assert not results["first-glossy-indirect"].emitter_pixels.any()
+
+
+def test_glossy_and_diffuse_lobes_add_up_to_the_reflected_light(tmp_path):
+    """``lobe``: the glossy part of the BRDF at the first surface plus its diffuse part
+    is all of it (the Cornell box with its glossy floor, first-glossy transport, z-scores
+    of the sum against the whole over the reflecting pixels, band as in the module
+    docstring); a lobe's image holds no light seen directly (the luminaire's emission),
+    and on Lambertian surfaces the glossy lobe reflects nothing."""
+    scene = job.open_scene(PROJECT / "scenes" / "cornell_box.yaml", (16, 16))
+    geometry, _ = job.load_geometry(scene, job.workdir_for(scene, tmp_path))
+    results = {lobe: render(scene, geometry, ReferenceSettings(
+        "first-glossy", tolerance=0, max_spp=64, seed=s, lobe=lobe))
+        for s, lobe in enumerate(("all", "glossy", "diffuse"))}
+    emitters = results["all"].emitter_pixels
+    assert emitters.any() and not results["glossy"].emitter_pixels.any()
+    total = results["glossy"].mean + results["diffuse"].mean
+    variance = sum(r.variance for r in results.values())
+    mask = ~emitters[..., None] & (variance > 0)
+    z_mean, z_sq = _z_scores(total, results["all"].mean, variance, mask)
+    assert abs(z_mean) < 0.15 and 0.7 < z_sq < 1.4
+    # the luminaire's pixels keep the light it reflects, not its emission (≈ 18 vs 0.2)
+    assert np.all(total[emitters].sum(-1) < 0.05 * results["all"].mean[emitters].sum(-1))
+    glossy = results["glossy"].mean
+    floor = glossy.sum(axis=-1) > 0
+    assert floor.mean() > 0.1  # the glossy floor: the bottom rows of the frame
+    assert np.all(glossy[: scene.camera.height // 3] == 0)  # walls and ceiling: Lambert

@@ -141,3 +141,35 @@ def test_render_bakes_every_sg_stage_and_writes_a_frame(tmp_path):
     assert open_artifact(work.artifact("sg.fit")).attrs["max_lobes"] == 3
     assert open_artifact(work.artifact("sg.diffuse")).attrs["order"] == \
         STAGEFILE.params["sg.diffuse_order"]
+
+
+def test_evaluate_measures_the_glossy_and_diffuse_parts_apart(tmp_path):
+    """``prt evaluate --method sg`` records, beside the whole frame's error against the
+    first-glossy reference, the error of its glossy lobes and of its SH diffuse term,
+    each against that transport with one lobe of the BRDF at the first surface
+    (pipeline/methods/sg.py components), for a sweep of the lobe count."""
+    import json
+
+    map_path = write_map(tmp_path / "env.exr", spiky_map(9, 18, 5))
+    doc = sg_scene(tmp_path, map_path)
+    doc["objects"]["ball"]["primitive"]["subdivisions"] = 0
+    doc["settings"] = {"sg.fit_grid": [9, 16], "sg.indirect_samples": 4,
+                       "sg.diffuse_samples": 64}
+    scene = write_scene(tmp_path, doc)
+    out = tmp_path / "eval"
+    done = subprocess.run([sys.executable, "-m", "pipeline", "evaluate", str(scene),
+                           "--method", "sg", "--sweep", "sg.fit_max_lobes=1", "--out",
+                           str(out), "--repeats", "1", "--reference-max-spp", "64",
+                           "--workdir", str(tmp_path / "work"), "-q"],
+                          capture_output=True, text=True, cwd=PROJECT, timeout=900)
+    assert done.returncode == 0, done.stderr
+    records = json.loads((out / "results.json").read_text())
+    assert [r["budget"] for r in records] == [{"sg.fit_max_lobes": 1},
+                                              {"sg.fit_max_lobes": 3}]
+    for r in records:
+        for part in ("glossy", "diffuse"):
+            assert 0 < r[f"rel_rmse_{part}"] < np.inf and r[f"{part}_mean_ratio"] > 0
+            assert r[f"reference_spp_{part}"] >= 16
+        assert 0 < r["rel_rmse_surfaces"] < 1
+    references = {p.name.rsplit("-", 1)[0] for p in (tmp_path / "work" / "reference").iterdir()}
+    assert {"first-glossy", "first-glossy-glossy", "first-glossy-diffuse"} <= references

@@ -214,9 +214,32 @@ def sg_scene(tmp_path_factory, small_map):
     return scene, geometry, folder
 
 
-def frame_of(scene, geometry, tables, rgb, degrees=0.0):
-    frames = render.sg_frames(tables, geometry["vertices"], geometry["faces"], rgb)
+def frame_of(scene, geometry, tables, rgb, degrees=0.0, component="all"):
+    frames = render.sg_frames(tables, geometry["vertices"], geometry["faces"], rgb,
+                              component=component)
     return frames(with_environment_rotation(scene, degrees))
+
+
+def test_the_glossy_and_diffuse_components_add_up_to_the_frame_less_its_background(
+        sg_scene, small_map):
+    """``component``: the lobes' frame plus the SH term's frame is the whole frame on the
+    surfaces (1e-5 of its largest value: float32 sums in another order), each is
+    non-zero there, and neither shows the background (as ``prt reference --lobe``)."""
+    scene, geometry, _ = sg_scene
+    tables = random_tables(len(geometry["vertices"]), small_map, seed=8)
+    whole, glossy, diffuse = (frame_of(scene, geometry, tables, small_map, 30.0, c).rgb
+                              for c in ("all", "glossy", "diffuse"))
+    miss = render.camera_gbuffer(render.RayTracer(geometry["vertices"], geometry["faces"]),
+                                 np.asarray(geometry["faces"]), scene.camera).miss_pixel
+    background = np.zeros(whole.shape[:2], bool).ravel()
+    background[miss] = True
+    background = background.reshape(whole.shape[:2])
+    assert background.any() and (~background).any()
+    assert np.abs(glossy + diffuse - whole)[~background].max() < 1e-5 * whole.max()
+    assert not glossy[background].any() and not diffuse[background].any()
+    assert glossy[~background].max() > 0 and diffuse[~background].max() > 0
+    with pytest.raises(PrtError, match="component"):
+        frame_of(scene, geometry, tables, small_map, 0.0, "specular")
 
 
 def test_a_constant_lobe_integrates_the_map_as_quadrature_does(sg_scene, small_map):

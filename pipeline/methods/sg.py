@@ -10,8 +10,11 @@ there, never stored) and ``sg.diffuse`` (the diffuse transfer in SH with shadows
 interreflection, pipeline/stages/sg_diffuse.py); shared: ``geometry``. Renderer:
 pipeline/render/sg.py + kernels/sg_render.cl.
 
-Run-time option: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is blended
-over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``.
+Run-time options: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is blended
+over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``; ``component``
+(str, ``all``): ``glossy`` or ``diffuse`` render the light reflected by the lobes or by
+the SH term alone, without the background (``prt evaluate`` measures each against
+``prt reference --transport first-glossy --lobe glossy|diffuse``).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -29,7 +32,7 @@ from collections.abc import Mapping
 
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
-from pipeline.method import Method, Option
+from pipeline.method import Component, Method, Option
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
@@ -40,13 +43,23 @@ METHOD = Method(
     renderer="pipeline.render.sg:sg_renderer",
     reads=("geometry", "sg.fit", "sg.diffuse", "sg.env_prefilter"),
     options=(Option("lambda_blend", str, "log",
-                    "log or linear: how a lobe's sharpness is blended between views"),),
+                    "log or linear: how a lobe's sharpness is blended between views"),
+             Option("component", str, "all",
+                    "all, glossy or diffuse: the whole frame, or the light reflected by "
+                    "the lobes or by the SH term alone (no background)")),
     sequences="pipeline.methods.sg:sequence",
     main_sequences=("rotate:8", "orbit:8"),
     # paper 003 models direct and indirect glossy at the first vertex and diffuse light
-    # with shadows and interreflection: of the reference transports, the full one
-    reference="full",
+    # with shadows and interreflection after it: the first-glossy transport (full BRDF
+    # at the first surface, Lambertian after); its glossy and diffuse parts measured
+    # apart against that transport with one lobe of the BRDF at the first surface
+    reference="first-glossy",
     headline="rel_rmse_surfaces",
+    components={part: Component(transport="first-glossy", options=(("component", part),),
+                                lobe=part) for part in ("glossy", "diffuse")},
+    evaluate_sweep={"sg.fit_max_lobes": [1, 3]},
+    evaluate_size=64,
+    evaluate_reference_spp=1024,
     lights=("environment",),
     check_scene="pipeline.methods.sg:check_scene",
 )

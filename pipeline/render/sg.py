@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from typing import Any
 
@@ -67,6 +67,8 @@ from pipeline.store import Artifact
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
 LAMBDA_BLENDS = ("log", "linear")
+# what a frame shows: everything, or the reflected light of the lobes or of the SH term
+COMPONENTS = ("all", "glossy", "diffuse")
 
 
 # ------------------------------------------------------------------ view triangles
@@ -366,19 +368,29 @@ def environment_light(scene: Scene) -> dict[str, Any]:
 
 
 def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
-              env_map: np.ndarray, lambda_blend: str = "log") -> Callable[[Scene], Frame]:
+              env_map: np.ndarray, lambda_blend: str = "log", component: str = "all"
+              ) -> Callable[[Scene], Frame]:
     """The frame function over loaded tables: each call traces its scene's camera (kept
     while the camera stays), reads the environment's rotation and scale, and shades
     (timings: gbuffer (trace + view lookup), sh (SH rotation and the vertices' diffuse
-    radiance), shade, background)."""
+    radiance), shade, background). ``component`` (one of :data:`COMPONENTS`): ``all``,
+    or the reflected light of one part, ``glossy`` (the lobes) or ``diffuse`` (the SH
+    term), without the background (as ``prt reference --lobe``)."""
     if lambda_blend not in LAMBDA_BLENDS:
         raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
                        f"{', '.join(LAMBDA_BLENDS)}")
+    if component not in COMPONENTS:
+        raise PrtError("--option", f"component={component!r}: expected one of "
+                       f"{', '.join(COMPONENTS)}")
+    if component == "diffuse":  # no lobe slot runs
+        tables = replace(tables, count=np.zeros_like(tables.count))
     tracer = RayTracer(vertices, faces)
     device = SgDevice(tables, lambda_blend)
     env_map = np.ascontiguousarray(env_map, np.float32)
     order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
     map_sh = sh.project_latlong(env_map, order=order)  # (order², 3), unrotated
+    if component == "glossy":
+        map_sh = np.zeros_like(map_sh)
     static: dict[str, Any] = {}
     cached: dict[tuple, SgGBuffer] = {}
 
@@ -403,7 +415,7 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
             shaded, shade_ms = device.shade(pixels, len(gbuffer.pixel), vertex_diffuse,
                                             degrees, scale)
             scatter_pixels(rgb, gbuffer.pixel, shaded)
-        if len(gbuffer.miss_pixel):
+        if len(gbuffer.miss_pixel) and component == "all":
             if "map" not in static:
                 static["map"] = cl.read_only_buffer(env_map)
             miss = np.empty((len(gbuffer.miss_pixel), 3), np.float32)
@@ -429,8 +441,8 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
     return frame
 
 
-def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log"
-                ) -> Callable[[Scene], Frame]:
+def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
+                component: str = "all") -> Callable[[Scene], Frame]:
     """The method's renderer factory (pipeline/method.py): tables loaded once from the
     artifacts of ``geometry``, ``sg.fit``, ``sg.diffuse``, ``sg.env_prefilter``; the
     map for the background and the SH lighting from the scene's environment file."""
@@ -438,4 +450,4 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
     vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
     tables = load_tables(artifacts, len(vertices))
     env_map = read_environment(environment_light(scene)["file"])
-    return sg_frames(tables, vertices, faces, env_map, lambda_blend)
+    return sg_frames(tables, vertices, faces, env_map, lambda_blend, component)
