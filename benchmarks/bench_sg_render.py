@@ -27,9 +27,11 @@ Measured in one run (``os.getloadavg()`` recorded with each part):
   memory-bandwidth probe (pipeline/bandwidth.py).
 
 Run from the project root: python benchmarks/bench_sg_render.py [--width 1024
---height 768] [--frames 7] [--workdir DIR]. Writes benchmarks/results/
-sg_render_<W>x<H>.json and sg_render_<W>x<H>_<variant>.png (the frames, to look
-at).
+--height 768] [--frames 7] [--workdir DIR] [--mesh ${PRT_DATA}/meshes/bunny_60kf.obj
+--variants welded]. Writes benchmarks/results/sg_render_<W>x<H>[_<mesh>].json and
+..._<variant>.png (the frames, to look at). Issue 17's frame-time point (512², a
+10–50k-vertex model): ``--width 512 --height 512 --mesh
+${PRT_DATA}/meshes/bunny_60kf.obj --variants welded``.
 """
 
 from __future__ import annotations
@@ -103,16 +105,17 @@ def synthetic_tables(geometry: dict, env: np.ndarray) -> tuple[Any, float]:
     return SgTables(lobes, count, transfer.astype(np.float32), stack, levels), seconds
 
 
-def scene_and_geometry(workdir: Path, width: int, height: int) -> tuple[Any, dict]:
+def scene_and_geometry(workdir: Path, width: int, height: int, mesh: str = COARSE_MESH
+                       ) -> tuple[Any, dict]:
     from pipeline import job
     from pipeline.scene import load_scene
 
     doc = yaml.safe_load(SCENE.read_text())
-    doc["objects"]["bunny"]["mesh"] = COARSE_MESH
+    doc["objects"]["bunny"]["mesh"] = mesh
     doc["camera"].update(width=width, height=height)
     doc["methods"] = ["direct"]
     workdir.mkdir(parents=True, exist_ok=True)
-    path = workdir / "bunny_coarse_grace.yaml"
+    path = workdir / f"{Path(mesh).stem}_grace.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     scene = load_scene(path)
     geometry, _ = job.load_geometry(scene, job.workdir_for(scene, workdir / "work"))
@@ -185,14 +188,22 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=768)
     parser.add_argument("--frames", type=int, default=7)
     parser.add_argument("--workdir", type=Path, default=ROOT / ".prt" / "bench_sg_render")
+    parser.add_argument("--mesh", default=COARSE_MESH,
+                        help="the bunny's mesh (results are named after a mesh other than "
+                             "the default)")
+    parser.add_argument("--variants", nargs="+", default=["welded", "as_baked"],
+                        choices=["welded", "as_baked"])
     args = parser.parse_args()
 
-    scene, baked = scene_and_geometry(args.workdir, args.width, args.height)
+    scene, baked = scene_and_geometry(args.workdir, args.width, args.height, args.mesh)
+    name = f"sg_render_{args.width}x{args.height}" + (
+        "" if args.mesh == COARSE_MESH else f"_{Path(args.mesh).stem}")
     env_file = next(light for light in scene.lights if light.type == "environment")
     env = read_environment(env_file.params["file"])
     record: dict[str, Any] = {
         "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-        "size": [args.width, args.height], "faces": int(len(baked["faces"])), "variants": {}}
+        "size": [args.width, args.height], "mesh": args.mesh, "faces": int(len(baked["faces"])),
+        "variants": {}}
 
     cam = scene.camera
     offset = np.subtract(cam.position, cam.look_at)
@@ -204,6 +215,8 @@ def main() -> None:
         orbit.append(with_camera_position(scene, tuple(np.add(cam.look_at, turned))))
     rotations = [with_environment_rotation(scene, 10.0 * i) for i in range(args.frames + 1)]
     for variant, geometry in (("welded", welded(baked)), ("as_baked", baked)):
+        if variant not in args.variants:
+            continue
         tables, prefilter_s = synthetic_tables(geometry, env)
         entry: dict[str, Any] = {
             "vertices": int(len(tables.count)), "table_mb": tables.lobes.nbytes / 1e6,
@@ -220,7 +233,7 @@ def main() -> None:
         for blend, frames_of in renderers.items():
             first = frames_of(scene)  # kernels built, camera traced
             if blend == "log":
-                write_png(RESULTS / f"sg_render_{args.width}x{args.height}_{variant}.png",
+                write_png(RESULTS / f"{name}_{variant}.png",
                           first.rgb, exposure=6.0)
         camera = run_frames(renderers, orbit[1:])
         for frames_of in renderers.values():
@@ -244,7 +257,7 @@ def main() -> None:
             entry["distinct_gbs"] = variant["distinct_bytes"] / (ms * 1e-3) / 1e9
             entry["distinct_fraction_of_probe"] = entry["distinct_gbs"] / gbs
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / f"sg_render_{args.width}x{args.height}.json"
+    out = RESULTS / f"{name}.json"
     out.write_text(json.dumps(record, indent=1) + "\n")
     print(json.dumps(record, indent=1))
 

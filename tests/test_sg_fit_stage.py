@@ -88,6 +88,50 @@ def test_flips_are_counted_and_relaxation_removes_them():
     assert after["vertex_flips"] == 0 and after["view_flips"] == 0 and sweeps >= 1
 
 
+class FakeArtifact:
+    """An opened artifact as a stage reads it: ``read`` and ``attrs``."""
+
+    def __init__(self, arrays: dict, attrs: dict | None = None) -> None:
+        self.arrays, self.attrs = arrays, attrs or {}
+
+    def read(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+def test_relax_stage_removes_flips_across_batches():
+    """sg.relax on a strip of 4 vertices (faces 012, 123) fitted as two batches {0, 1},
+    {2, 3} that each hold two lobes 90° apart consistently, but in swapped slots from
+    one batch to the other: every edge across the batches (0-2, 1-2, 1-3) flips at
+    every view, none inside. After the stage none is left, and each (vertex, view)
+    keeps the same lobes (only their slots change), counts and errors untouched."""
+    from pipeline.chunk import make_chunk
+    from pipeline.stages import ChunkContext, sg_relax
+
+    views = view_directions()
+    lobes = np.zeros((4, 92, 3, 7), np.float32)
+    lobes[..., 0:3] = [[0.5], [0.2], [0.0]]                 # weights per slot
+    lobes[..., 3:6] = [[1.0, 0, 0], [0, 1.0, 0], [1.0, 0, 0]]
+    lobes[..., 6] = [50.0, 20.0, 50.0]
+    lobes[2:, :, :2] = lobes[2:, :, 1::-1]                 # the second batch swapped
+    count = np.full(4, 2, np.uint8)
+    error = np.full((4, 92), 0.1, np.float32)
+    geometry = FakeArtifact({"object_ranges": np.array([[0, 4, 0, 2]]),
+                             "faces": np.array([[0, 1, 2], [1, 2, 3]])},
+                            {"object_names": ["strip"]})
+    fit = FakeArtifact({"lobes": lobes, "count": count, "error": error, "views": views},
+                       {"flips_before_relaxation": {}, "flips_after_relaxation": {}})
+    ctx = ChunkContext(params={"sg.fit_relaxation_sweeps": 4}, scene={},
+                       inputs={"geometry": geometry, "sg.fit": fit},
+                       chunk=make_chunk("strip", "object", object="strip", index=0))
+    out = sg_relax.run_chunk(ctx)
+    assert ctx.meta["flips_before"]["vertex_flips"] == 3 * 92
+    assert ctx.meta["flips_after"]["vertex_flips"] == 0
+    assert ctx.meta["flips_after"]["view_flips"] == 0
+    np.testing.assert_array_equal(np.sort(out["lobes"], axis=2), np.sort(lobes, axis=2))
+    np.testing.assert_array_equal(out["count"], count)
+    np.testing.assert_array_equal(out["error"], error)
+
+
 def synthetic_transport(second_lobe: bool) -> np.ndarray:
     """T (1, 92, S, 3) of a vertex with normal +y on the 33 × 64 grid: per view above
     the horizon, a lobe of σ 10° at the mirror direction (and, if ``second_lobe``, one

@@ -304,7 +304,7 @@ def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, Fak
     flat, info = sg.pack_stack(tables.stack)
     lv = tables.levels
     return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "faces")}),
-            "sg.fit": FakeArtifact({"views": view_directions(), "lobes": tables.lobes,
+            "sg.relax": FakeArtifact({"views": view_directions(), "lobes": tables.lobes,
                                     "count": tables.count,
                                     "error": np.zeros(tables.lobes.shape[:2], np.float32)},
                                    {"max_lobes": 3}),
@@ -330,7 +330,7 @@ def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_s
     bad = tables.lobes.copy()
     bad[0, 0, 2, 6] = 0.0
     artifacts = contract_artifacts(geometry, tables)
-    artifacts["sg.fit"].arrays["lobes"] = bad
+    artifacts["sg.relax"].arrays["lobes"] = bad
     with pytest.raises(PrtError, match="sharpness"):
         render.sg_renderer(scene, artifacts)
 

@@ -6,7 +6,9 @@ Stages (stages.yaml, ``sg.*``): ``sg.env_prefilter`` (the environment map convol
 with normalised SGs of increasing σ, pipeline/stages/env_prefilter.py), ``sg.fit`` (per
 vertex and each of 92 views, the glossy transport fitted by Gaussians,
 pipeline/stages/sg_fit.py: direct + indirect glossy computed in the chunk and fitted
-there, never stored) and ``sg.diffuse`` (the diffuse transfer in SH with shadows and
+there, never stored; flips relaxed within its vertex batches), ``sg.relax`` (the
+relaxation over every mesh edge, pipeline/stages/sg_relax.py: the lobes a frame reads)
+and ``sg.diffuse`` (the diffuse transfer in SH with shadows and
 interreflection, pipeline/stages/sg_diffuse.py); shared: ``geometry``. Renderer:
 pipeline/render/sg.py + kernels/sg_render.cl.
 
@@ -41,7 +43,7 @@ METHOD = Method(
     description="paper 003: glossy transport per vertex and view as spherical Gaussians, "
                 "a Gaussian-prefiltered environment",
     renderer="pipeline.render.sg:sg_renderer",
-    reads=("geometry", "sg.fit", "sg.diffuse", "sg.env_prefilter"),
+    reads=("geometry", "sg.relax", "sg.diffuse", "sg.env_prefilter"),
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views"),
              Option("component", str, "all",

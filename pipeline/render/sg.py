@@ -4,7 +4,8 @@ the prefiltered environment, plus the diffuse SH term (kernels/sg_render.cl; Num
 :func:`view_triangles` and :func:`shade_numpy`).
 
 Artifacts (the contract between issue 17's stages and this renderer): ``geometry`` (vertices,
-faces: global vertex indices), ``sg.fit`` (``sg_lobes``: per vertex, view of
+faces: global vertex indices), ``sg.relax`` (``sg_lobes``, sg.fit's lobes relabelled
+against flips over every mesh edge: per vertex, view of
 ``sg_transport.view_directions()`` and lobe slot, (w_rgb, μ_xyz, λ), world frame, w in
 1/sr, λ = 1/σ² in rad⁻²; ``count`` lobes per vertex), ``sg.diffuse`` (``sg_diffuse``:
 per vertex the diffuse transfer (3 channels × 25 SH coefficients), albedo/π and cosine
@@ -178,28 +179,28 @@ class SgTables:
 
 
 def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
-    """The tables from the artifacts of ``sg.fit``, ``sg.diffuse`` and
+    """The tables from the artifacts of ``sg.relax``, ``sg.diffuse`` and
     ``sg.env_prefilter``, checked against each other and the geometry's
     ``vertex_count`` (one-line PrtErrors naming the artifact)."""
-    fit, diffuse = artifacts["sg.fit"], artifacts["sg.diffuse"]
+    fit, diffuse = artifacts["sg.relax"], artifacts["sg.diffuse"]
     views = fit.read("views")
     if views.shape != view_directions().shape or \
             not np.allclose(views, view_directions(), atol=1e-9):
-        raise PrtError("sg.fit", "views: not sg_transport.view_directions() in order; "
+        raise PrtError("sg.relax", "views: not sg_transport.view_directions() in order; "
                        "re-bake sg.fit")
     lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
     count = np.ascontiguousarray(fit.read("count"), np.uint8)
     transfer = np.ascontiguousarray(diffuse.read("transfer"), np.float32)
     order = int(diffuse.attrs.get("order", sh.ORDER))
-    expected = {"sg.fit lobes": (lobes.shape, (vertex_count, len(views), SLOTS, FIELDS)),
-                "sg.fit count": (count.shape, (vertex_count,)),
+    expected = {"sg.relax lobes": (lobes.shape, (vertex_count, len(views), SLOTS, FIELDS)),
+                "sg.relax count": (count.shape, (vertex_count,)),
                 "sg.diffuse transfer": (transfer.shape, (vertex_count, 3, order ** 2))}
     for what, (shape, want) in expected.items():
         if tuple(shape) != want:
             raise PrtError(what.split()[0], f"{what.split()[1]}: shape {tuple(shape)}, "
                            f"expected {want} (geometry has {vertex_count} vertices)")
     if not (np.all(np.isfinite(lobes)) and np.all(lobes[..., 6] > 0)):
-        raise PrtError("sg.fit", "lobes: non-finite values or a sharpness λ ≤ 0")
+        raise PrtError("sg.relax", "lobes: non-finite values or a sharpness λ ≤ 0")
     stack, levels = read_stack(artifacts["sg.env_prefilter"])
     return SgTables(lobes, count, transfer, stack, levels)
 
@@ -444,7 +445,7 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
                 component: str = "all") -> Callable[[Scene], Frame]:
     """The method's renderer factory (pipeline/method.py): tables loaded once from the
-    artifacts of ``geometry``, ``sg.fit``, ``sg.diffuse``, ``sg.env_prefilter``; the
+    artifacts of ``geometry``, ``sg.relax``, ``sg.diffuse``, ``sg.env_prefilter``; the
     map for the background and the SH lighting from the scene's environment file."""
     geo = artifacts["geometry"]
     vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
