@@ -155,7 +155,8 @@ def test_n_is_chosen_from_the_tolerance_and_views_below_the_horizon_are_filled()
     view_nbs = sg_coherence.view_neighbours(views)
     cfg = stage.settings({"sg.fit_tolerance": 0.05, "sg.fit_max_lobes": 3,
                           "sg.fit_mean_weight": 0.01, "sg.fit_sigma_weight": 0.01,
-                          "sg.fit_spatial_weight": 0.1, "sg.fit_relaxation_sweeps": 2})
+                          "sg.fit_spatial_weight": 0.1, "sg.fit_relaxation_sweeps": 2,
+                          "sg.fit_match_integral": True})
     normal = np.array([[0.0, 1.0, 0.0]])
     above = views[:, 1] > 0
     for second, expected in ((False, 1), (True, 2)):

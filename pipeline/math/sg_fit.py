@@ -74,7 +74,7 @@ lobes (clipped at 0). A function with ∫T² dω ≤
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -390,6 +390,24 @@ def grown_start(directions: np.ndarray, solid_angles: np.ndarray, values: np.nda
     return SGFit(np.concatenate([fit.mean, mean], axis=1),
                  np.concatenate([fit.sharpness, lam], axis=1), np.zeros((f, n + 1, c)),
                  np.zeros(f), np.zeros(f, np.int64), np.ones(f, bool))
+
+
+def integral_matched(fit: SGFit, values: np.ndarray, solid_angles: np.ndarray,
+                     largest: float = 4.0) -> SGFit:
+    """``fit`` of ``values`` (F, S, C) on a sphere grid with ``solid_angles`` (S,), its
+    weights scaled per function and channel so that the lobes' integral over the sphere,
+    Σ_k w_kc ∫G_k dω = Σ_k w_kc 2π(1 − e^{−2λ_k})/λ_k, equals the data's,
+    ∫T_c dω ≈ Σ_s Ω_s T_c(ω_s): under uniform light the lobes then reflect exactly the
+    transport's radiance. The least-squares fit does not keep it: it weighs the peak,
+    and broad, low tails (the indirect part, lobes spread near the horizon) hold much of
+    the integral and little of ∫T². A factor outside [1/``largest``, ``largest``], or
+    where either integral is ≤ 0, is left at 1. ``energy`` is the fit's (before)."""
+    data = np.einsum("fsc,s->fc", np.asarray(values, np.float64), solid_angles)
+    model = np.einsum("fn,fnc->fc", sg.integral(fit.sharpness), fit.weight)
+    ok = (data > 0) & (model > 0)
+    factor = np.where(ok, data / np.where(ok, model, 1.0), 1.0)
+    factor = np.where((factor >= 1.0 / largest) & (factor <= largest), factor, 1.0)
+    return replace(fit, weight=fit.weight * factor[:, None, :])
 
 
 def _least_squares_weights(problem: _Problem, theta: np.ndarray) -> np.ndarray:

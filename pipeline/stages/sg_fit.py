@@ -100,8 +100,11 @@ def settings(params: dict[str, Any]) -> dict[str, Any]:
     for k, w in weights.items():
         if w < 0:
             raise PrtError(f"sg.fit_{k}_weight", f"{w}: must be ≥ 0")
+    match = params["sg.fit_match_integral"]
+    if not isinstance(match, bool):
+        raise PrtError("sg.fit_match_integral", f"{match!r}: expected true or false")
     return {"tolerance": tolerance, "max_lobes": max_lobes, **weights,
-            "sweeps": int(params["sg.fit_relaxation_sweeps"])}
+            "sweeps": int(params["sg.fit_relaxation_sweeps"]), "match_integral": match}
 
 
 def material_brdf(ctx: AssembleContext, name: str) -> BrdfParams | None:
@@ -193,11 +196,15 @@ class Lobes:
 
 
 def _fit(values: np.ndarray, directions: np.ndarray, omega: np.ndarray, options: FitOptions,
-         default_mean: np.ndarray, targets: FitTargets | None = None,
+         default_mean: np.ndarray, match_integral: bool, targets: FitTargets | None = None,
          start: SGFit | None = None) -> tuple[SGFit, np.ndarray]:
-    """Fast-path fit of normalised functions (F, S, 3) and their relative error (F,)."""
+    """Fast-path fit of normalised functions (F, S, 3), weights scaled to each function's
+    integral if ``match_integral`` (sg_fit.integral_matched), and their relative error
+    (F,)."""
     result, _ = sg_support.fit(directions, omega, values, options, targets, default_mean,
                                start, SUPPORT)
+    if match_integral:
+        result = sg_fit.integral_matched(result, values, omega)
     return result, sg_support.relative_error(directions, omega, values, result)
 
 
@@ -224,7 +231,7 @@ def fit_group(lobes: Lobes, group: np.ndarray, t: np.ndarray, views: np.ndarray,
             directions, omega, values[sel], result.subset(sel[previous]), default[sel])
         result, err = _fit(values[sel], directions, omega,
                            FitOptions(lobes=n, fields=FIELDS_DTYPE, tolerance=STOP),
-                           default[sel], start=start)
+                           default[sel], cfg["match_integral"], start=start)
         previous = sel
         gs, vs = group[g_idx[sel]], v_idx[sel]
         lobes.count[gs] = n
@@ -305,7 +312,8 @@ def _coupled_refit(lobes: Lobes, group: np.ndarray, g_idx: np.ndarray, v_idx: np
         options = FitOptions(lobes=n, mean_weight=cfg["mean"], sigma_weight=cfg["sigma"],
                              spatial_weight=cfg["spatial"], fields=FIELDS_DTYPE, tolerance=STOP)
         result, err = _fit(values[sel], directions, omega, options, lobes.mean[p, v, 0],
-                           FitTargets(target_mean, target_sigma, neighbour), start)
+                           cfg["match_integral"], FitTargets(target_mean, target_sigma,
+                                                             neighbour), start)
         lobes.mean[p, v, :n] = result.mean
         lobes.sharpness[p, v, :n] = result.sharpness
         lobes.weight[p, v, :n] = result.weight * norm[sel, None, None]
