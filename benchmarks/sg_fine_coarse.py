@@ -1,12 +1,13 @@
 """Fine against coarse bunny under method sg, side by side (issue 17: paper 003's point
 is that a coarse mesh keeps sharp, non-cross-fading glossy highlights).
 
-Run from the project root, after ``prt evaluate`` of both scenes at the same size:
-    prt evaluate scenes/bunny_sg.yaml --method sg --sweep sg.fit_tolerance=1,0.3 \\
-        --size 128x128 --out benchmarks/results/evaluate_sg --workdir .prt/eval_sg
-    prt evaluate scenes/bunny_sg_coarse.yaml --method sg --sweep sg.fit_tolerance=1 \\
+Run from the project root, after ``prt evaluate`` of both scenes at the same size (the
+fine scene's records: benchmarks/results/evaluate_sg_integral, made of two evaluate
+runs, one budget each, of scenes/bunny_sg.yaml with ``settings: {sg.fit_tolerance: T}``
+for T = 1 and 0.3, ``--size 128x128 --workdir .prt/eval_sg``):
+    prt evaluate scenes/bunny_sg_coarse.yaml --method sg --sweep sg.fit_tolerance=1 \
         --size 128x128 --out benchmarks/results/evaluate_sg_coarse --workdir .prt/eval_sg_coarse
-    python benchmarks/sg_fine_coarse.py [--budget sg-fit_tolerance-1] [--exposure 2]
+    python benchmarks/sg_fine_coarse.py [--budget sg-fit_tolerance-1] [--exposure 3]
 Writes benchmarks/results/sg_fine_coarse.png (rows: the 6.6k-face bunny, the 948-face
 one; columns: method sg, its first-glossy reference (the best cached one), the error
 heat map evaluate wrote)
@@ -33,7 +34,8 @@ from pipeline.store import open_artifact  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 # label: (evaluate's output folder, its work directory: the references are cached there)
-ROWS = {"fine (bunny_6.6kf, 3,301 vertices)": (RESULTS / "evaluate_sg", ROOT / ".prt/eval_sg"),
+ROWS = {"fine (bunny_6.6kf, 3,301 vertices)": (RESULTS / "evaluate_sg_integral",
+                                               ROOT / ".prt/eval_sg"),
         "coarse (bunny_948f, 453 vertices)": (RESULTS / "evaluate_sg_coarse",
                                               ROOT / ".prt/eval_sg_coarse")}
 KEYS = ("rel_rmse_surfaces", "rel_rmse_glossy", "rel_rmse_diffuse", "glossy_mean_ratio",
