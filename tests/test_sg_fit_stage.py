@@ -179,7 +179,7 @@ def test_stage_writes_valid_lobes_on_a_tiny_scene(tmp_path):
     box, a Lambert floor; grid 9 × 16. The artifact follows the contract: shapes, the 92
     views, unit means, λ > 0, w ≥ 0 and finite everywhere; Lambert vertices and the
     shut-in sphere's (all views occluded) have N = 0, w = 0, error −1; open glossy
-    vertices have 1 ≤ N ≤ 3 and errors in [0, 1]; views below a vertex's horizon have
+    vertices have 1 ≤ N ≤ 3 and errors in [0, 4] (median < 0.5); views below a vertex's horizon have
     w = 0; the flip counts are in the attributes."""
     write_exr(tmp_path / "env.exr", sg_lights_map().astype(np.float32))
     doc = small_scene_dict(8)
@@ -215,7 +215,9 @@ def test_stage_writes_valid_lobes_on_a_tiny_scene(tmp_path):
     a, b = ranges["ball"][:2]
     assert np.all((count[a:b] >= 1) & (count[a:b] <= 3))
     seen = error[a:b][error[a:b] >= 0]
-    assert len(seen) and seen.max() <= 1.0
+    # a least-squares fit m of T has ‖m‖ ≤ ‖T‖ and error e ≤ 1; scaled by s ≤ 4 to T's
+    # integral (sg.fit_match_integral), ‖sm − T‖ ≤ |s − 1| ‖m‖ + e ‖T‖ ≤ 4 ‖T‖
+    assert len(seen) and seen.max() <= 4.0 and np.median(seen) < 0.5
     normals = geometry.read("normals")[a:b]
     below = normals @ view_directions().T <= 0
     assert np.all(lobes[a:b][below][..., :3] == 0)
