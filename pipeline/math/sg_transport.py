@@ -170,9 +170,25 @@ def indirect_glossy_sh(scene: VertexScene, vertices: np.ndarray, views: np.ndarr
                                       + scene.offset * normal[v], direction)
         at_y = scene.at_hits(diffuse_transfer, hits)                          # (J, 3, n²)
         contribution = (weight / samples)[:, None, None] * at_y
-        np.add.at(out, (rows[pj], kj), contribution)
+        # the paths of one (vertex, view) pair are consecutive, `samples` each, and the
+        # pairs are distinct: a sum over the paths, not an unbuffered np.add.at
+        out[rows[pv], kv] += contribution.reshape(len(pv), samples,
+                                                  *contribution.shape[1:]).sum(axis=1)
         out[rows] *= np.asarray(p.specular)[None, None, :, None]
     return out
+
+
+_GRID_BASIS: dict[tuple[bytes, int], np.ndarray] = {}
+
+
+def grid_basis(directions: np.ndarray, order: int) -> np.ndarray:
+    """sh.basis(directions, order) (S, order²), kept for the last grid asked for: a
+    chunk's transport calls evaluate it on the same grid every time."""
+    key = (np.ascontiguousarray(directions).tobytes(), order)
+    if key not in _GRID_BASIS:
+        _GRID_BASIS.clear()
+        _GRID_BASIS[key] = sh.basis(directions, order)
+    return _GRID_BASIS[key]
 
 
 def on_grid(coefficients: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -210,7 +226,7 @@ def glossy_transport(scene: VertexScene, vertices: np.ndarray, directions: np.nd
                                   directions, visible[sel])
     if diffuse_transfer is not None and samples > 0:
         a = indirect_glossy_sh(scene, vertices, views, diffuse_transfer, samples, rng)
-        y = sh.basis(directions, int(round(np.sqrt(diffuse_transfer.shape[-1]))))
+        y = grid_basis(directions, int(round(np.sqrt(diffuse_transfer.shape[-1]))))
         for i in range(len(vertices)):  # one vertex at a time: (92, S, 3) temporaries
             out[i] += on_grid(a[i], y)
     return out
