@@ -5,15 +5,17 @@ lobes the renderer reads; one chunk per object.
 ``sg.fit`` fits vertex batches apart (in parallel, each its own chunk), so it counts and
 relaxes flips only over the edges inside a batch. The edges between batches were left
 with far more flips: on the coarse bunny (scenes/bunny_sg_coarse.yaml, batches of 256)
-19 % of the edges cross a batch boundary, and 79 % of the vertex pairs there were
-flipped (41 % by more than 5°) against 45 % (13 %) inside batches
-(benchmarks/sg_fit_report.py). This stage runs ``sg.fit_relaxation_sweeps`` sweeps of
-pipeline/math/sg_coherence.py ``relax`` over each object's whole mesh in its
-breadth-first order, starting from the batches' labels: slots are relabelled per vertex
-and view, nothing else changes (weights, means, sharpness of each lobe, the counts and
-the errors are sg.fit's). Flips are counted over every edge and view pair of the object
-before and after (attrs ``flips_before_relaxation`` / ``flips_after_relaxation``; the
-batches' own counts stay in sg.fit's attrs).
+19 % of the edges cross a batch boundary, and 41–46 % of the vertex pairs there were
+flipped by more than 5° against 13–15 % inside batches; after this stage 17–18 %
+(benchmarks/sg_fit_report.py; NOTES.md, issue 17, fifth session).
+
+This stage runs ``sg.fit_relaxation_sweeps`` sweeps of pipeline/math/sg_coherence.py
+``relax`` over each object's whole mesh in its breadth-first order, starting from the
+batches' labels: slots are relabelled per vertex and view, nothing else changes (each
+lobe's weights, mean and sharpness, the counts and the errors are sg.fit's). Flips are
+counted over every edge and view pair of the object before and after (attrs
+``flips_before_relaxation`` / ``flips_after_relaxation``; the batches' own counts stay
+in sg.fit's attrs).
 """
 
 from __future__ import annotations
