@@ -114,8 +114,8 @@ def direct_glossy(normal: np.ndarray, tangent: np.ndarray, brdf: BrdfParams,
     (P, 3), one material), K views (K, 3) and S grid directions (S, 3) (global frame),
     with visibility ``visible`` (P, S). The BRDF is evaluated only where T can be
     non-zero, views above the horizon × visible directions above it (about a quarter
-    of the table; the rest stays 0)."""
-    out = np.zeros((len(normal), len(views), len(directions), 3))
+    of the table; the rest stays 0). float32, as the transport is kept."""
+    out = np.zeros((len(normal), len(views), len(directions), 3), np.float32)
     specular = np.asarray(brdf.specular)
     for p in range(len(normal)):
         lo = to_local(views, normal[p], tangent[p])                             # (K, 3)
