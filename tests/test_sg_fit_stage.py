@@ -94,8 +94,8 @@ class FakeArtifact:
     def __init__(self, arrays: dict, attrs: dict | None = None) -> None:
         self.arrays, self.attrs = arrays, attrs or {}
 
-    def read(self, name: str) -> np.ndarray:
-        return self.arrays[name]
+    def read(self, name: str, region: tuple[slice, ...] | None = None) -> np.ndarray:
+        return self.arrays[name] if region is None else self.arrays[name][region]
 
 
 def test_relax_stage_removes_flips_across_batches():

@@ -137,9 +137,7 @@ def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
                                    for a in (t.mean, t.sigma, t.neighbour_means)))
         dm = (default_mean if default_mean is None or np.ndim(default_mean) == 1
               else np.asarray(default_mean)[part])
-        sub_start = None if start is None else SGFit(
-            *(getattr(start, name)[part] for name in ("mean", "sharpness", "weight",
-                                                         "energy", "iterations", "converged")))
+        sub_start = None if start is None else start.subset(part)
         pieces.append(sg_fit.fit(directions[index], weight,
                                  values[part[:, None], index].astype(np.float64), one_batch,
                                  sub_targets, dm,

@@ -34,9 +34,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     geometry, fit = ctx.inputs["geometry"], ctx.inputs["sg.fit"]
     obj = geometry.attrs["object_names"].index(ctx.chunk.object)
     start, end = (int(x) for x in geometry.read("object_ranges")[obj, :2])
-    lobes = fit.read("lobes")[start:end]
-    count = fit.read("count")[start:end]
-    error = fit.read("error")[start:end]
+    lobes, count, error = (fit.read(name, (slice(start, end),))
+                           for name in ("lobes", "count", "error"))
     if (count >= 2).any():
         edges = batch_edges(geometry.read("faces"), start, end)
         order, vertex_nbs = flood_order(end - start, edges)
