@@ -102,7 +102,8 @@ def synthetic_tables(geometry: dict, env: np.ndarray) -> tuple[Any, float]:
     t0 = time.perf_counter()
     stack = [level.astype(np.float32) for level in prefilter(env, levels)]
     seconds = time.perf_counter() - t0
-    return SgTables(lobes, count, transfer.astype(np.float32), stack, levels), seconds
+    return SgTables.from_dense(lobes, count, transfer, stack, levels,
+                               slots=count), seconds
 
 
 def scene_and_geometry(workdir: Path, width: int, height: int, mesh: str = COARSE_MESH

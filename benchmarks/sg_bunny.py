@@ -56,12 +56,15 @@ def breadth_first(count: int, neighbours: list[np.ndarray], root: int) -> np.nda
 
 
 def bunny_patch(workdir: Path, count: int, settings: dict | None = None,
-                seed: int = 0) -> BunnyPatch:
-    """Bake ``geometry`` and ``sg.diffuse`` of bunny_sg into ``workdir`` (once; later
-    calls find them fresh) and return ``count`` bunny vertices from a breadth-first walk
-    from the bunny's vertex 0, with the stage's transport function on the fit grid
-    and its params: stages.yaml's defaults updated by ``settings``."""
-    scene = job.open_scene(SCENE)
+                seed: int = 0, scene_file: Path = SCENE, obj_name: str = "bunny",
+                root: int = 0
+                ) -> BunnyPatch:
+    """Bake ``geometry`` and ``sg.diffuse`` of bunny_sg (or ``scene_file``) into
+    ``workdir`` (once; later calls find them fresh) and return ``count`` vertices of
+    object ``obj_name`` from a breadth-first walk from its vertex ``root``, with the stage's
+    transport function on the fit grid and its params: stages.yaml's defaults updated by
+    ``settings``."""
+    scene = job.open_scene(scene_file)
     wd = Workdir(workdir)
     job.bake(scene, wd, until="sg.diffuse", quiet=True)
     graph = job.stages()
@@ -72,11 +75,12 @@ def bunny_patch(workdir: Path, count: int, settings: dict | None = None,
     ctx = ChunkContext(params=params, scene=resolve_sections(spec, scene, None),
                        inputs=inputs, rng=np.random.default_rng(seed))
     geometry = inputs["geometry"]
-    obj = geometry.attrs["object_names"].index("bunny")
+    obj = geometry.attrs["object_names"].index(obj_name)
+    material = geometry.attrs["material_names"][int(geometry.read("object_material")[obj])]
     first, end = (int(x) for x in geometry.read("object_ranges")[obj, :2])
     faces = geometry.read("faces")
     _, neighbours = stage.flood_order(end - first, stage.batch_edges(faces, first, end))
-    local = breadth_first(count, neighbours, 0)
+    local = breadth_first(count, neighbours, root)
     vertices = first + local
     position = np.full(end - first, -1)
     position[local] = np.arange(len(local))
@@ -87,5 +91,5 @@ def bunny_patch(workdir: Path, count: int, settings: dict | None = None,
     normals = geometry.read("normals")[vertices].astype(np.float64)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     return BunnyPatch(lambda g: whole(local[g]), normals, np.sort(edges, axis=1), vertices,
-                      stage.material_brdf(ctx, "bunny"), directions, omega, params,
+                      stage.material_brdf(ctx, material), directions, omega, params,
                       end - first)

@@ -43,10 +43,14 @@ def main() -> None:
     ap.add_argument("--max-lobes", type=int, default=None,
                     help="sg.fit_max_lobes [default: stages.yaml's]")
     ap.add_argument("--workdir", default=str(ROOT / ".prt" / "bench_sg_fit"))
+    ap.add_argument("--scene", default=str(ROOT / "scenes" / "bunny_sg.yaml"),
+                    help="another sg scene (its --workdir apart), e.g. scenes/dragon_sg.yaml")
+    ap.add_argument("--object", default="bunny", help="the object whose vertices to fit")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/sg_fit_flips.json"))
     args = ap.parse_args()
     one_blas_thread()
-    patch = bunny_patch(Path(args.workdir), args.vertices)
+    patch = bunny_patch(Path(args.workdir), args.vertices, scene_file=Path(args.scene),
+                        obj_name=args.object)
     params = dict(patch.params)
     if args.tolerance is not None:
         params["sg.fit_tolerance"] = args.tolerance

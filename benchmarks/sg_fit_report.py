@@ -18,7 +18,7 @@ beside it.
 - **Bake time**: the recorded seconds of sg.fit and sg.relax, per chunk (each chunk on
   one core).
 - **Storage** against paper 003's 92·7·M·N floats (M vertices, N lobes): the stored
-  arrays' bytes (every vertex keeps 3 slots), their bytes on disk (zarr-compressed),
+  arrays' bytes (the slots each vertex stores), their bytes on disk (zarr-compressed),
   and the formula at N = 1 and at the mean stored N.
 """
 
@@ -61,7 +61,10 @@ def main() -> None:
     fit = open_artifact(wd.artifact(args.stage), "sg_lobes")
     batch = int(open_artifact(wd.artifact("sg.fit"), "sg_lobes")
                 .record["key_parts"]["params"]["sg.fit_batch"])
-    lobes, count, error = fit.read("lobes"), fit.read("count"), fit.read("error")
+    rows, first = fit.read("lobes"), fit.read("first")
+    count, error = fit.read("count"), fit.read("error")
+    stored = stage.slot_counts(first, len(rows))
+    lobes = stage.unpack_slots(rows, first, stored)
     views = fit.read("views")
     normals = geometry.read("normals").astype(np.float64)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
@@ -105,7 +108,9 @@ def main() -> None:
             "storage": {
                 "paper_floats_n1": 92 * 7 * m, "paper_bytes_n1": 4 * 92 * 7 * m,
                 "paper_bytes_mean_n": 4 * 92 * 7 * m * mean_n, "mean_n": mean_n,
-                "stored_array_bytes": int(lobes[v0:v1].nbytes + count[v0:v1].nbytes
+                "stored_slots": int(stored[v0:v1].sum()),
+                "stored_array_bytes": int(rows[0].nbytes * stored[v0:v1].sum()
+                                          + first[v0:v1].nbytes + count[v0:v1].nbytes
                                           + error[v0:v1].nbytes)}}
         centres = 0.5 * (COS_BINS[:-1] + COS_BINS[1:])
         ax.plot(centres, [b["median"] for b in bins], "o-", label=f"{name}: median")

@@ -20,14 +20,14 @@
  * integrated against the environment by the prefiltered stack at R^T mu (sg.h's
  * sg_env_integral); plus the diffuse SH term sum_k (sum_v bary_v transfer[v, c, k])
  * L[k, c] = sum_v bary_v D[v, c], D[v, c] = sum_k transfer[v, c, k] L[k, c] computed
- * per frame on the host (the sum is linear); all times the light's scale. Lobes:
- * V x VIEWS x 3 x 7 floats (w_rgb, mu_xyz, lam); D V x 3 floats. */
+ * per frame on the host (the sum is linear); all times the light's scale. Lobes: the
+ * stored slots, R x VIEWS x 7 floats (w_rgb, mu_xyz, lam), vertex v's in rows
+ * first[v] .. first[v + 1] - 1 (first: V + 1 ints); D V x 3 floats. */
 #include "sg.h"
 
 #ifndef LAMBDA_LOG
 #define LAMBDA_LOG 1
 #endif
-#define SG_SLOTS 3
 #define SG_FIELDS 7
 
 /* beta = M^-1 d for the 3x3 row-major inverse at m. */
@@ -70,7 +70,8 @@ __kernel void sg_view_lookup(__global const float* parent_inverse,  /* 20 x 9 */
     view_out[3 * i + 2] = face_views[3 * face + 2];
 }
 
-__kernel void sg_shade(__global const float* lobes, __global const uchar* count,
+__kernel void sg_shade(__global const float* lobes, __global const int* first,
+                       __global const uchar* count,
                        __global const float* vertex_diffuse, const int views,
                        __global const int* corner, __global const float* bary,
                        __global const int* view, __global const float* view_weight,
@@ -86,17 +87,26 @@ __kernel void sg_shade(__global const float* lobes, __global const uchar* count,
     float fb[3] = {bary[3 * i], bary[3 * i + 1], bary[3 * i + 2]};
     int j[3] = {view[3 * i], view[3 * i + 1], view[3 * i + 2]};
     float vb[3] = {view_weight[3 * i], view_weight[3 * i + 1], view_weight[3 * i + 2]};
+    int base[3], stored[3];
+    for (int a = 0; a < 3; ++a) {
+        base[a] = first[v[a]];
+        stored[a] = first[v[a] + 1] - base[a];
+    }
     int slots = max((int)count[v[0]], max((int)count[v[1]], (int)count[v[2]]));
     float3 radiance = (float3)(0.0f);
     for (int s = 0; s < slots; ++s) {
         float3 w = (float3)(0.0f), mu = (float3)(0.0f);
         float lam = 0.0f;
         for (int a = 0; a < 3; ++a) {
+            if (stored[a] == 0) continue;  /* no glossy part: adds nothing */
+            /* a slot beyond the corner's stored ones: its slot 0's mean and sharpness,
+               w = 0 (data_schema/sg_lobes.yaml) */
+            int row = base[a] + (s < stored[a] ? s : 0);
+            float keep = s < stored[a] ? 1.0f : 0.0f;
             for (int b = 0; b < 3; ++b) {
                 float weight = fb[a] * vb[b];
-                __global const float* p = lobes + ((v[a] * views + j[b]) * SG_SLOTS + s)
-                                                  * SG_FIELDS;
-                w += weight * (float3)(p[0], p[1], p[2]);
+                __global const float* p = lobes + (row * views + j[b]) * SG_FIELDS;
+                w += (weight * keep) * (float3)(p[0], p[1], p[2]);
                 mu += weight * (float3)(p[3], p[4], p[5]);
                 lam += weight * p[6];  /* log lam with LAMBDA_LOG */
             }

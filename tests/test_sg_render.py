@@ -39,16 +39,17 @@ def spot_map(height: int, centres: np.ndarray, sigma: float, power: list[float]
 
 
 def tables_of(lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
-              rgb: np.ndarray) -> render.SgTables:
+              rgb: np.ndarray, slots: np.ndarray | None = None) -> render.SgTables:
     levels = sg.prefilter_levels(*rgb.shape[:2])
     stack = [level.astype(np.float32) for level in prefilter(rgb, levels)]
-    return render.SgTables(lobes.astype(np.float32), count.astype(np.uint8),
-                           transfer.astype(np.float32), stack, levels)
+    return render.SgTables.from_dense(lobes, count, transfer, stack, levels, slots)
 
 
 def random_tables(vertices: int, rgb: np.ndarray, seed: int) -> render.SgTables:
     """Lobes as the contract allows: w ≥ 0 (0 in slots ≥ the vertex's count), μ unit,
-    λ log-uniform in [4, 4000] (σ 0.9° .. 29°); transfer a DC term and smaller others."""
+    λ log-uniform in [4, 4000] (σ 0.9° .. 29°); a third of the vertices with count 0
+    store no slot (as on a diffuse material), the others max(count, 1); transfer a DC
+    term and smaller others."""
     rng = np.random.default_rng(seed)
     views = len(view_directions())
     lobes = np.empty((vertices, views, render.SLOTS, render.FIELDS))
@@ -61,7 +62,8 @@ def random_tables(vertices: int, rgb: np.ndarray, seed: int) -> render.SgTables:
     lobes[..., 0:3] *= (np.arange(render.SLOTS) < count[:, None])[:, None, :, None]
     transfer = 0.02 * rng.normal(size=(vertices, 3, sh.ORDER ** 2))
     transfer[..., 0] = rng.uniform(0.1, 0.3, (vertices, 3))
-    return tables_of(lobes, count, transfer, rgb)
+    slots = np.where((count == 0) & (rng.random(vertices) < 0.33), 0, np.maximum(count, 1))
+    return tables_of(lobes, count, transfer, rgb, slots)
 
 
 def constant_tables(vertices: int, mu: np.ndarray, lam: float, weight: list[float],
@@ -180,7 +182,7 @@ def test_interpolated_lobes_keep_a_highlights_peak_tabulated_values_dip(small_ma
     lam = 1.0 / np.radians(3.0) ** 2
     vertices = 3
     tables = constant_tables(vertices, mu_a, lam, [1.0, 1.0, 1.0], rgb)
-    tables.lobes[:, b, 0, 3:6] = mu_b
+    tables.lobes[:, b, 3:6] = mu_b  # one slot per vertex: row v
     no_light = np.zeros((sh.ORDER ** 2, 3))
     corner = np.array([[0, 1, 2]])
     bary = np.full((1, 3), 1.0 / 3.0, np.float32)
@@ -305,8 +307,9 @@ def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, Fak
     lv = tables.levels
     return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "faces")}),
             "sg.relax": FakeArtifact({"views": view_directions(), "lobes": tables.lobes,
-                                    "count": tables.count,
-                                    "error": np.zeros(tables.lobes.shape[:2], np.float32)},
+                                    "first": tables.first[:-1], "count": tables.count,
+                                    "error": np.zeros((len(tables.count), len(
+                                        view_directions())), np.float32)},
                                    {"max_lobes": 3}),
             "sg.diffuse": FakeArtifact({"transfer": tables.transfer}, {"order": 5}),
             "sg.env_prefilter": FakeArtifact({"texels": flat.reshape(-1, 3), "level": info,
@@ -328,7 +331,7 @@ def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_s
     with pytest.raises(PrtError, match="sg.diffuse: transfer: shape"):
         render.sg_renderer(scene, artifacts)
     bad = tables.lobes.copy()
-    bad[0, 0, 2, 6] = 0.0
+    bad[-1, 0, 6] = 0.0
     artifacts = contract_artifacts(geometry, tables)
     artifacts["sg.relax"].arrays["lobes"] = bad
     with pytest.raises(PrtError, match="sharpness"):

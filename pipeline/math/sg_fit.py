@@ -266,7 +266,8 @@ def _energy(problem: _Problem, x: np.ndarray, derivatives: bool):
     phi, mu, dmu = _fields(problem, theta, derivatives)
     r = np.swapaxes(phi[:, :, 0], 1, 2) @ w.astype(phi.dtype) - problem.y   # (F, S, C)
     prior_r, prior_j = _prior_rows(problem, theta, mu, dmu)
-    energy = np.sum(r * r, axis=(1, 2)) + np.sum(prior_r * prior_r, axis=1)
+    energy = (np.einsum("fsc,fsc->f", r, r, dtype=np.float64)
+              + np.sum(prior_r * prior_r, axis=1))
     return energy, (phi, r, prior_r, prior_j, w)
 
 
@@ -457,7 +458,8 @@ def _setup(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
     dtype = np.dtype(options.fields)
     problem = _Problem(np.ascontiguousarray(np.swapaxes(directions, -1, -2), dtype),
                        np.sqrt(omega).astype(dtype),
-                       values * np.sqrt(omega)[..., None], _tangent_basis(mean), lower, upper,
+                       (values * np.sqrt(omega)[..., None]).astype(dtype),
+                       _tangent_basis(mean), lower, upper,
                        options, targets or FitTargets(), samples)
     theta = np.zeros((f, n, 3))
     theta[..., 2] = np.log(lam)

@@ -54,6 +54,7 @@ class SupportOptions:
 
 
 DEFAULT_OPTIONS = FitOptions()
+_DIRECT_BELOW = 0.05  # relative_error: below this the expanded form is re-measured directly
 
 
 def caps(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
@@ -93,31 +94,68 @@ def caps(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
 
 def relative_error(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
                    result: SGFit) -> np.ndarray:
-    """‖T̃ − T‖ / ‖T‖ (F,) in the grid's L² norm (Σ_s Ω_s ‖·‖²) over the whole grid, in
-    float32 (enough for an error measure); NaN where T ≡ 0."""
-    cos = (result.mean.astype(np.float32) @ directions.T.astype(np.float32))   # (F, N, S)
-    g = np.exp(result.sharpness.astype(np.float32)[..., None] * (cos - 1.0))
-    model = np.einsum("fns,fnc->fsc", g, result.weight.astype(np.float32))
-    omega = solid_angles.astype(np.float32)[None, :, None]
-    values = values.astype(np.float32)
-    norm = np.sum(omega * values * values, axis=(1, 2), dtype=np.float64)
-    diff = np.sum(omega * (model - values) ** 2, axis=(1, 2), dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(norm > 0, np.sqrt(diff / norm), np.nan)
+    """‖T̃ − T‖ / ‖T‖ (F,) in the grid's L² norm (Σ_s Ω_s ‖·‖²) over the whole grid;
+    NaN where T ≡ 0 (:func:`relative_errors` of the fit's own weights)."""
+    return relative_errors(directions, solid_angles, values, result, [result.weight])[0]
+
+
+def relative_errors(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
+                    lobes: SGFit, weights: list[np.ndarray]) -> list[np.ndarray]:
+    """:func:`relative_error` of the models Σ_n w_n G_n with the lobes (means and
+    sharpnesses) of ``lobes`` and each of ``weights`` ((F, N, C) each), e.g. a fit before
+    and after its weights were scaled.
+
+    Expanded, ‖T̃ − T‖² = ‖T‖² − 2 Σ_n w_n·⟨G_n, T⟩ + Σ_nm (w_n·w_m) ⟨G_n, G_m⟩: the lobes
+    G (F, N, S) are evaluated once (float32) and the grid sums are two batched matrix
+    products, shared by every set of weights, without a model image (F, S, C) — 3–5×
+    faster than forming T̃ − T. The expansion cancels where the error is small (float32
+    sums: ≈ 10⁻⁶ of ‖T‖², so ≈ 10⁻³ in the error), so errors below ``_DIRECT_BELOW``
+    are measured again directly."""
+    omega = solid_angles.astype(np.float32)
+    values = values.astype(np.float32, copy=False)
+    g = _lobes_on_grid(directions, lobes)                                    # (F, N, S)
+    weighted = g * omega
+    cross = np.matmul(weighted, values).astype(np.float64)                   # (F, N, C)
+    gram = np.matmul(weighted, np.swapaxes(g, 1, 2)).astype(np.float64)      # (F, N, N)
+    norm = np.einsum("fsc,fsc,s->f", values, values, omega, dtype=np.float64)
+    errors = []
+    for weight in weights:
+        w = weight.astype(np.float64)
+        diff = np.maximum(norm - 2 * np.einsum("fnc,fnc->f", w, cross)
+                          + np.einsum("fnc,fnm,fmc->f", w, gram, w), 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            error = np.where(norm > 0, np.sqrt(diff / norm), np.nan)
+        small = np.flatnonzero(error < _DIRECT_BELOW)
+        if len(small):
+            model = np.einsum("fns,fnc->fsc", g[small], weight[small].astype(np.float32))
+            residual = np.einsum("fsc,fsc,s->f", model - values[small],
+                                 model - values[small], omega, dtype=np.float64)
+            error[small] = np.sqrt(residual / norm[small])
+        errors.append(error)
+    return errors
+
+
+def _lobes_on_grid(directions: np.ndarray, result: SGFit) -> np.ndarray:
+    """The fit's unit-weight lobes exp(λ(μ·ω − 1)) (F, N, S) on ``directions`` (S, 3),
+    float32."""
+    cos = result.mean.astype(np.float32) @ directions.T.astype(np.float32)
+    return np.exp(result.sharpness.astype(np.float32)[..., None] * (cos - 1.0))
 
 
 def fit(directions: np.ndarray, solid_angles: np.ndarray, values: np.ndarray,
         options: FitOptions = DEFAULT_OPTIONS, targets: FitTargets | None = None,
         default_mean: np.ndarray | None = None, start: SGFit | None = None,
-        support: SupportOptions = SupportOptions()) -> tuple[SGFit, np.ndarray]:
+        support: SupportOptions = SupportOptions(),
+        cap: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[SGFit, np.ndarray]:
     """:func:`pipeline.math.sg_fit.fit` of F functions ``values`` (F, S, C) (float32 or
     float64) tabulated on
     the sphere grid ``directions`` (S, 3), ``solid_angles`` (S,), each on its cap only
     (module docstring). Returns the fit (in the functions' order) and the cap sizes (F,).
-    ``targets``, ``default_mean`` ((3,) or (F, 3)) and ``start`` as sg_fit.fit."""
+    ``targets``, ``default_mean`` ((3,) or (F, 3)) and ``start`` as sg_fit.fit; ``cap``:
+    the functions' :func:`caps` where the caller has them (a refit of the same data)."""
     values = np.asarray(values)
     f = len(values)
-    inside, top = caps(directions, solid_angles, values, support)
+    inside, top = caps(directions, solid_angles, values, support) if cap is None else cap
     size = inside.sum(axis=1)
     order = np.argsort(size, kind="stable")
     pieces = []

@@ -64,6 +64,7 @@ from pipeline.render import Frame, camera_key, scatter_pixels
 from pipeline.render.triple_gbuffer import WORK_GROUP
 from pipeline.scene import Scene
 from pipeline.stages.env_prefilter import read_stack
+from pipeline.stages.sg_fit import pack_slots, slot_counts
 from pipeline.store import Artifact
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
@@ -161,21 +162,36 @@ def device_view_triangles(wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, float
 
 @dataclass
 class SgTables:
-    """What a frame reads. ``lobes`` (V, views, 3, 7) float32 (w_rgb 1/sr, μ unit world,
-    λ rad⁻² > 0); ``count`` (V,) lobes per vertex; ``transfer`` (V, 3, 25) float32
-    (diffuse SH transfer); ``stack``/``levels`` the prefiltered map (sg.PrefilterLevels,
-    levels (H_ℓ, W_ℓ, 3) float32, W/(m² sr))."""
+    """What a frame reads. ``lobes`` (R, views, 7) float32: the stored slots, vertex by
+    vertex (w_rgb 1/sr, μ unit world, λ rad⁻² > 0; data_schema/sg_lobes.yaml v2);
+    ``first`` (V + 1,) int32: vertex v's slots are rows first[v] … first[v + 1] − 1;
+    ``count`` (V,) lobes per vertex; ``transfer`` (V, 3, 25) float32 (diffuse SH
+    transfer); ``stack``/``levels`` the prefiltered map (sg.PrefilterLevels, levels
+    (H_ℓ, W_ℓ, 3) float32, W/(m² sr))."""
 
     lobes: np.ndarray
+    first: np.ndarray
     count: np.ndarray
     transfer: np.ndarray
     stack: list[np.ndarray]
     levels: sg.PrefilterLevels
 
+    @classmethod
+    def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
+                   stack: list[np.ndarray], levels: sg.PrefilterLevels,
+                   slots: np.ndarray | None = None) -> SgTables:
+        """Tables from lobes in every slot (V, views, 3, 7), storing ``slots`` (V,) slots
+        per vertex (default max(count, 1))."""
+        count = np.asarray(count, np.uint8)
+        slots = np.maximum(count, 1) if slots is None else np.asarray(slots)
+        rows, first = pack_slots(np.asarray(lobes, np.float32), slots)
+        return cls(rows, np.append(first, len(rows)).astype(np.int32), count,
+                   np.asarray(transfer, np.float32), stack, levels)
+
     @property
     def nbytes(self) -> int:
-        return self.lobes.nbytes + self.count.nbytes + self.transfer.nbytes \
-            + sum(level.nbytes for level in self.stack)
+        return self.lobes.nbytes + self.first.nbytes + self.count.nbytes \
+            + self.transfer.nbytes + sum(level.nbytes for level in self.stack)
 
 
 def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
@@ -189,20 +205,28 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
         raise PrtError("sg.relax", "views: not sg_transport.view_directions() in order; "
                        "re-bake sg.fit")
     lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
+    first = np.asarray(fit.read("first"), np.int64)
     count = np.ascontiguousarray(fit.read("count"), np.uint8)
     transfer = np.ascontiguousarray(diffuse.read("transfer"), np.float32)
     order = int(diffuse.attrs.get("order", sh.ORDER))
-    expected = {"sg.relax lobes": (lobes.shape, (vertex_count, len(views), SLOTS, FIELDS)),
+    expected = {"sg.relax lobes": (lobes.shape[1:], (len(views), FIELDS)),
+                "sg.relax first": (first.shape, (vertex_count,)),
                 "sg.relax count": (count.shape, (vertex_count,)),
                 "sg.diffuse transfer": (transfer.shape, (vertex_count, 3, order ** 2))}
     for what, (shape, want) in expected.items():
         if tuple(shape) != want:
             raise PrtError(what.split()[0], f"{what.split()[1]}: shape {tuple(shape)}, "
                            f"expected {want} (geometry has {vertex_count} vertices)")
+    slots = slot_counts(first, len(lobes))
+    if len(first) and (first[0] != 0 or np.any(slots < count)
+                       or np.any(slots > SLOTS)):
+        raise PrtError("sg.relax", "first: slot rows out of order or fewer than a "
+                       "vertex's count")
     if not (np.all(np.isfinite(lobes)) and np.all(lobes[..., 6] > 0)):
         raise PrtError("sg.relax", "lobes: non-finite values or a sharpness λ ≤ 0")
     stack, levels = read_stack(artifacts["sg.env_prefilter"])
-    return SgTables(lobes, count, transfer, stack, levels)
+    return SgTables(lobes, np.append(first, len(lobes)).astype(np.int32), count, transfer,
+                    stack, levels)
 
 
 # ------------------------------------------------------------------------- shading
@@ -214,18 +238,24 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
     vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
     ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
-    (25, 3), the environment turned by ``degrees`` about +y, times ``scale``."""
+    (25, 3), the environment turned by ``degrees`` about +y, times ``scale``. A slot
+    beyond a corner's stored ones is its slot 0 with w = 0; a corner with none adds
+    nothing."""
     corner = np.asarray(corner, np.int64)
+    view = np.asarray(view, np.int64)
+    base = tables.first[corner].astype(np.int64)
+    stored = tables.first[corner + 1] - base                                  # (P, 3)
     weight = bary[:, :, None].astype(np.float64) * view_weight[:, None, :]  # (P, 3, 3)
-    lobes = tables.lobes[corner[:, :, None], np.asarray(view, np.int64)[:, None, :]]
-    lobes = lobes.astype(np.float64)  # (P, 3 vertices, 3 views, slots, 7)
+    weight = weight * (stored > 0)[:, :, None]
     slots = tables.count[corner].max(axis=1)
     stack = [np.asarray(level, np.float64) for level in tables.stack]
     turn = rotation_y(degrees)
     out = np.zeros((len(corner), 3))
     for s in range(SLOTS):
-        lobe = lobes[:, :, :, s]
-        w = np.einsum("pab,pabc->pc", weight, lobe[..., 0:3])
+        row = np.where(stored > 0, base + np.where(stored > s, s, 0), 0)
+        lobe = tables.lobes[row[:, :, None], view[:, None, :]].astype(np.float64)
+        keep = (stored > s)[:, :, None]
+        w = np.einsum("pab,pabc->pc", weight * keep, lobe[..., 0:3])
         mu = np.einsum("pab,pabc->pc", weight, lobe[..., 3:6])
         if lambda_blend == "log":
             lam = np.exp(np.einsum("pab,pab->p", weight, np.log(lobe[..., 6])))
@@ -266,7 +296,8 @@ class SgDevice:
             lobes = lobes.copy()
             lobes[..., 6] = np.log(lobes[..., 6])
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
-            ("lobes", lobes), ("count", t.count), ("stack", flat), ("info", info))}
+            ("lobes", lobes), ("first", t.first), ("count", t.count), ("stack", flat),
+            ("info", info))}
         self.kernel = cl.kernel("sg_render.cl", "sg_shade",
                                 {"LAMBDA_LOG": int(self.lambda_blend == "log")})
 
@@ -283,7 +314,7 @@ class SgDevice:
         milliseconds."""
         b, levels, a = self.buffers, self.tables.levels, np.radians(degrees)
         out = np.empty((n, 3), np.float32)
-        ms = cl.run(self.kernel, n, b["lobes"], b["count"], vertex_diffuse,
+        ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
                     pixels["view"], pixels["view_weight"], b["stack"], b["info"],
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),

@@ -26,7 +26,14 @@ import numpy as np
 
 from pipeline.math import sg_coherence
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
-from pipeline.stages.sg_fit import VERTEX_CHUNK, batch_edges, flood_order
+from pipeline.stages.sg_fit import (
+    VERTEX_CHUNK,
+    batch_edges,
+    flood_order,
+    pack_slots,
+    slot_counts,
+    unpack_slots,
+)
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
@@ -34,9 +41,13 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     geometry, fit = ctx.inputs["geometry"], ctx.inputs["sg.fit"]
     obj = geometry.attrs["object_names"].index(ctx.chunk.object)
     start, end = (int(x) for x in geometry.read("object_ranges")[obj, :2])
-    lobes, count, error = (fit.read(name, (slice(start, end),))
-                           for name in ("lobes", "count", "error"))
+    count, error = (fit.read(name, (slice(start, end),)) for name in ("count", "error"))
+    rows, first = fit.read("lobes"), fit.read("first")
+    slots = slot_counts(first, len(rows))[start:end]
+    lo = int(first[start]) if end > start else 0
+    rows, first = rows[lo:lo + int(slots.sum())], first[start:end] - lo
     if (count >= 2).any():
+        lobes = unpack_slots(rows, first, slots)
         edges = batch_edges(geometry.read("faces"), start, end)
         order, vertex_nbs = flood_order(end - start, edges)
         view_nbs = sg_coherence.view_neighbours(fit.read("views"))
@@ -48,11 +59,12 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         lobes = np.take_along_axis(lobes, perm[..., None], axis=2)
         after = sg_coherence.count_flips(lobes[..., 3:6], active, count, edges, view_nbs)
         ctx.meta.update(flips_before=before, flips_after=after, sweeps=sweeps)
-    return {"lobes": lobes, "count": count, "error": error}
+        rows, first = pack_slots(lobes, slots)
+    return {"lobes": rows, "first": first, "count": count, "error": error}
 
 
 def layout(ctx: AssembleContext) -> Layout:
-    return Layout(sizes={"vertex_chunk": VERTEX_CHUNK})
+    return Layout(sizes={"vertex_chunk": VERTEX_CHUNK, "slot_chunk": VERTEX_CHUNK})
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
