@@ -69,3 +69,47 @@ def test_chunk_times_example_charts_the_records_chunk_seconds(tmp_path):
     seconds = chunk_times_figure(tmp_path / "work", "geometry", tmp_path / "again.png")
     assert list(seconds) == record["chunks"]
     assert seconds == {c: record["chunk_seconds"][c] for c in record["chunks"]}
+
+
+def test_sg_lobes_example_reads_slot_zero_at_the_normal_view(tmp_path):
+    """examples/sg_lobes_over_mesh.py on a tiny sg bake (a glossy icosphere over a
+    Lambert floor, grid 9 × 16, no indirect paths): from the command line it writes a
+    PNG; its σ per glossy vertex equals slot 0's λ at the view nearest the normal read
+    with Artifact.read, and only vertices that store a slot (the sphere's) appear."""
+    import subprocess
+    import sys
+
+    from test_sg import sg_lights_map
+
+    from pipeline.images import write_exr
+    from pipeline.stages.sg_fit import slot_counts
+
+    write_exr(tmp_path / "env.exr", sg_lights_map().astype(np.float32))
+    doc = small_scene_dict(8)
+    doc["objects"]["ball"]["primitive"]["subdivisions"] = 0
+    doc["lights"] = [{"type": "environment", "file": str(tmp_path / "env.exr")}]
+    doc["settings"] = {"sg.fit_grid": [9, 16], "sg.fit_batch": 64, "sg.indirect_samples": 0}
+    scene = load_scene(write_scene(tmp_path, doc))
+    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+        until="sg.relax", progress=False)
+    out = tmp_path / "lobes.png"
+    result = subprocess.run([sys.executable, str(PROJECT / "examples" / "sg_lobes_over_mesh.py"),
+                             str(tmp_path / "work"), "--out", str(out)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert out.stat().st_size > 0
+
+    sys.path.insert(0, str(PROJECT / "examples"))
+    from sg_lobes_over_mesh import normal_view_sigma
+
+    glossy, _, count, sigma = normal_view_sigma(tmp_path / "work")
+    relax = open_artifact(tmp_path / "work" / "sg.relax.zarr")
+    geometry = open_artifact(tmp_path / "work" / "geometry.zarr")
+    rows, first = relax.read("lobes"), relax.read("first")
+    np.testing.assert_array_equal(glossy, np.flatnonzero(slot_counts(first, len(rows))))
+    ball = geometry.read("object_ranges")[geometry.attrs["object_names"].index("ball")]
+    assert glossy.min() >= ball[0] and glossy.max() < ball[1] and len(glossy) == 12
+    nearest = np.argmax(geometry.read("normals")[glossy] @ relax.read("views").T, axis=1)
+    lam = rows[first[glossy], nearest, 6]
+    np.testing.assert_allclose(sigma, np.degrees(1 / np.sqrt(lam)), rtol=1e-6)
+    np.testing.assert_array_equal(count, relax.read("count")[glossy])
