@@ -11,15 +11,12 @@ seconds and the chunks' sum (their ratio: how well the workers were kept busy).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+from _example import parser, write_figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from pipeline import inspect  # noqa: E402
+from pipeline import inspect
 
 
 def chunk_times_figure(workdir: Path, stage: str, out: Path) -> dict[str, float]:
@@ -34,20 +31,15 @@ def chunk_times_figure(workdir: Path, stage: str, out: Path) -> dict[str, float]
     ax.set_ylabel("seconds (one core)")
     ax.set_title(f"{stage}: {record.get('seconds', 0):.1f} s wall, "
                  f"{sum(seconds.values()):.1f} s summed over chunks")
-    fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    write_figure(fig, out, f"{len(seconds)} chunks")
     return seconds
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("workdir", type=Path)
-    ap.add_argument("stage")
-    ap.add_argument("--out", type=Path, default=Path("chunk_times.png"))
+    ap = parser(__doc__, "chunk_times.png")
+    ap.add_argument("stage", help="an artifact of the work directory, e.g. sg.fit")
     args = ap.parse_args()
-    seconds = chunk_times_figure(args.workdir, args.stage, args.out)
-    print(f"wrote {args.out} ({len(seconds)} chunks)")
+    chunk_times_figure(args.workdir, args.stage, args.out)
 
 
 if __name__ == "__main__":

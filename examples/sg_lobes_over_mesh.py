@@ -13,16 +13,13 @@ marks transport one lobe could not represent (NOTES.md, issue 17).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from _example import parser, write_figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from pipeline import inspect  # noqa: E402
+from pipeline import inspect
 
 
 def normal_view_sigma(workdir: Path, stage: str = "sg.relax"
@@ -44,10 +41,8 @@ def normal_view_sigma(workdir: Path, stage: str = "sg.relax"
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("workdir", type=Path)
+    ap = parser(__doc__, "lobes.png")
     ap.add_argument("--stage", default="sg.relax", choices=["sg.fit", "sg.relax"])
-    ap.add_argument("--out", type=Path, default=Path("lobes.png"))
     args = ap.parse_args()
     _, position, count, sigma = normal_view_sigma(args.workdir, args.stage)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
@@ -61,10 +56,7 @@ def main() -> None:
         ax.set_ylabel("y")
         fig.colorbar(dots, ax=ax, shrink=0.8)
     fig.suptitle(f"{args.stage}: {len(count)} glossy vertices")
-    fig.tight_layout()
-    fig.savefig(args.out, dpi=120)
-    plt.close(fig)
-    print(f"wrote {args.out} ({len(count)} glossy vertices)")
+    write_figure(fig, args.out, f"{len(count)} glossy vertices")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import dask.array as da
 import numpy as np
 import pytest
@@ -14,6 +17,16 @@ from pipeline.scene import load_scene
 from pipeline.schema import load_schema
 from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
+
+sys.path.insert(0, str(PROJECT / "examples"))  # the example scripts' functions
+
+
+def run_example(script: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """``python examples/<script>.py ARGS`` as a user runs it; it must exit 0."""
+    result = subprocess.run([sys.executable, str(PROJECT / "examples" / f"{script}.py"),
+                             *map(str, args)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return result
 
 
 def test_an_artifact_opens_lazily_with_its_schema_dims_and_provenance(tmp_path):
@@ -46,24 +59,17 @@ def test_chunk_times_example_charts_the_records_chunk_seconds(tmp_path):
     """examples/chunk_times.py from the command line on a small scene's geometry: it
     writes a PNG and its bars are the record's chunk seconds, one per chunk, in the
     stage's chunk order."""
-    import subprocess
-    import sys
-
     from matplotlib.image import imread
 
     scene = load_scene(write_scene(tmp_path, small_scene_dict(8)))
     run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
         until="geometry", progress=False)
     out = tmp_path / "times.png"
-    result = subprocess.run([sys.executable, str(PROJECT / "examples" / "chunk_times.py"),
-                             str(tmp_path / "work"), "geometry", "--out", str(out)],
-                            capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stderr
+    result = run_example("chunk_times", str(tmp_path / "work"), "geometry", "--out", str(out))
     record = open_artifact(tmp_path / "work" / "geometry.zarr").record
     assert f"({len(record['chunks'])} chunks)" in result.stdout
     assert imread(out).shape[2] in (3, 4)
 
-    sys.path.insert(0, str(PROJECT / "examples"))
     from chunk_times import chunk_times_figure
 
     seconds = chunk_times_figure(tmp_path / "work", "geometry", tmp_path / "again.png")
@@ -76,9 +82,6 @@ def test_sg_lobes_example_reads_slot_zero_at_the_normal_view(tmp_path):
     Lambert floor, grid 9 × 16, no indirect paths): from the command line it writes a
     PNG; its σ per glossy vertex equals slot 0's λ at the view nearest the normal read
     with Artifact.read, and only vertices that store a slot (the sphere's) appear."""
-    import subprocess
-    import sys
-
     from test_sg import sg_lights_map
 
     from pipeline.images import write_exr
@@ -93,13 +96,9 @@ def test_sg_lobes_example_reads_slot_zero_at_the_normal_view(tmp_path):
     run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
         until="sg.relax", progress=False)
     out = tmp_path / "lobes.png"
-    result = subprocess.run([sys.executable, str(PROJECT / "examples" / "sg_lobes_over_mesh.py"),
-                             str(tmp_path / "work"), "--out", str(out)],
-                            capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stderr
+    run_example("sg_lobes_over_mesh", str(tmp_path / "work"), "--out", str(out))
     assert out.stat().st_size > 0
 
-    sys.path.insert(0, str(PROJECT / "examples"))
     from sg_lobes_over_mesh import normal_view_sigma
 
     glossy, _, count, sigma = normal_view_sigma(tmp_path / "work")
@@ -113,3 +112,35 @@ def test_sg_lobes_example_reads_slot_zero_at_the_normal_view(tmp_path):
     lam = rows[first[glossy], nearest, 6]
     np.testing.assert_allclose(sigma, np.degrees(1 / np.sqrt(lam)), rtol=1e-6)
     np.testing.assert_array_equal(count, relax.read("count")[glossy])
+
+
+def test_brdf_basis_example_reads_one_materials_basis(tmp_path):
+    """examples/brdf_basis.py on the default Cornell box's brdf_basis: from the command
+    line it writes a PNG for the first glossy material; its arrays are that material's
+    row of the artifact (first k basis rows), k is the smallest count whose worst
+    relative RMS is within the tolerance (or the cap), and an unknown material is one
+    error line naming those present."""
+    from pipeline import job
+
+    scene = job.open_scene(None)
+    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+        until="brdf_basis", progress=False)
+    out = tmp_path / "basis.png"
+    run_example("brdf_basis", str(tmp_path / "work"), "--out", str(out))
+    assert out.stat().st_size > 0
+
+    from brdf_basis import material_basis
+
+    artifact = open_artifact(tmp_path / "work" / "brdf_basis.zarr")
+    names = artifact.attrs["material_names"]
+    b = material_basis(tmp_path / "work")
+    m = names.index(b["name"])
+    assert b["k"] == artifact.read("k")[m] > 0
+    assert all(artifact.read("k")[i] == 0 for i in range(m))  # the first glossy one
+    np.testing.assert_array_equal(b["basis"], artifact.read("basis")[m, :b["k"]])
+    np.testing.assert_array_equal(b["mean"], artifact.read("mean")[m])
+    worst = b["worst_rel_rms"]
+    assert worst[b["k"]] <= b["tolerance"] or b["k"] == artifact.attrs["max_k"]
+    assert np.all(worst[:b["k"]] > b["tolerance"])
+    with pytest.raises(PrtError, match="no material 'nope'; present: "):
+        material_basis(tmp_path / "work", "nope")
