@@ -53,15 +53,13 @@ def open_dataset(path: str | Path) -> Any:
 def _lazy(artifact: Artifact, spec: ArraySpec) -> Any:
     """One array as a dask array (segmented: its pieces concatenated, offsets added)."""
     import dask.array as da
-    import numpy as np
 
     if not artifact.is_segmented(spec.name):
         return da.from_zarr(artifact.array(spec.name))
     pieces = [da.from_zarr(piece) for piece in artifact.pieces(spec.name)]
-    if spec.offset_by is not None:
-        lengths = [piece.shape[0] for piece in artifact.pieces(spec.offset_by)]
-        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(spec.dtype)
-        pieces = [piece + start for piece, start in zip(pieces, starts, strict=True)]
+    starts = artifact.segment_offsets(spec.name)
+    if starts is not None:
+        pieces = [piece + start for piece, start in zip(pieces, starts, strict=False)]
     if not pieces:
         return da.zeros((0, *([0] * (len(spec.dims) - 1))), dtype=spec.dtype)
     return da.concatenate(pieces).astype(spec.dtype)

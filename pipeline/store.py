@@ -261,11 +261,20 @@ class Artifact:
                            f"({type(exc).__name__}: {exc}); re-bake with `prt run --force "
                            f"{self.record.get('stage', 'STAGE')}`") from None
 
+    def segment_offsets(self, name: str) -> np.ndarray | None:
+        """What each piece of segmented array ``name`` is shifted by when read (the
+        start of the same chunk's piece of its ``offset_by`` array), None if it has no
+        ``offset_by``."""
+        spec = load_schema(self.record["kind"]).arrays[name]
+        if spec.offset_by is None:
+            return None
+        return np.cumsum([0] + [p.shape[0] for p in self.pieces(spec.offset_by)])
+
     def _read_segments(self, name: str) -> np.ndarray:
         parts = [self._read_array(p) for p in self.pieces(name)]
         spec = load_schema(self.record["kind"]).arrays[name]
-        if spec.offset_by is not None:
-            starts = np.cumsum([0] + [p.shape[0] for p in self.pieces(spec.offset_by)])
+        starts = self.segment_offsets(name)
+        if starts is not None:
             parts = [part + starts[i] for i, part in enumerate(parts)]
         if not parts:
             return np.zeros((0, *([0] * (len(spec.dims) - 1))), spec.dtype)

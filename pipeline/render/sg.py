@@ -218,7 +218,7 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
             raise PrtError(what.split()[0], f"{what.split()[1]}: shape {tuple(shape)}, "
                            f"expected {want} (geometry has {vertex_count} vertices)")
     slots = slot_counts(first, len(lobes))
-    if len(first) and (first[0] != 0 or np.any(slots < count)
+    if len(first) and (first[0] != 0 or np.any(slots < 0) or np.any(slots < count)
                        or np.any(slots > SLOTS)):
         raise PrtError("sg.relax", "first: slot rows out of order or fewer than a "
                        "vertex's count")
