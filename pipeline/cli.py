@@ -87,14 +87,24 @@ def cli() -> None:
 @STAGES
 @JOBS
 @THREADS
+@click.option("--scheduler", metavar="ADDRESS|local:N", default=None,
+              help="Run the chunks on a dask.distributed cluster: the address of a running "
+                   "scheduler (workers must see the work directory and the scene's files "
+                   "at the same paths, and run this prt), or local:N for N worker "
+                   "processes here. --threads is then per chunk [default: 1 on a "
+                   "cluster, the cores / N with local:N]. The artifacts are the same "
+                   "bytes as an in-process bake. [default: no cluster]")
 @QUIET
 def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stagefile, jobs,
-            threads, quiet) -> None:
+            threads, scheduler, quiet) -> None:
     """Bake every stale stage, then bring the scene's frame and edit sequences up to
     date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
     from pipeline.method import scene_methods, scene_notes
 
+    if scheduler is not None and jobs is not None:
+        raise PrtError("--jobs", "does not apply with --scheduler (the cluster's workers "
+                       "run the chunks; local:N sets their number)")
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
     sc = job.open_scene(scene, parse_size(size))
@@ -102,9 +112,10 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
     frames = frames or Path("frames") / sc.name
     notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
     show_notes(notes, as_json)
-    report, rendered, sequences = job.main_job(sc, wd, frames, until, tuple(force),
-                                               cores.workers, quiet, stagefile,
-                                               threads=cores.threads, exposure=exposure)
+    report, rendered, sequences = job.main_job(
+        sc, wd, frames, until, tuple(force), cores.workers, quiet, stagefile,
+        threads=threads if scheduler else cores.threads, exposure=exposure,
+        scheduler=scheduler)
     warnings = job.tolerance_warnings(report)
     if rendered is not None and rendered.frame is not None:
         notes += rendered.frame.notes

@@ -4,8 +4,8 @@
 task), which every one of those pools honours.
 
 Tasks are plain picklable values and the task function is a module-level function, so
-the same task list runs in-process, on a local process pool, or (later) on a
-dask.distributed cluster behind this same interface; artifacts come out bit-identical
+the same task list runs in-process, on a local process pool, or on a dask.distributed
+cluster (pipeline/dask_executor.py) behind this same interface; artifacts come out bit-identical
 whichever ran them, and however many threads each task had, because each task's
 randomness is seeded from its own key and no result depends on how work is sliced.
 """
@@ -200,7 +200,7 @@ class InProcessExecutor:
         self.close()
 
 
-def _search_dirs() -> tuple[list[str], list[str]]:
+def search_dirs() -> tuple[list[str], list[str]]:
     """This process's kernel and schema folders (pipeline/searchpath.py), which include
     those that method plug-ins added when they were imported."""
     from pipeline.searchpath import kernel_dirs, schema_dirs
@@ -209,17 +209,24 @@ def _search_dirs() -> tuple[list[str], list[str]]:
 
 
 def _init_worker(parent: int, threads: int, search: tuple[list[str], list[str]]) -> None:
-    """Worker initializer: die with the parent (``_die_with_parent``); find kernels and
-    schemas where the parent does (``search``: the plug-ins' folders, which a worker
-    would otherwise only learn by importing the plug-ins); then this worker's share of
-    the cores: ``threads`` threads per task for ``map_slices`` and Embree, PoCL's CPU
-    device limited to ``threads`` (set before any OpenCL context exists here), and BLAS
-    and OpenMP at one thread."""
+    """Worker initializer: die with the parent (``die_with_parent``), then
+    ``prepare_worker``."""
+    die_with_parent(parent)
+    prepare_worker(threads, search)
+
+
+def prepare_worker(threads: int, search: tuple[list[str], list[str]],
+                   opencl_threads: int | None = None) -> None:
+    """Make this (worker) process ready for chunk tasks: find kernels and schemas where
+    the run's process does (``search``: the plug-ins' folders, which a worker would
+    otherwise only learn by importing the plug-ins); ``threads`` threads per task for
+    ``map_slices`` and Embree; PoCL's CPU device limited to ``opencl_threads`` (default
+    ``threads``; set before any OpenCL context exists here); BLAS and OpenMP at one
+    thread."""
     from pathlib import Path
 
     from pipeline.searchpath import add_kernel_dir, add_schema_dir, kernel_dirs, schema_dirs
 
-    _die_with_parent(parent)
     for folders, have, add in ((search[0], kernel_dirs(), add_kernel_dir),
                                (search[1], schema_dirs(), add_schema_dir)):
         for folder in map(Path, folders):
@@ -227,13 +234,13 @@ def _init_worker(parent: int, threads: int, search: tuple[list[str], list[str]])
                 add(folder)
     global _task_threads
     _task_threads = threads
-    cap_opencl_threads(threads)
+    cap_opencl_threads(opencl_threads or threads)
     for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = "1"
     one_blas_thread()
 
 
-def _die_with_parent(parent: int) -> None:
+def die_with_parent(parent: int) -> None:
     """On Linux, ask the kernel to kill this worker when the run that started it dies
     (even by SIGKILL), so that no orphan keeps computing; exit at once if that run died
     while this worker was starting."""
@@ -267,7 +274,7 @@ class LocalPoolExecutor:
     def _new_pool(self) -> ProcessPoolExecutor:
         ctx = multiprocessing.get_context("spawn")
         return ProcessPoolExecutor(self.jobs, mp_context=ctx, initializer=_init_worker,
-                                   initargs=(os.getpid(), self.threads, _search_dirs()))
+                                   initargs=(os.getpid(), self.threads, search_dirs()))
 
     def map_unordered(self, fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Any]:
         tasks = list(tasks)
@@ -284,8 +291,10 @@ class LocalPoolExecutor:
                 for future in done:
                     yield future.result()
         finally:
-            for future in pending:
-                future.cancel()
+            # an error, or the caller stopped early: cancel what has not started and wait
+            # for what has (a chunk still running would otherwise write into the
+            # artifact after the caller has dealt with the error)
+            wait([future for future in pending if not future.cancel()])
             if pool is not self._pool:
                 pool.shutdown()
 
@@ -336,12 +345,24 @@ def map_slices(fn: Callable[[slice], Any], n: int, size: int,
         return list(pool.map(fn, slices))
 
 
-def make_executor(jobs: int | Cores | None = None, threads: int | None = None
-                  ) -> InProcessExecutor | LocalPoolExecutor:
+def make_executor(jobs: int | Cores | None = None, threads: int | None = None,
+                  scheduler: str | None = None, quiet: bool = False) -> Any:
     """The executor for a ``Cores`` setting, or for ``jobs`` worker processes and
     ``threads`` per task (either None: ``Cores.resolve``): in-process for one worker,
-    else a local pool. Use it as a context manager so that a pool's workers serve every
-    stage and are stopped at the end."""
+    else a local pool; with ``scheduler`` (an address or ``local:N``), a dask cluster's
+    workers (pipeline/dask_executor.py; ``jobs`` does not apply, ``threads`` is per
+    chunk there; unless ``quiet``, the cluster and its dashboard are announced on
+    stderr). Use it as a context manager so that a pool's workers serve every stage and
+    are stopped at the end."""
+    if scheduler is not None:
+        from pipeline.dask_executor import DaskExecutor, announce_on_stderr
+
+        if jobs is not None:
+            from pipeline.errors import PrtError
+
+            raise PrtError("--jobs", "does not apply with --scheduler (the cluster's "
+                           "workers run the chunks; local:N sets their number)")
+        return DaskExecutor(scheduler, threads, None if quiet else announce_on_stderr)
     cores = jobs if isinstance(jobs, Cores) else Cores.resolve(jobs, threads)
     if cores.workers <= 1:
         return InProcessExecutor(cores.threads)

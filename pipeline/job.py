@@ -65,15 +65,18 @@ def baked_stages(scene: Scene, methods: list[Method] | None = None) -> set[str]:
 def bake(scene: Scene, workdir: Workdir, until: str | None = None,
          force: tuple[str, ...] = (), jobs: int | None = None, quiet: bool = False,
          stagefile: str | Path | None = None,
-         methods: list[Method] | None = None, threads: int | None = None) -> list[StageRun]:
+         methods: list[Method] | None = None, threads: int | None = None,
+         scheduler: str | None = None) -> list[StageRun]:
     """Run every stale stage that the scene's methods (or ``methods``) need, or those
     ``until`` needs; a custom ``stagefile`` runs all of its stages. Chunks run on
     ``jobs`` worker processes (1: in this process) with ``threads`` threads each; either
     None: pipeline/executors.py ``Cores.resolve`` (``$PRT_JOBS``, ``$PRT_THREADS``, else
-    chosen from the available cores). The artifacts do not depend on either."""
+    chosen from the available cores); or, with ``scheduler`` (a dask scheduler's
+    address or ``local:N``), on a dask cluster's workers (pipeline/dask_executor.py).
+    The artifacts do not depend on any of these."""
     graph = stages(stagefile)
     targets = None if until or stagefile else baked_stages(scene, methods)
-    with make_executor(jobs, threads) as executor:
+    with make_executor(jobs, threads, scheduler, quiet) as executor:
         return run(scene, graph, workdir, until=until, force=force, executor=executor,
                    progress=not quiet, targets=targets)
 
@@ -337,18 +340,20 @@ def main_frame_path(scene: Scene, method: Method, frames: Path) -> Path:
 def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
              force: tuple[str, ...], jobs: int | None, quiet: bool,
              stagefile: str | Path | None = None, threads: int | None = None,
-             exposure: float = 0.0
+             exposure: float = 0.0, scheduler: str | None = None
              ) -> tuple[list[StageRun], RenderResult | None, list[SequenceResult]]:
     """``prt run``: bake every stale stage of the scene's methods, then (unless
     ``until``, or with a custom stage file) bring the frame of the scene's first method
     and each of its main edit sequences in ``frames`` up to date: every frame missing,
     changed on disk or stale is rendered again. A main sequence that does not apply to
     the scene (pipeline.method.NotApplicable: e.g. no light that can move) is skipped,
-    saying why, before any frame is written."""
+    saying why, before any frame is written. ``scheduler``: bake on a dask cluster
+    (``bake``); frames are rendered here."""
     from pipeline.method import NotApplicable
 
-    report = bake(scene, workdir, until=until, force=force, jobs=jobs, quiet=quiet,
-                  stagefile=stagefile, threads=threads)
+    report = bake(scene, workdir, until=until, force=force,
+                  jobs=None if scheduler else jobs, quiet=quiet, stagefile=stagefile,
+                  threads=threads, scheduler=scheduler)
     if until or stagefile:
         return report, None, []
     method = scene_methods(scene)[0]

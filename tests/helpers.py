@@ -43,6 +43,19 @@ def small_scene_dict(size: int = 24) -> dict[str, Any]:
     }
 
 
+TOY_STAGEFILE = TESTS / "toy" / "stages.yaml"
+TOY_STAGES = ("geometry", "gbuffer", "per_object", "total", "tiles")
+
+
+def artifact_bytes(workdir: Any, stages: tuple[str, ...] = TOY_STAGES
+                   ) -> dict[str, dict[str, bytes]]:
+    """Every array of every stage's artifact in ``workdir`` (a Workdir), as raw bytes."""
+    from pipeline.store import open_artifact
+
+    return {s: {n: a.tobytes() for n, a in open_artifact(workdir.artifact(s)).read_all().items()}
+            for s in stages}
+
+
 def write_scene(folder: Path, doc: dict[str, Any], name: str = "scene.yaml") -> Path:
     """Write a scene dictionary as YAML into ``folder``; returns its path."""
     path = folder / name

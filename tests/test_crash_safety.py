@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import TESTS, small_scene_dict, write_scene
+from helpers import TOY_STAGEFILE, TOY_STAGES, artifact_bytes, small_scene_dict, write_scene
 
 from pipeline import job
 from pipeline.errors import PrtError
@@ -20,14 +20,8 @@ from pipeline.scene import default_scene_path, load_scene
 from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact, read_record
 
-STAGEFILE = TESTS / "toy" / "stages.yaml"
-STAGES = ("geometry", "gbuffer", "per_object", "total", "tiles")
-
-
-def artifact_bytes(workdir: Workdir) -> dict[str, dict[str, bytes]]:
-    """Every array of every stage's artifact, as raw bytes."""
-    return {s: {n: a.tobytes() for n, a in open_artifact(workdir.artifact(s)).read_all().items()}
-            for s in STAGES}
+STAGEFILE = TOY_STAGEFILE
+STAGES = TOY_STAGES
 
 
 def cli(*args: str) -> subprocess.Popen:
@@ -35,11 +29,12 @@ def cli(*args: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-@pytest.mark.parametrize("jobs", ["1", "2"])
+@pytest.mark.parametrize("jobs", ["1", "2", "local:2"])
 def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path, jobs):
-    """SIGKILL (of a serial run, or of the parent of a 2-process pool) while the tiles
-    stage runs: earlier artifacts stay valid, the next run reuses the finished chunks,
-    and the result equals an uninterrupted serial run's."""
+    """SIGKILL (of a serial run, of the parent of a 2-process pool, or of the client of
+    a 2-worker dask LocalCluster) while the tiles stage runs: earlier artifacts stay
+    valid, the next run reuses the finished chunks, and the result equals an
+    uninterrupted serial run's."""
     doc = small_scene_dict()
     doc["settings"] = {"toy.sleep": 0.3}
     scene_path = write_scene(tmp_path, doc)
@@ -49,8 +44,9 @@ def test_sigkill_mid_stage_then_resume_is_bit_identical(tmp_path, jobs):
     run(load_scene(scene_path), stagefile, reference, progress=False)
 
     killed = Workdir(tmp_path / "killed")
+    workers = ("--scheduler", jobs) if jobs.startswith("local:") else ("--jobs", jobs)
     args = ("run", str(scene_path), "--stages", str(STAGEFILE), "--workdir", str(killed.root),
-            "--jobs", jobs, "-q")
+            *workers, "-q")
     proc = cli(*args)
     pieces = killed.markers("tiles")
     deadline = time.monotonic() + 120

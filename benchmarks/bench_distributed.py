@@ -1,0 +1,144 @@
+"""Benchmark: the heaviest stage of each method in-process against a dask LocalCluster of
+2 worker processes (``prt run --scheduler local:2``; issue 18, aim ≥ 1.8×), with the
+local process pool (``--jobs 2``) beside it, and the scheduler's cost per task.
+
+Per case, the scene is baked once up to the stage, then the stage is re-run with
+``prt run SCENE --until STAGE --force STAGE`` per configuration, configurations
+alternating over ``--rounds`` rounds (each run started on a quiet machine and repeated
+when others used the cores meanwhile: benchmarks/bench_cores.py ``quiet_prt``):
+
+* d2i: ``d2i.transfer``, the default Cornell box at 128² (16 tiles of 32²);
+* triple: ``triple.visibility``, bunny_grace at 64² (texel tiles of its atlas);
+* sg: ``sg.fit``, bunny_sg_coarse (453 glossy vertices; the ground is Lambertian).
+
+Configurations: ``1x1`` (in-process, one thread: the baseline of the aim), ``1x2``
+(in-process, both cores as threads), ``local:2`` and ``2x1`` (the local pool). The
+stage's seconds are the run's own (its chunks and the assembly of its artifact; for
+local:2 also the cluster's start, ≈ 2 s, which a first stage pays); each run's
+artifact digest is recorded: they must all be equal.
+
+``overhead``: the scheduler's round trip per task on a LocalCluster of 2 workers, from
+``--tasks`` no-op tasks submitted at once (what a chunk pays besides its work), for the
+written estimate of paper 000's Interior scene on 32 workers (NOTES.md).
+
+Run from the project root, nothing else heavy running:
+  python benchmarks/bench_distributed.py --workdir /tmp/bench_distributed
+Writes benchmarks/results/distributed.json (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from bench_cores import ROOT, prt, quiet_prt, scene_file, stage_seconds
+
+from pipeline.store import read_record
+
+CONFIGS = ["1x1", "1x2", "local:2", "2x1"]
+
+
+def config_args(config: str) -> list[str]:
+    """``JxT`` -> --jobs J --threads T; ``local:N`` -> --scheduler local:N."""
+    if config.startswith("local:"):
+        return ["--scheduler", config]
+    jobs, threads = config.split("x")
+    return ["--jobs", jobs, "--threads", threads]
+
+
+def cases(folder: Path) -> list[dict[str, Any]]:
+    """The method, scene arguments and heaviest stage of each case."""
+    return [
+        {"method": "d2i", "scene": [str(scene_file(folder, 128))], "stage": "d2i.transfer"},
+        {"method": "triple", "scene": [str(ROOT / "scenes" / "bunny_grace.yaml"),
+                                       "--size", "64x64"], "stage": "triple.visibility"},
+        {"method": "sg", "scene": [str(ROOT / "scenes" / "bunny_sg_coarse.yaml")],
+         "stage": "sg.fit"},
+    ]
+
+
+def noop(x: int) -> int:
+    return x
+
+
+def scheduler_overhead(tasks: int) -> dict[str, float]:
+    """Milliseconds per task of ``tasks`` no-op tasks on a 2-worker LocalCluster
+    (submitted at once, gathered as they complete), median of 5 batches."""
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        client.gather(client.map(noop, range(4), pure=False))  # warm-up
+        per_task = []
+        for _ in range(5):
+            start = time.perf_counter()
+            for future in as_completed(client.map(noop, range(tasks), pure=False)):
+                future.result()
+            per_task.append((time.perf_counter() - start) / tasks * 1e3)
+    return {"tasks": tasks, "ms_per_task_median": statistics.median(per_task),
+            "ms_per_task": per_task}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--workdir", type=Path, required=True,
+                        help="folder for the bakes (one work directory per case)")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--only", choices=["d2i", "triple", "sg"], action="append",
+                        help="run only these cases (repeatable) [default: all]")
+    parser.add_argument("--tasks", type=int, default=400, help="no-op tasks per batch")
+    parser.add_argument("--out", type=Path,
+                        default=ROOT / "benchmarks" / "results" / "distributed.json")
+    args = parser.parse_args()
+    args.workdir.mkdir(parents=True, exist_ok=True)
+
+    result: dict[str, Any] = {"cpus": os.cpu_count(), "configs": CONFIGS, "cases": {},
+                              "load_average_start": os.getloadavg()[0]}
+    result["overhead"] = scheduler_overhead(args.tasks)
+    print("overhead", json.dumps(result["overhead"]), flush=True)
+    for case in cases(args.workdir):
+        if args.only and case["method"] not in args.only:
+            continue
+        workdir = args.workdir / case["method"]
+        base = ["run", *case["scene"], "--until", case["stage"], "--workdir", str(workdir)]
+        prt(base)  # the stages before it, once
+        runs: dict[str, list[dict[str, Any]]] = {c: [] for c in CONFIGS}
+        for round_ in range(args.rounds):
+            for config in CONFIGS:
+                r = quiet_prt([*base, "--force", case["stage"], *config_args(config)])
+                record = read_record(next(workdir.rglob(f"{case['stage']}.zarr")))
+                runs[config].append({
+                    "round": round_, "stage_s": stage_seconds(r["report"], case["stage"]),
+                    "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
+                    "other_cpu_s": r["other_cpu_s"], "noisy": r["noisy"],
+                    "chunks": len(record["chunk_digests"]),
+                    "chunk_seconds_sum": sum(record["chunk_seconds"].values()),
+                    "digest": record["digest"]})
+                print(case["method"], config, json.dumps(runs[config][-1]), flush=True)
+        median = {c: statistics.median(r["stage_s"] for r in rs) for c, rs in runs.items()}
+        digests = {r["digest"] for rs in runs.values() for r in rs}
+        result["cases"][case["method"]] = {
+            "stage": case["stage"], "scene": case["scene"], "stage_s_median": median,
+            "speedup_local2_vs_1x1": median["1x1"] / median["local:2"],
+            "speedup_local2_vs_1x2": median["1x2"] / median["local:2"],
+            "speedup_pool2_vs_1x1": median["1x1"] / median["2x1"],
+            "identical_digests": len(digests) == 1, "runs": runs}
+        print(case["method"], json.dumps({k: v for k, v in result["cases"][case["method"]]
+                                          .items() if k != "runs"}), flush=True)
+    result["load_average_end"] = os.getloadavg()[0]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1))
+    print(f"wrote {args.out}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

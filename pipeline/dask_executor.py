@@ -1,0 +1,188 @@
+"""Chunk tasks on a dask.distributed cluster: ``prt run --scheduler ADDRESS`` (a running
+scheduler) or ``--scheduler local:N`` (a LocalCluster of N worker processes here).
+
+The client (the ``prt run`` process) plans, submits one task per chunk and records
+provenance; workers run :func:`pipeline.runner.execute_chunk`, which reads the inputs and
+writes the chunk straight into the shared work directory and then its record, as in a
+local run. So:
+
+* a worker killed in the middle of a chunk leaves that chunk unrecorded; the scheduler
+  gives the task to another worker, which writes the whole chunk again (the same bytes:
+  a chunk's randomness is seeded from its key);
+* a client that dies leaves every recorded chunk in place; the next ``prt run`` plans
+  the same keys and runs only the chunks without a record (a LocalCluster's workers die
+  with it: they are its child processes and ask the kernel to be killed with it);
+* the artifacts are bit-identical to an in-process bake (tests/test_dask_executor.py).
+
+Workers must see the work directory, the scene's meshes and maps at the same absolute
+paths as the client, and run the same prt installation (the chunk keys hold the client's
+code version). A worker process is prepared on its first task as a local pool's is
+(pipeline/executors.py ``prepare_worker``): the client's kernel and schema folders, one
+BLAS thread, PoCL's CPU device capped to the process's share. On a cluster of one
+thread per worker process (``dask worker ADDRESS --nthreads 1``, the tested setting) each
+chunk gets ``threads`` threads (default 1); several dask threads in one worker process
+run several chunks at once there, each with ``threads`` threads.
+
+dask is imported only here, and this module only for ``--scheduler``: ``prt status`` and
+in-process runs never load it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import uuid
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+from pipeline.errors import PrtError
+from pipeline.executors import (
+    InProcessExecutor,
+    available_cpus,
+    die_with_parent,
+    prepare_worker,
+    search_dirs,
+    threads_per_task,
+)
+
+LOCAL_PREFIX = "local:"
+CONNECT_TIMEOUT = "20s"  # how long to wait for a scheduler's address to answer
+
+_prepared = False  # whether this worker process was prepared (run_on_worker)
+
+
+def run_on_worker(fn: Callable[[Any], Any], task: Any, threads: int,
+                  search: tuple[list[str], list[str]], parent: int | None) -> Any:
+    """``fn(task)`` on a dask worker with ``threads`` threads, the process prepared on
+    its first task (``parent``: the pid of the LocalCluster's process, which a local
+    worker dies with; None on a remote cluster)."""
+    global _prepared
+    if not _prepared:
+        from distributed import get_worker
+
+        if parent is not None:
+            die_with_parent(parent)
+        prepare_worker(threads, search, threads * get_worker().state.nthreads)
+        _prepared = True
+    with threads_per_task(threads):
+        return fn(task)
+
+
+def parse_scheduler(text: str) -> tuple[str | None, int]:
+    """``local:N`` -> (None, N); an address -> (address, 0); PrtError otherwise."""
+    if text.startswith(LOCAL_PREFIX):
+        count = text[len(LOCAL_PREFIX):]
+        if not count.isdigit() or int(count) < 1:
+            raise PrtError("--scheduler", f"{text!r}: expected local:N with N a positive "
+                           "number of worker processes")
+        return None, int(count)
+    if not text.strip():
+        raise PrtError("--scheduler", "empty address: expected HOST:PORT (a running dask "
+                       "scheduler, e.g. tcp://10.0.0.5:8786) or local:N")
+    return text, 0
+
+
+class DaskExecutor:
+    """Chunk tasks as dask futures, results yielded as they finish (the
+    pipeline/executors.py ``Executor`` interface).
+
+    ``scheduler``: an address, or ``local:N`` for a LocalCluster of N single-threaded
+    worker processes started on first use (each chunk then gets ``threads``, default
+    the available CPUs / N; a stage with one chunk runs in this process with all of
+    them, as the local pool does). ``announce`` gets one line when the client connects
+    (the cluster and its dashboard address). Use it as a context manager: the client,
+    and a LocalCluster, are closed at the end."""
+
+    def __init__(self, scheduler: str, threads: int | None = None,
+                 announce: Callable[[str], None] | None = None) -> None:
+        self.address, self.local_workers = parse_scheduler(scheduler)
+        if self.local_workers:
+            self.threads = threads or max(1, available_cpus() // self.local_workers)
+        else:
+            self.threads = threads or 1
+        self.announce = announce
+        self._client: Any = None
+        self._cluster: Any = None
+
+    def client(self) -> Any:
+        """The dask client, connected (and the LocalCluster started) on first use."""
+        if self._client is None:
+            from distributed import Client, LocalCluster
+
+            try:
+                if self.local_workers:
+                    self._cluster = LocalCluster(
+                        n_workers=self.local_workers, threads_per_worker=1, processes=True,
+                        dashboard_address=":0", silence_logs=logging.ERROR)
+                    self._client = Client(self._cluster)
+                else:
+                    self._client = Client(self.address, timeout=CONNECT_TIMEOUT)
+            except OSError as exc:
+                raise PrtError("--scheduler", f"cannot reach the dask scheduler at "
+                               f"{self.address}: {exc}") from None
+            if self.announce:
+                workers = self._client.scheduler_info().get("workers", {})
+                link = self._client.dashboard_link or "none (install bokeh)"
+                self.announce(f"dask: {self._client.scheduler.address}, {len(workers)} "
+                              f"worker(s), {self.threads} thread(s) per chunk; dashboard "
+                              f"{link}")
+        return self._client
+
+    def map_unordered(self, fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Any]:
+        from distributed import as_completed, wait
+
+        tasks = list(tasks)
+        if not tasks:
+            return
+        if len(tasks) == 1 and self.local_workers:
+            yield from InProcessExecutor(self.local_workers * self.threads).map_unordered(
+                fn, tasks)
+            return
+        client = self.client()
+        parent = os.getpid() if self.local_workers else None
+        search = search_dirs()
+        token = uuid.uuid4().hex[:8]
+        futures = [client.submit(run_on_worker, fn, task, self.threads, search, parent,
+                                 key=f"{_label(task, i)}#{token}", pure=False)
+                   for i, task in enumerate(tasks)]
+        pending = set(futures)
+        try:
+            for future in as_completed(futures):
+                pending.discard(future)
+                yield future.result()
+        finally:
+            if pending:  # an error, or the caller stopped early
+                running = {key for keys in client.processing().values() for key in keys}
+                client.cancel([f for f in pending if f.key not in running])
+                # a chunk still running would write into the artifact after the caller
+                # has dealt with the error: wait for those
+                wait([f for f in pending if f.key in running])
+
+    def close(self) -> None:
+        """Close the client and stop a LocalCluster's workers."""
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+    def __enter__(self) -> DaskExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _label(task: Any, index: int) -> str:
+    """A task's name in the dashboard: ``stage/chunk`` for a chunk task."""
+    stage, chunk = getattr(task, "stage", None), getattr(task, "chunk", None)
+    return f"{stage}/{chunk.id}" if stage and chunk is not None else f"task-{index}"
+
+
+def announce_on_stderr(line: str) -> None:
+    """Print ``line`` on stderr above any progress bar."""
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stderr)

@@ -1,0 +1,126 @@
+"""Chunk tasks on a dask.distributed LocalCluster (pipeline/dask_executor.py): the same
+bytes as an in-process bake, a worker killed mid-stage changes nothing, bad
+``--scheduler`` values are refused in one line, and ``prt status`` never loads dask.
+(A killed client: tests/test_crash_safety.py, ``local:2``.)"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from helpers import TOY_STAGEFILE, artifact_bytes, small_scene_dict, write_scene
+
+from pipeline import job
+from pipeline.dask_executor import DaskExecutor, parse_scheduler
+from pipeline.errors import PrtError
+from pipeline.runner import run
+from pipeline.scene import default_scene_path, load_scene
+from pipeline.stagefile import load_stagefile
+from pipeline.store import Workdir, read_record
+
+D2I_STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer",
+              "d2i.bounce", "d2i.truncate")
+
+
+def test_default_scene_on_two_workers_is_bit_identical(tmp_path):
+    """The embedded default scene (d2i), small, baked in-process and on a LocalCluster of
+    2 worker processes: every artifact holds the same bytes and the same digest. Tiles
+    and gather blocks small enough that the chunked stages have several chunks each."""
+    scene = load_scene(default_scene_path()).with_image_size(24, 24).with_settings(
+        {"gather.count": 1024, "transfer.tile": 8, "gbuffer.tile": 8, "bounce.block": 256})
+    baked = {}
+    for name, how in (("in_process", {"jobs": 1, "threads": 1}),
+                      ("local2", {"scheduler": "local:2"})):
+        workdir = job.workdir_for(scene, tmp_path / name)
+        report = job.bake(scene, workdir, until="d2i.truncate", quiet=True, **how)
+        assert len([r for r in report if r.name == "d2i.transfer"][0].ran_chunks) == 9
+        baked[name] = ({s: read_record(workdir.artifact(s))["digest"] for s in D2I_STAGES},
+                       artifact_bytes(workdir, D2I_STAGES))
+    assert baked["in_process"] == baked["local2"]
+
+
+def test_a_worker_killed_mid_stage_changes_nothing(tmp_path):
+    """SIGKILL of the worker process running a tiles chunk (each sleeps 0.4 s): the
+    scheduler gives its chunk to another worker (the nanny starts a new one), the bake
+    completes, and every artifact equals an in-process bake's."""
+    doc = small_scene_dict()
+    doc["settings"] = {"toy.sleep": 0.4}
+    scene = load_scene(write_scene(tmp_path, doc))
+    stagefile = load_stagefile(TOY_STAGEFILE)
+    reference = Workdir(tmp_path / "reference")
+    run(scene, stagefile, reference, progress=False)
+
+    workdir = Workdir(tmp_path / "killed")
+    killed: list[int] = []  # the killed worker's pid
+    with DaskExecutor("local:2") as executor:
+        client = executor.client()
+        pids = client.run(os.getpid)  # worker address -> pid
+
+        def kill_a_tiles_worker() -> None:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                for address, keys in client.processing().items():
+                    running = [k for k in keys if str(k).startswith("tiles/")]
+                    if running:
+                        time.sleep(0.1)  # into the chunk's sleep
+                        os.kill(pids[address], signal.SIGKILL)
+                        killed.append(pids[address])
+                        return
+                time.sleep(0.01)
+
+        killer = threading.Thread(target=kill_a_tiles_worker)
+        killer.start()
+        report = run(scene, stagefile, workdir, executor=executor, progress=False)
+        killer.join()
+        assert killed, "no tiles chunk was seen running"
+        assert killed[0] not in client.run(os.getpid).values()  # a new worker took over
+    assert len([r for r in report if r.name == "tiles"][0].ran_chunks) == 9
+    assert artifact_bytes(workdir) == artifact_bytes(reference)
+
+
+@pytest.mark.parametrize("text, expected", [("local:3", (None, 3)),
+                                            ("tcp://10.0.0.5:8786", ("tcp://10.0.0.5:8786", 0))])
+def test_scheduler_values(text, expected):
+    assert parse_scheduler(text) == expected
+
+
+@pytest.mark.parametrize("text", ["local:0", "local:x", "local:", " "])
+def test_bad_scheduler_values_are_refused(text):
+    with pytest.raises(PrtError, match="--scheduler"):
+        parse_scheduler(text)
+
+
+def test_unreachable_scheduler_is_one_line(monkeypatch):
+    """A scheduler address nobody listens on: a one-line PrtError naming it."""
+    import pipeline.dask_executor as dask_executor
+
+    monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT", "2s")
+    with DaskExecutor("tcp://127.0.0.1:9") as executor, \
+            pytest.raises(PrtError, match="cannot reach the dask scheduler at "
+                                          "tcp://127.0.0.1:9") as info:
+        executor.client()
+    assert "\n" not in str(info.value)
+
+
+def test_jobs_and_scheduler_together_are_refused(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "pipeline", "run", "--workdir",
+                             str(tmp_path / "w"), "--jobs", "2", "--scheduler", "local:2"],
+                            capture_output=True, text=True)
+    assert result.returncode != 0 and "--jobs" in result.stderr
+    assert "does not apply with --scheduler" in result.stderr
+
+
+def test_status_and_in_process_runs_do_not_load_dask(tmp_path):
+    """``prt status`` and an in-process bake never import dask or distributed."""
+    code = ("import sys; from pipeline.cli import cli; "
+            f"cli(['status', '--workdir', {str(tmp_path / 'w')!r}], standalone_mode=False); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('dask', 'distributed')))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().splitlines()[-1] == "[]"
