@@ -23,8 +23,10 @@ def parser(doc: str, out: str) -> argparse.ArgumentParser:
 
 
 def write_figure(fig: Any, out: Path, what: str) -> None:
-    """Lay out, save and close ``fig``; print where it went and ``what`` it shows."""
-    fig.tight_layout()
+    """Lay out (unless the figure has its own layout engine), save and close ``fig``;
+    print where it went and ``what`` it shows."""
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)
     print(f"wrote {out} ({what})")

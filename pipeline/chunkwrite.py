@@ -73,8 +73,7 @@ def begin(workdir: Workdir, path: Path, schema: Schema, record: dict[str, Any],
     missing = sorted(set(regions) - set(shapes))
     if missing:
         raise PrtError(path, f"stage layout gives no shape for region array {missing[0]!r}")
-    layout = {"shapes": {n: list(shapes[n]) for n in regions}, "sizes": dict(sorted(
-        sizes.items())), "schema_version": schema.version}
+    layout = layout_record(schema, shapes, sizes)
     old = _record_or_none(path)
     keep = old is not None and old.get("layout") == layout
     if not keep:
@@ -92,6 +91,15 @@ def begin(workdir: Workdir, path: Path, schema: Schema, record: dict[str, Any],
     header = {"format": RECORD_FORMAT, "kind": schema.kind, "schema_version": schema.version}
     _set_record(path, {**header, **record, "layout": layout, "complete": False})
     return keep
+
+
+def layout_record(schema: Schema, shapes: dict[str, tuple[int, ...]],
+                  sizes: dict[str, int]) -> dict[str, Any]:
+    """The layout an artifact's record keeps (its region arrays' shapes, the chunk
+    sizes, the schema version): chunks already written are kept only while it holds."""
+    regions = [n for n, s in schema.arrays.items() if s.write == "region"]
+    return {"shapes": {n: list(shapes[n]) for n in regions if n in shapes},
+            "sizes": dict(sorted(sizes.items())), "schema_version": schema.version}
 
 
 def write_chunk(path: Path, schema: Schema, chunk_id: str,

@@ -83,6 +83,9 @@ def cli() -> None:
 @SIZE
 @EXPOSURE
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+@click.option("--dry-run", is_flag=True,
+              help="Print what would be baked (per stage: chunks re-run of all, and which "
+                   "declared inputs changed for them) and stop; nothing is written.")
 @WORKDIR
 @STAGES
 @JOBS
@@ -95,8 +98,8 @@ def cli() -> None:
                    "cluster, the cores / N with local:N]. The artifacts are the same "
                    "bytes as an in-process bake. [default: no cluster]")
 @QUIET
-def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stagefile, jobs,
-            threads, scheduler, quiet) -> None:
+def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workdir, stagefile,
+            jobs, threads, scheduler, quiet) -> None:
     """Bake every stale stage, then bring the scene's frame and edit sequences up to
     date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
@@ -109,6 +112,9 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
     check_exposure(exposure)
     sc = job.open_scene(scene, parse_size(size))
     wd = job.workdir_for(sc, workdir, stagefile)
+    if dry_run:
+        _dry_run(sc, wd, stagefile, until, force, as_json)
+        return
     frames = frames or Path("frames") / sc.name
     notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
     show_notes(notes, as_json)
@@ -159,6 +165,26 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, workdir, stage
             click.echo(f"  {q.description}")
 
 
+def _dry_run(sc, wd, stagefile, until, force, as_json) -> None:
+    """``prt run --dry-run``: the re-bake forecast of the stages the run would bake."""
+    from pipeline import job
+
+    if force:
+        raise PrtError("--force", "does not combine with --dry-run (a forced stage re-runs "
+                       "every chunk)")
+    forecast = job.rebake_forecast(sc, wd, stagefile, until)
+    if as_json:
+        click.echo(json.dumps({"dry_run": [{"name": f.name, "state": f.state,
+                                            **_plan_row(f)} for f in forecast]}))
+        return
+    for f in forecast:
+        click.echo(f"  {f.name:<12} fresh" if f.state == "fresh" else
+                   f"  {f.name:<12} {f.state}: {_plan_text(f)}")
+    pending = [f for f in forecast if f.state != "fresh"]
+    click.echo(f"Dry run: {len(pending)} of {len(forecast)} stages would run; nothing was "
+               "written." if pending else f"All {len(forecast)} stages fresh: nothing to bake.")
+
+
 def check_exposure(ev: float) -> None:
     """PrtError unless ``ev`` (stops) is finite and within ±64 stops."""
     if not -64.0 <= ev <= 64.0:
@@ -194,15 +220,19 @@ def show_notes(notes: list[str], as_json: bool) -> None:
 @WORKDIR
 @STAGES
 def status_cmd(scene, frames, size, as_json, workdir, stagefile) -> None:
-    """Show whether each stage is fresh, stale or missing, and why; then whether the
+    """Show whether each stage is fresh, stale or missing, and why; for each stage the
+    next `prt run` will bake, how many of its chunks re-run and which declared inputs
+    changed for them (an upper bound where an input has yet to run); then whether the
     frame and edit sequences `prt run` writes are present, missing or stale."""
     from pipeline import job
 
     sc = job.open_scene(scene, parse_size(size))
     wd = job.workdir_for(sc, workdir, stagefile)
     plans = job.status(sc, wd, stagefile)
+    forecast = {f.name: f for f in job.rebake_forecast(sc, wd, stagefile)}
     rows = [{"name": p.spec.name, "state": p.state, "reason": p.reason,
-             **_partial(wd, p.spec.name)} for p in plans]
+             **_partial(wd, p.spec.name), "plan": _plan_row(forecast[p.spec.name])}
+            for p in plans]
     outputs = [] if stagefile else job.frame_states(
         sc, wd, frames or Path("frames") / sc.name, plans)
     frame_rows = [{"name": o.name, "path": str(o.path), "state": o.state,
@@ -216,9 +246,30 @@ def status_cmd(scene, frames, size, as_json, workdir, stagefile) -> None:
         state = row["state"] if partial is None else \
             f"partial: {partial['done']}/{partial['total']} chunks"
         click.echo(f"  {row['name']:<12} {state}{reason}")
+        if row["state"] != "fresh":
+            click.echo(f"  {'':<12} -> {_plan_text(forecast[row['name']])}")
     for row in frame_rows:
         reason = f"  ({row['reason']})" if row["reason"] else ""
         click.echo(f"  {row['name']:<16} {row['state']}: {row['path']}{reason}")
+
+
+def _plan_row(forecast) -> dict:
+    """A stage's re-bake forecast for --json: chunks re-run of total and their ids (None:
+    every chunk, counted once its inputs are built), the changed key parts with their
+    chunk counts, the rule."""
+    return {"rerun": forecast.rerun, "total": forecast.total, "chunks": forecast.chunks,
+            "reasons": forecast.reasons, "rule": forecast.rule}
+
+
+def _plan_text(forecast) -> str:
+    """'4/16 chunks re-run: scene materials.ball.gamma changed (4)  [rule]'."""
+    if forecast.total is None:
+        head = f"every chunk re-runs: {', '.join(forecast.reasons)}"
+    else:
+        reasons = ", ".join(f"{part} ({n})" for part, n in forecast.reasons.items())
+        head = f"{forecast.rerun}/{forecast.total} chunks re-run" + \
+            (f": {reasons}" if reasons else "")
+    return head + (f"  [{forecast.rule}]" if forecast.rule else "")
 
 
 def _partial(workdir, stage: str) -> dict[str, dict[str, int] | None]:

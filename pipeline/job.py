@@ -100,6 +100,19 @@ def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
     return plan(scene, graph, workdir, targets)
 
 
+def rebake_forecast(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None,
+                    until: str | None = None) -> list[Any]:
+    """What the next ``prt run`` (``until``: ``--until``) will re-bake, stage by stage,
+    with chunk counts and reasons (pipeline/rebake_plan.py), without running anything."""
+    from pipeline.graph import with_upstream
+    from pipeline.rebake_plan import rebake_plan
+
+    graph = stages(stagefile)
+    wanted = [until] if until else None if stagefile else sorted(baked_stages(scene))
+    targets = None if wanted is None else with_upstream(graph, wanted)
+    return rebake_plan(scene, graph, workdir, targets)
+
+
 def chunk_progress(workdir: Workdir, stage: str) -> tuple[int, int] | None:
     """(chunks written, chunks planned) of a stage whose artifact is incomplete (a run
     was interrupted, or is running): the chunk markers that carry the key the record

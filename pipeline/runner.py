@@ -70,6 +70,7 @@ class StagePlan:
     key: str = ""
     chunks: list[Chunk] | None = None
     chunk_keys: dict[str, str] = field(default_factory=dict)
+    chunk_parts: dict[str, dict[str, str]] = field(default_factory=dict)
     seeds: dict[str, int] = field(default_factory=dict)
     key_parts: dict[str, Any] = field(default_factory=dict)
     sections: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -109,6 +110,7 @@ class ChunkTask:
     output: tuple[str, str]  # (artifact path, schema kind) of the stage's own artifact
     marker: str  # where the chunk is recorded once written
     sizes: dict[str, int]  # symbolic zarr chunk sizes of the stage's layout
+    parts: dict[str, str]  # what the key is made of, part by part (chunk_key_parts)
 
 
 # ------------------------------------------------------------------------------ planning
@@ -190,13 +192,38 @@ def _input_digests(spec: StageSpec, chunk: Chunk, records: dict[str, dict[str, A
     return out
 
 
+PART_DIGEST = 16  # hex digits kept of each part's digest in a chunk's record
+
+
+def chunk_key_parts(code: str, schema_version: int, params: dict[str, Any],
+                    sections: dict[str, Any], inputs: dict[str, Any]) -> dict[str, str]:
+    """A chunk's key part by part, each a short digest, named as ``prt status`` says
+    them: ``code``, ``schema``, ``param NAME``, ``scene SECTION``, ``input STAGE`` (or
+    ``input STAGE[NAME]`` per chunk of a ``chunk_inputs`` input). Recorded with each
+    written chunk, so that a stale chunk's record says which parts changed."""
+    parts = {"code": code[:PART_DIGEST], "schema": str(schema_version)}
+    parts.update({f"param {k}": digest(v)[:PART_DIGEST] for k, v in params.items()})
+    parts.update({f"scene {k}": digest(v)[:PART_DIGEST] for k, v in sections.items()})
+    for dep, value in inputs.items():
+        if isinstance(value, dict):
+            parts.update({f"input {dep}[{w}]": digest(d)[:PART_DIGEST]
+                          for w, d in value.items()})
+        else:
+            parts[f"input {dep}"] = digest(value)[:PART_DIGEST]
+    return parts
+
+
 def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Workdir,
-               params_all: dict[str, Any]) -> StagePlan:
-    """Chunks, keys and state of one stage whose inputs are all fresh."""
+               params_all: dict[str, Any],
+               input_records: dict[str, dict[str, Any]] | None = None) -> StagePlan:
+    """Chunks, keys and state of one stage whose inputs are all fresh (or, with
+    ``input_records``, keyed as if its inputs had those records: pipeline/rebake_plan.py
+    forecasts a stage before its inputs have run so; the chunks are planned from the
+    inputs as they are)."""
     params = {k: params_all[k] for k in spec.params}
     upstream = {dep: open_artifact(workdir.artifact(dep), stagefile.stages[dep].output)
                 for dep in spec.inputs}
-    records = {dep: a.record for dep, a in upstream.items()}
+    records = {dep: (input_records or {}).get(dep, a.record) for dep, a in upstream.items()}
     chunks = plan_chunks(spec, scene, params, upstream)
     code = stage_code(spec)
     schema_version = load_schema(spec.output).version
@@ -214,6 +241,7 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
         p.seeds[c.id] = seed_from_key(data)
         p.chunk_keys[c.id] = digest({"data": data, "code": code,
                                      "schema_version": schema_version})
+        p.chunk_parts[c.id] = chunk_key_parts(code, schema_version, params, sections, inputs)
     p.key = digest({"stage": spec.name, "chunks": p.chunk_keys})
     scene_digests = {path: digest(value) for s in p.sections.values()
                      for path, value in s.items()}
@@ -346,7 +374,8 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     seconds = time.perf_counter() - start
     chunkwrite.record_chunk(Path(task.marker), {
         "stage": task.stage, "chunk": task.chunk.id, "key": task.key,
-        "digest": arrays_digest(arrays), "seconds": seconds, "meta": ctx.meta})
+        "digest": arrays_digest(arrays), "seconds": seconds, "meta": ctx.meta,
+        "parts": task.parts})
     return task.chunk.id, seconds
 
 
@@ -426,7 +455,7 @@ def _all_fresh(scene: Scene, stagefile: StageFile, workdir: Workdir,
     return report
 
 
-def _stage_context(p: StagePlan, stagefile: StageFile, workdir: Workdir) -> AssembleContext:
+def stage_context(p: StagePlan, stagefile: StageFile, workdir: Workdir) -> AssembleContext:
     """What a stage's ``layout`` and ``finalize`` see: params, every chunk's scene
     sections, inputs."""
     sections: dict[str, Any] = {}
@@ -448,7 +477,7 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
     spec, name = p.spec, p.spec.name
     impl = load_impl(spec.impl)
     schema = load_schema(spec.output)
-    ctx = _stage_context(p, stagefile, workdir)
+    ctx = stage_context(p, stagefile, workdir)
     layout = impl.layout(ctx) if hasattr(impl, "layout") else Layout()
     path = workdir.artifact(name)
     ids = [c.id for c in p.chunks]
@@ -467,7 +496,8 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
                                           for dep in spec.inputs},
                        _mesh_sources(spec, scene, c), _environment_source(spec, scene),
                        (str(path), spec.output),
-                       str(workdir.marker(name, c.id)), layout.sizes) for c in todo]
+                       str(workdir.marker(name, c.id)), layout.sizes, p.chunk_parts[c.id])
+             for c in todo]
     bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
                file=sys.stderr, leave=False)
     try:

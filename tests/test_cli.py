@@ -58,14 +58,16 @@ def test_run_summary_then_noop(baked):
 
 
 def test_status_json(baked):
-    """`prt status --json` lists every stage with state and reason, and the frame and
-    sequences `prt run` wrote."""
+    """`prt status --json` lists every stage with state, reason and re-bake plan (nothing
+    to re-run), and the frame and sequences `prt run` wrote."""
     scene, workdir, frames, _ = baked
     out = json.loads(prt("status", scene, "--workdir", workdir, "--frames", frames,
                          "--json").stdout)
     needed = needed_stages(scene)
+    plans = [row.pop("plan") for row in out["stages"]]
     assert out["stages"] == [{"name": n, "state": "fresh", "reason": "", "partial": None}
                              for n in topological_order(load_stagefile()) if n in needed]
+    assert all(p["rerun"] == 0 and p["chunks"] == [] and p["total"] >= 1 for p in plans)
     assert [(f["name"], f["state"]) for f in out["frames"]] == [
         ("frame", "present"), ("sequence light:8", "present"), ("sequence gamma:8", "present")]
 

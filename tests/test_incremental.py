@@ -168,9 +168,12 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
 
     edited = copy.deepcopy(doc)
     edited["materials"]["shiny"]["gamma_range"] = [5, 300]
-    report = job.bake(load_scene(write_scene(tmp_path, edited, "edited.yaml")), workdir,
-                      quiet=True)
-    assert {name: set(chunks) for name, chunks in ran(report).items()} == {
+    edited_scene = load_scene(write_scene(tmp_path, edited, "edited.yaml"))
+    # forecast before running (prt status, prt run --dry-run): the same chunks
+    forecast = {f.name: set(f.chunks) for f in job.rebake_forecast(edited_scene, workdir)
+                if f.state != "fresh"}
+    report = job.bake(edited_scene, workdir, quiet=True)
+    assert {name: set(chunks) for name, chunks in ran(report).items()} == forecast == {
         "brdf_basis": {"shiny"}, "d2i.transfer": tiles, "d2i.truncate": {"all"}}
 
     fresh = Workdir(tmp_path / "fresh")

@@ -29,6 +29,20 @@ def run_example(script: str, *args: str) -> subprocess.CompletedProcess[str]:
     return result
 
 
+def bake_and_draw(tmp_path, doc: dict, until: str, script: str) -> Workdir:
+    """Bake ``doc`` up to ``until`` in tmp_path/work, then run examples/<script>.py on it
+    from the command line: it must write a non-empty PNG. Returns the work directory."""
+    from pipeline import job
+
+    scene = load_scene(write_scene(tmp_path, doc))
+    workdir = job.workdir_for(scene, tmp_path / "work")
+    job.bake(scene, workdir, until=until, quiet=True)
+    out = tmp_path / f"{script}.png"
+    run_example(script, str(tmp_path / "work"), "--out", str(out))
+    assert out.stat().st_size > 0
+    return workdir
+
+
 def test_an_artifact_opens_lazily_with_its_schema_dims_and_provenance(tmp_path):
     """The geometry of a small scene (segmented arrays, faces offset by the vertices of
     each object's piece): every variable is a dask array with the schema's dims and
@@ -144,3 +158,83 @@ def test_brdf_basis_example_reads_one_materials_basis(tmp_path):
     assert np.all(worst[:b["k"]] > b["tolerance"])
     with pytest.raises(PrtError, match="no material 'nope'; present: "):
         material_basis(tmp_path / "work", "nope")
+
+
+def test_basis_of_rows_is_the_place_in_the_pixels_run():
+    from transfer_sparsity import basis_of_rows
+
+    np.testing.assert_array_equal(basis_of_rows(np.array([5, 5, 5, 7, 7, 9, 2, 2])),
+                                  [0, 1, 2, 0, 1, 0, 0, 1])
+    assert len(basis_of_rows(np.zeros(0, np.int32))) == 0
+
+
+def test_transfer_sparsity_example_splits_t_by_basis(tmp_path):
+    """examples/transfer_sparsity.py on a tiny d2i bake (the ball glossy): from the
+    command line it writes a PNG; its rows per basis partition T's rows, b0 has one row
+    per glossy pixel, there are k + 1 bases for the ball's k, and each basis's counts are
+    those rows' t_count."""
+    from transfer_sparsity import basis_of_rows, sparsity
+
+
+    doc = small_scene_dict(16)
+    doc["methods"] = ["d2i"]
+    doc["settings"] = {"gather.count": 256, "transfer.tile": 8}
+    workdir = bake_and_draw(tmp_path, doc, "d2i.transfer", "transfer_sparsity")
+
+    s = sparsity(tmp_path / "work")
+    transfer = open_artifact(workdir.artifact("d2i.transfer"))
+    basis = open_artifact(workdir.artifact("brdf_basis"))
+    k = basis.read("k")[basis.attrs["material_names"].index("shiny")]
+    t_pixel, t_count = transfer.read("t_pixel"), transfer.read("t_count")
+    assert [n for n in s["rows"]] == [f"b{b}" for b in range(k + 1)] + ["D"]
+    assert len(s["rows"]["b0"]["count"]) == len(np.unique(t_pixel)) > 0
+    assert sum(len(s["rows"][f"b{b}"]["count"]) for b in range(k + 1)) == len(t_pixel)
+    for b in range(k + 1):
+        np.testing.assert_array_equal(s["rows"][f"b{b}"]["count"],
+                                      t_count[basis_of_rows(t_pixel) == b])
+    np.testing.assert_array_equal(s["rows"]["D"]["count"], transfer.read("d_count"))
+
+
+def test_visibility_texture_example_integrates_the_stored_rows(tmp_path):
+    """examples/visibility_texture.py on a tiny triple bake: from the command line it
+    writes a PNG; each object's texture has the atlas's size, is NaN exactly on its empty
+    texels, and its fractions equal ∫V dω / 2π of the rows inverse-transformed to the
+    leaves (to float32 rounding: the scaling coefficients are always kept); the floor
+    sees open sky somewhere and is shadowed somewhere."""
+    from visibility_texture import open_fractions
+
+    from pipeline.images import write_exr
+    from pipeline.math.sphwavelet import wavelet_basis
+
+    rgb = np.full((16, 32, 3), 0.5, np.float32)
+    write_exr(tmp_path / "env.exr", rgb)
+    doc = small_scene_dict(16)
+    doc["methods"] = ["triple"]
+    doc["lights"] = [{"type": "environment", "file": str(tmp_path / "env.exr")}]
+    doc["settings"] = {"triple.leaf_level": 3, "triple.frame_grid": [16, 9, 16],
+                       "triple.view_grid": [16, 8], "triple.light_block": 576,
+                       "triple.store_budget": 320}
+    workdir = bake_and_draw(tmp_path, doc, "triple.visibility", "visibility_texture")
+
+    fractions = open_fractions(tmp_path / "work")
+    vis = open_artifact(workdir.artifact("triple.visibility"))
+    atlas = open_artifact(workdir.artifact("triple.atlas"))
+    basis = wavelet_basis(vis.attrs["leaf_level"])
+    count, start = vis.read("count"), vis.read("start")
+    index, value = vis.read("index"), vis.read("value")
+    texel_row, state = vis.read("texel_row"), atlas.read("texel_state")
+    offsets = atlas.read("texture_offsets")
+    for (name, texture), offset in zip(fractions.items(), offsets, strict=True):
+        height, width = vis.attrs["texture_sizes"][name]
+        assert texture.shape == (height, width)
+        empty = state[offset:offset + height * width].reshape(height, width) == 0
+        np.testing.assert_array_equal(np.isnan(texture), empty)
+        rows = texel_row[offset:offset + height * width][~empty.ravel()][::7]
+        for r, expected in zip(rows, texture[~empty][::7], strict=True):
+            dense = np.zeros(basis.size)
+            s = slice(start[r], start[r] + count[r])
+            dense[index[s]] = value[s]
+            integral = basis.inverse(dense) @ basis.leaf_areas() / (2 * np.pi)
+            assert abs(integral - expected) < 1e-5
+    floor = fractions["floor"]
+    assert np.nanmax(floor) > 0.95 and np.nanmin(floor) < 0.8

@@ -1,0 +1,112 @@
+"""Benchmark: re-bake after a scene edit against the full bake (issue 18, aim < 10 % for
+one material's γ-range edit in a two-glossy-material scene), and after moving a small
+object.
+
+The scene is the default Cornell box with a second glossy material: the small box in
+Ward (α 0.2, range [0.1, 0.5]) beside the Blinn–Phong floor, at ``--size``² with
+transfer tiles of ``--tile`` pixels. One run:
+
+1. the full bake from scratch (``prt run --until d2i.truncate``), wall seconds;
+2. the small box's ``gamma_range`` edited to [0.15, 0.5]: the forecast (``prt run
+   --dry-run --json``), then the re-bake, its wall seconds and the stages and chunks
+   that ran;
+3. the small box moved 20 mm along x: the same.
+
+Each step is a ``prt`` command (Python start-up included in its seconds, as a user
+would see it), started when the machine is quiet (benchmarks/bench_cores.py
+``quiet_prt``). Run from the project root:
+  python benchmarks/bench_rebake.py --workdir /tmp/bench_rebake
+Writes benchmarks/results/rebake.json (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+from bench_cores import ROOT, prt, quiet_prt, scene_file
+
+
+def two_glossy_scene(folder: Path, size: int, tile: int) -> dict[str, Any]:
+    """The Cornell box with its small box in a glossy Ward material, as a dictionary."""
+    doc = yaml.safe_load(scene_file(folder, size).read_text())
+    doc["materials"]["smallbox_ward"] = {"model": "ward", "albedo": [0.45, 0.30, 0.90],
+                                         "specular": 0.08, "gamma": 0.2,
+                                         "gamma_range": [0.1, 0.5]}
+    doc["objects"]["smallbox"]["material"] = "smallbox_ward"
+    doc["settings"] = {"transfer.tile": tile}
+    return doc
+
+
+def write(folder: Path, doc: dict[str, Any], name: str) -> Path:
+    path = folder / name
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def rebake(scene: Path, workdir: Path) -> dict[str, Any]:
+    """The forecast, then the re-bake: seconds, stages and chunk counts."""
+    base = ["run", str(scene), "--until", "d2i.truncate", "--workdir", str(workdir)]
+    plan = prt([*base, "--dry-run"])["report"]["dry_run"]
+    r = quiet_prt(base)
+    stages = r["report"]["stages"]
+    return {"wall_s": r["wall_s"], "cpu_s": r["cpu_s"], "noisy": r["noisy"],
+            "stage_s": sum(s["seconds"] for s in stages),
+            "ran": {s["name"]: {"chunks": len(s["ran_chunks"]),
+                                "of": len(s["ran_chunks"]) + len(s["reused_chunks"]),
+                                "seconds": s["seconds"]}
+                    for s in stages if s["action"] == "ran"},
+            "forecast": {p["name"]: {"rerun": p["rerun"], "total": p["total"],
+                                     "reasons": p["reasons"], "rule": p["rule"]}
+                         for p in plan if p["state"] != "fresh"}}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--workdir", type=Path, required=True)
+    parser.add_argument("--size", type=int, default=128)
+    parser.add_argument("--tile", type=int, default=16, help="transfer tile edge")
+    parser.add_argument("--out", type=Path,
+                        default=ROOT / "benchmarks" / "results" / "rebake.json")
+    args = parser.parse_args()
+    folder = args.workdir
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    doc = two_glossy_scene(folder, args.size, args.tile)
+    work = folder / "work"
+    full = quiet_prt(["run", str(write(folder, doc, "scene.yaml")), "--until",
+                      "d2i.truncate", "--workdir", str(work)])
+    result: dict[str, Any] = {"cpus": os.cpu_count(), "size": args.size,
+                              "transfer_tile": args.tile,
+                              "full_bake": {"wall_s": full["wall_s"], "cpu_s": full["cpu_s"],
+                                            "noisy": full["noisy"],
+                                            "stage_s": sum(s["seconds"] for s in
+                                                           full["report"]["stages"]),
+                                            "stages": {s["name"]: s["seconds"] for s in
+                                                       full["report"]["stages"]}}}
+    gamma = json.loads(json.dumps(doc))
+    gamma["materials"]["smallbox_ward"]["gamma_range"] = [0.15, 0.5]
+    result["gamma_range_edit"] = rebake(write(folder, gamma, "gamma.yaml"), work)
+    moved = json.loads(json.dumps(gamma))
+    moved["objects"]["smallbox"]["transform"] = {"translate": [20.0, 0.0, 0.0]}
+    result["moved_small_box"] = rebake(write(folder, moved, "moved.yaml"), work)
+    for edit in ("gamma_range_edit", "moved_small_box"):
+        result[edit]["ratio_to_full"] = result[edit]["wall_s"] / full["wall_s"]
+        result[edit]["stage_ratio_to_full"] = (result[edit]["stage_s"]
+                                               / result["full_bake"]["stage_s"])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1))
+    print(json.dumps({k: (v if not isinstance(v, dict) else
+                          {kk: vv for kk, vv in v.items() if kk in ("wall_s", "ratio_to_full",
+                                                                    "stage_ratio_to_full",
+                                                                    "ran")})
+                      for k, v in result.items()}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,98 @@
+"""Example (pipeline.inspect): how sparse method d2i's glossy transfer T is, per PCA basis
+(paper 000 §5) — for the rows of basis b0 (the mean), b1, … b_k of every glossy pixel:
+the coefficients each row keeps, how many rows' Haar coefficients reach the cap (the exact
+near entries come on top of it), and the part of the row's norm that was dropped; the
+diffuse rows D beside them.
+
+    python examples/transfer_sparsity.py WORKDIR [--stage d2i.transfer] [--out sparsity.png]
+
+WORKDIR a work directory holding ``d2i.transfer`` (``prt run --until d2i.transfer``
+bakes it for the default Cornell box); ``--stage d2i.truncate`` shows the rows cut to
+the renderer's budgets instead (no residuals there). A pixel's T rows are consecutive,
+b0 first (data_schema/transfer.yaml), so a row's basis is its place in its pixel's run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+from _example import parser, write_figure
+
+from pipeline import inspect
+
+
+def basis_of_rows(t_pixel: np.ndarray) -> np.ndarray:
+    """The PCA basis (0 = b0) of each T row: its place in its pixel's run of rows."""
+    if len(t_pixel) == 0:
+        return np.zeros(0, np.int64)
+    first = np.flatnonzero(np.r_[True, t_pixel[1:] != t_pixel[:-1]])
+    run = np.repeat(first, np.diff(np.r_[first, len(t_pixel)]))
+    return np.arange(len(t_pixel)) - run
+
+
+def far_counts(count: np.ndarray, index: np.ndarray, haar_length: int) -> np.ndarray:
+    """Per row, its Haar coefficients (index < haar_length): what the cap limits; the
+    row's near entries (index haar_length + g) come on top."""
+    row = np.repeat(np.arange(len(count)), count)
+    return np.bincount(row[index < haar_length], minlength=len(count))
+
+
+def sparsity(workdir: Path, stage: str = "d2i.transfer") -> dict:
+    """Per basis b (and ``"D"``): each row's coefficient count, its Haar coefficients
+    alone (``far``) and, for d2i.transfer, its residual; the cap and the gather count."""
+    ds = inspect.open_workdir(workdir).dataset(stage)
+    haar = int(ds.attrs["haar_length"])
+    basis = basis_of_rows(ds["t_pixel"].values)
+    counts = ds["t_count"].values
+    far = far_counts(counts, ds["t_index"].values, haar)
+    residual = ds["t_residual"].values if "t_residual" in ds else None
+    rows = {}
+    for b in range(int(basis.max()) + 1 if len(basis) else 0):
+        pick = basis == b
+        rows[f"b{b}"] = {"count": counts[pick], "far": far[pick],
+                         "residual": None if residual is None else residual[pick]}
+    d_count = ds["d_count"].values
+    rows["D"] = {"count": d_count, "far": far_counts(d_count, ds["d_index"].values, haar),
+                 "residual": ds["d_residual"].values if "d_residual" in ds else None}
+    cap = ds.attrs.get("max_coefficients") or ds.attrs.get("coefficients")
+    return {"rows": rows, "cap": cap, "gathers": int(ds.attrs["gather_count"])}
+
+
+def main() -> None:
+    ap = parser(__doc__, "sparsity.png")
+    ap.add_argument("--stage", default="d2i.transfer",
+                    choices=["d2i.transfer", "d2i.truncate"])
+    args = ap.parse_args()
+    s = sparsity(args.workdir, args.stage)
+    names = list(s["rows"])
+    counts = [s["rows"][n]["count"][s["rows"][n]["count"] > 0] for n in names]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    axes[0].boxplot(counts, showfliers=False)
+    axes[0].set_xticks(range(1, len(names) + 1), names)
+    if s["cap"]:
+        axes[0].axhline(s["cap"], ls=":", color="k", label=f"cap {s['cap']}")
+        axes[0].legend(fontsize=8)
+    axes[0].set_ylabel("coefficients per row")
+    axes[0].set_title(f"kept of {s['gathers']} gathers (+ near entries)")
+    fars = [s["rows"][n]["far"][s["rows"][n]["count"] > 0] for n in names]
+    capped = [float((f >= s["cap"]).mean()) if s["cap"] and len(f) else 0.0 for f in fars]
+    axes[1].bar(names, capped)
+    axes[1].set_ylim(0, 1)
+    axes[1].set_title("rows whose Haar coefficients reach the cap")
+    residuals = [s["rows"][n]["residual"] for n in names]
+    if all(r is not None for r in residuals):
+        axes[2].boxplot([r[s["rows"][n]["count"] > 0] for n, r in zip(names, residuals,
+                                                                       strict=True)],
+                        showfliers=False)
+        axes[2].set_xticks(range(1, len(names) + 1), names)
+        axes[2].set_title("dropped part of each row's norm")
+    else:
+        axes[2].set_axis_off()
+        axes[2].text(0.5, 0.5, f"{args.stage} keeps no residuals", ha="center")
+    write_figure(fig, args.out, f"{len(names) - 1} PCA bases and D, {args.stage}")
+
+
+if __name__ == "__main__":
+    main()
