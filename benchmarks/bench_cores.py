@@ -236,7 +236,8 @@ def full_runs(scene: Path, workdir: Path, configs: list[str], runs: int,
                 records.append(old)
                 continue
             bake = workdir / f"full_{config}"
-            r = quiet_prt(["run", str(scene), "--until", "d2i.truncate", "--workdir",
+            r = quiet_prt(["run", str(scene), "--until", "d2i.truncate", "--until",
+                           "d2i.truncate_ms", "--workdir",
                            str(bake), *cores_args(config)], fresh=bake)
             records.append({
                 "part": "full", "round": round_, "config": config,

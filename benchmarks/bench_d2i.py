@@ -4,7 +4,8 @@ Measures, in one run on this machine:
 
 * bake time per stage, and where the transfer stage's time goes (visibility rays,
   the transfer kernel, Haar compression), timed on a sample of its tiles;
-* storage of T, D and Ms after the d2i.truncate stage (bytes on disk and raw CSR bytes), beside
+* storage of T, D (d2i.truncate, pixel ids included) and Ms (d2i.truncate_ms)
+  (bytes on disk and raw CSR bytes), beside
   paper 000 Table 5 (152, 60, 20 MB);
 * frame times, medians of ``REPEATS``: light-edit frames with a point light at the
   luminaire's centre (moved each frame) and with the scene's 16-sample area light;
@@ -95,10 +96,10 @@ def transfer_breakdown(scene, workdir) -> dict[str, float]:
 def storage(workdir) -> dict[str, dict[str, float]]:
     from pipeline.store import open_artifact
 
-    art = open_artifact(workdir.artifact("d2i.truncate"))
-    root = workdir.artifact("d2i.truncate")
     out = {}
-    for label, prefix in (("T", "t_"), ("D", "d_"), ("Ms", "ms_")):
+    for label, prefix, stage in (("T", "t_", "d2i.truncate"), ("D", "d_", "d2i.truncate"),
+                                 ("Ms", "ms_", "d2i.truncate_ms")):
+        art, root = open_artifact(workdir.artifact(stage)), workdir.artifact(stage)
         names = [n for n in art.names if n.startswith(prefix)]
         disk = sum(f.stat().st_size for n in names for f in (root / n).rglob("*") if f.is_file())
         raw = sum(art.read(n).nbytes for n in names)
@@ -188,7 +189,7 @@ def main() -> None:
     if args.rebake:
         job.clean(workdir)
     start = time.perf_counter()
-    report = job.bake(scene, workdir, until="d2i.truncate", quiet=True)
+    report = job.bake(scene, workdir, quiet=True)
     bake_wall = time.perf_counter() - start
     from pipeline.store import read_record
 

@@ -6,7 +6,8 @@ The scene is the default Cornell box with a second glossy material: the small bo
 Ward (α 0.2, range [0.1, 0.5]) beside the Blinn–Phong floor, at ``--size``² with
 transfer tiles of ``--tile`` pixels. One run:
 
-1. the full bake from scratch (``prt run --until d2i.truncate``), wall seconds;
+1. the full bake from scratch (``prt run --until d2i.truncate --until
+   d2i.truncate_ms``: every stage, no frames), wall seconds;
 2. the small box's ``gamma_range`` edited to [0.15, 0.5]: the forecast (``prt run
    --dry-run --json``), then the re-bake, its wall seconds and the stages and chunks
    that ran;
@@ -51,7 +52,8 @@ def write(folder: Path, doc: dict[str, Any], name: str) -> Path:
 
 def rebake(scene: Path, workdir: Path) -> dict[str, Any]:
     """The forecast, then the re-bake: seconds, stages and chunk counts."""
-    base = ["run", str(scene), "--until", "d2i.truncate", "--workdir", str(workdir)]
+    base = ["run", str(scene), "--until", "d2i.truncate", "--until", "d2i.truncate_ms",
+            "--workdir", str(workdir)]
     plan = prt([*base, "--dry-run"])["report"]["dry_run"]
     r = quiet_prt(base)
     stages = r["report"]["stages"]
@@ -80,7 +82,7 @@ def main() -> None:
     doc = two_glossy_scene(folder, args.size, args.tile)
     work = folder / "work"
     full = quiet_prt(["run", str(write(folder, doc, "scene.yaml")), "--until",
-                      "d2i.truncate", "--workdir", str(work)])
+                      "d2i.truncate", "--until", "d2i.truncate_ms", "--workdir", str(work)])
     result: dict[str, Any] = {"cpus": os.cpu_count(), "size": args.size,
                               "transfer_tile": args.tile,
                               "full_bake": {"wall_s": full["wall_s"], "cpu_s": full["cpu_s"],

@@ -64,7 +64,7 @@ def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, out)
         params[name] = json.loads(value)
     baked = base.with_settings(params) if params else base
     wd = job.workdir_for(baked, workdir)
-    job.bake(baked, wd, until="d2i.truncate", quiet=True)
+    job.bake(baked, wd, quiet=True)
     scene = with_material_edits(baked, list(edits)) if edits else baked
     frame = job.render_frame(scene, wd, "d2i", {"max_bounces": bounces}).rgb
     direct = job.render_frame(scene, wd, "direct").rgb

@@ -61,7 +61,7 @@ def _indirect_errors(scene: Scene, baked: Scene, workdir: Path, spp: int,
     compare its indirect image with the first-glossy-indirect reference, per object in
     ``objects`` and over all surfaces; noise-corrected errors alongside."""
     wd = job.workdir_for(baked, workdir / "bake")
-    job.bake(baked, wd, until="d2i.truncate", quiet=True)
+    job.bake(baked, wd, quiet=True)
     frame = job.render_frame(scene, wd, "d2i")
     indirect = frame.rgb - job.render_frame(scene, wd, "direct").rgb
     ref = job.reference(scene, job.workdir_for(scene, workdir / "reference"),

@@ -77,7 +77,8 @@ def cli() -> None:
 
 @cli.command("run")
 @SCENE
-@click.option("--until", metavar="STAGE", help="Stop after STAGE (and skip rendering).")
+@click.option("--until", metavar="STAGE", multiple=True,
+              help="Stop after STAGE (and skip rendering); repeatable: after all of them.")
 @click.option("--force", metavar="STAGE", multiple=True, help="Re-run STAGE even if fresh.")
 @click.option("--frames", type=click.Path(path_type=Path), default=None, help=FRAMES_DIR)
 @SIZE
@@ -112,6 +113,7 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
     check_exposure(exposure)
     sc = job.open_scene(scene, parse_size(size))
     wd = job.workdir_for(sc, workdir, stagefile)
+    until = until or None  # () when not given
     if dry_run:
         _dry_run(sc, wd, stagefile, until, force, as_json)
         return

@@ -62,7 +62,7 @@ def baked_stages(scene: Scene, methods: list[Method] | None = None) -> set[str]:
     return {name for m in methods for name in m.reads}
 
 
-def bake(scene: Scene, workdir: Workdir, until: str | None = None,
+def bake(scene: Scene, workdir: Workdir, until: str | tuple[str, ...] | None = None,
          force: tuple[str, ...] = (), jobs: int | None = None, quiet: bool = False,
          stagefile: str | Path | None = None,
          methods: list[Method] | None = None, threads: int | None = None,
@@ -101,14 +101,16 @@ def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
 
 
 def rebake_forecast(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None,
-                    until: str | None = None) -> list[Any]:
+                    until: str | tuple[str, ...] | None = None) -> list[Any]:
     """What the next ``prt run`` (``until``: ``--until``) will re-bake, stage by stage,
     with chunk counts and reasons (pipeline/rebake_plan.py), without running anything."""
     from pipeline.graph import with_upstream
     from pipeline.rebake_plan import rebake_plan
 
     graph = stages(stagefile)
-    wanted = [until] if until else None if stagefile else sorted(baked_stages(scene))
+    if isinstance(until, str):
+        until = (until,)
+    wanted = list(until) if until else None if stagefile else sorted(baked_stages(scene))
     targets = None if wanted is None else with_upstream(graph, wanted)
     return rebake_plan(scene, graph, workdir, targets)
 
@@ -350,7 +352,8 @@ def main_frame_path(scene: Scene, method: Method, frames: Path) -> Path:
     return frames / f"{scene.name}_{method.name}{view}.exr"
 
 
-def main_job(scene: Scene, workdir: Workdir, frames: Path, until: str | None,
+def main_job(scene: Scene, workdir: Workdir, frames: Path,
+             until: str | tuple[str, ...] | None,
              force: tuple[str, ...], jobs: int | None, quiet: bool,
              stagefile: str | Path | None = None, threads: int | None = None,
              exposure: float = 0.0, scheduler: str | None = None

@@ -174,15 +174,18 @@ def stage_code(spec: StageSpec) -> str:
 def _input_digests(spec: StageSpec, chunk: Chunk, records: dict[str, dict[str, Any]],
                    stagefile: StageFile) -> dict[str, Any]:
     """What each input contributes to a chunk's key: its output digest, or for a
-    ``chunk_inputs`` input the digests of the chunks of the chunk's object/materials."""
+    ``chunk_inputs`` input the digests of the chunks of the chunk's object/materials, or
+    of its twin (the chunk with the same id) where the input is chunked alike."""
     out: dict[str, Any] = {}
     for dep in spec.inputs:
         record = records[dep]
         if dep not in spec.chunk_inputs:
             out[dep] = record.get("digest")  # None: written by an older prt, re-runs
             continue
-        by = stagefile.stages[dep].chunks.by
-        wanted = (chunk.materials if by == "material" else
+        chunking = stagefile.stages[dep].chunks
+        by = chunking.by
+        wanted = ((chunk.id,) if chunking == spec.chunks else  # chunked alike: its twin
+                  chunk.materials if by == "material" else
                   (chunk.object,) if by == "object" and chunk.object else None)
         if wanted is None:
             raise PrtError(stagefile.path, f"stages.{spec.name}.chunk_inputs: chunk "
@@ -406,7 +409,8 @@ def _environment_source(spec: StageSpec, scene: Scene) -> str | None:
     return None if path is None else str(path)
 
 
-def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None = None,
+def run(scene: Scene, stagefile: StageFile, workdir: Workdir,
+        until: str | tuple[str, ...] | None = None,
         force: tuple[str, ...] = (), executor: Executor | None = None,
         progress: bool = True, targets: set[str] | None = None) -> list[StageRun]:
     """Bring the artifacts of all stages (or of ``targets``, or ``until``, and their
@@ -415,7 +419,9 @@ def run(scene: Scene, stagefile: StageFile, workdir: Workdir, until: str | None 
     for name in force:
         if name not in stagefile.stages:
             raise PrtError(stagefile.path, f"--force: unknown stage {name!r}")
-    wanted = targets if targets is not None else ({until} if until else None)
+    if isinstance(until, str):
+        until = (until,)
+    wanted = targets if targets is not None else (set(until) if until else None)
     selected = with_upstream(stagefile, sorted(wanted)) if wanted is not None else None
     params_all = stage_params(stagefile, scene)
     report: list[StageRun] = []

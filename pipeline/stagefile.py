@@ -12,7 +12,8 @@ Format ``prt-stages/2``::
         description: ...
         inputs: [geometry]       # stages whose artifacts it reads
         chunk_inputs: []         # inputs of which each chunk reads only the chunks of its
-                                 # own object or materials (keyed on just those)
+                                 # own object or materials, or (an input chunked as
+                                 # this stage is) its twin chunk: keyed on just those
         scene: [camera]          # scene sections it reads (dotted; ``*`` see below)
         params: [gbuffer.tile]   # parameter keys it reads
         kernels: []              # kernel files it builds beyond those its modules name
@@ -237,9 +238,10 @@ def _check(spec: StageSpec, params: dict[str, Any], stages: dict[str, StageSpec]
         if dep not in spec.inputs:
             raise PrtError(file, f"{where}.chunk_inputs: {dep!r} is not among the stage's "
                            "inputs")
-        if stages[dep].chunks.by not in ("object", "material"):
+        if stages[dep].chunks.by not in ("object", "material") \
+                and stages[dep].chunks != spec.chunks:
             raise PrtError(file, f"{where}.chunk_inputs: {dep!r} is not chunked by object "
-                           "or material")
+                           "or material, nor as this stage is")
     c = spec.chunks
     for key, value in (("size", c.size), ("of", c.count)):
         if value is not None and value not in spec.params:

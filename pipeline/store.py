@@ -245,6 +245,15 @@ class Artifact:
         present = {n: a for n, a in node.arrays()}
         return [present[c] for c in order if c in present]
 
+    def read_piece(self, name: str, chunk_id: str) -> np.ndarray:
+        """Chunk ``chunk_id``'s piece of segmented array ``name`` as it was written
+        (local: no ``offset_by`` shift); PrtError if the artifact has no such piece."""
+        node = self._node(name)
+        piece = dict(node.arrays()).get(chunk_id.replace("/", "~"))
+        if piece is None:
+            raise PrtError(self.path / name, f"no piece for chunk {chunk_id!r}")
+        return self._read_array(piece)
+
     def read(self, name: str, region: tuple[slice, ...] | None = None) -> np.ndarray:
         """Read an array (or a region of it) into memory, naming a corrupt chunk file."""
         if self.is_segmented(name):

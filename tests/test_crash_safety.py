@@ -118,7 +118,7 @@ def test_workdir_holds_one_copy_of_each_artifact(tmp_path):
 
 
 D2I_STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer",
-              "d2i.bounce", "d2i.truncate")
+              "d2i.bounce", "d2i.truncate", "d2i.truncate_ms")
 
 
 def test_d2i_bake_is_bit_identical_whatever_workers_and_threads(tmp_path):
@@ -131,7 +131,7 @@ def test_d2i_bake_is_bit_identical_whatever_workers_and_threads(tmp_path):
     digests = {}
     for jobs, threads in ((1, 1), (1, 2), (2, 1)):
         workdir = job.workdir_for(scene, tmp_path / f"{jobs}x{threads}")
-        report = job.bake(scene, workdir, until="d2i.truncate", quiet=True, jobs=jobs,
+        report = job.bake(scene, workdir, quiet=True, jobs=jobs,
                           threads=threads)
         assert len([r for r in report if r.name == "d2i.transfer"][0].ran_chunks) == 9
         digests[jobs, threads] = {

@@ -34,7 +34,7 @@ def _scene(size=SIZE):
 def baked(tmp_path_factory):
     scene = _scene()
     workdir = job.workdir_for(scene, tmp_path_factory.mktemp("d2i"))
-    job.bake(scene, workdir, until="d2i.truncate", quiet=True)
+    job.bake(scene, workdir, quiet=True)
     return scene, workdir, D2iRenderer(scene, d2i_artifacts(workdir))
 
 
@@ -69,8 +69,9 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
     edited = with_light_offset(with_material_edits(scene, ["glossy_floor.gamma=150"]), 0,
                                (50.0, 0.0, -30.0))
     fresh_dir = job.workdir_for(edited, tmp_path / "fresh")
-    job.bake(edited, fresh_dir, until="d2i.truncate", quiet=True)
-    for name in ("d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate"):
+    job.bake(edited, fresh_dir, quiet=True)
+    for name in ("d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
+                 "d2i.truncate_ms"):
         a, b = (open_artifact(w.artifact(name)) for w in (workdir, fresh_dir))
         assert a.record["key"] == b.record["key"]
         for array in a.names:

@@ -65,7 +65,7 @@ def test_camera_dependent_stages():
     size too."""
     assert camera_dependent(load_stagefile()) == {
         "gbuffer", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
-        "triple.atlas", "triple.visibility"}
+        "d2i.truncate_ms", "triple.atlas", "triple.visibility"}
 
 
 def test_workdir_places_a_resized_scenes_camera_artifacts_apart(tmp_path):

@@ -149,7 +149,7 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
     """In a scene with two glossy materials (the ball's Blinn-Phong, the floor's Ward),
     editing the ball's gamma_range re-runs its brdf_basis chunk, exactly the transfer
     tiles whose pixels see the ball (the tile's key holds only the bases of the
-    materials it sees), and the one-chunk truncate stage; the result is bit-identical
+    materials it sees), and the truncate tiles twinned with them; the result is bit-identical
     to a bake of the edited scene from scratch."""
     from pipeline import job
 
@@ -174,7 +174,7 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
                 if f.state != "fresh"}
     report = job.bake(edited_scene, workdir, quiet=True)
     assert {name: set(chunks) for name, chunks in ran(report).items()} == forecast == {
-        "brdf_basis": {"shiny"}, "d2i.transfer": tiles, "d2i.truncate": {"all"}}
+        "brdf_basis": {"shiny"}, "d2i.transfer": tiles, "d2i.truncate": tiles}
 
     fresh = Workdir(tmp_path / "fresh")
     job.bake(load_scene(write_scene(tmp_path, edited, "edited.yaml")), fresh, quiet=True)
@@ -183,7 +183,8 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
     others = [p for p in fresh.root.rglob("*") if p.is_file() and ".zarr" not in str(p)]
     assert all(p.suffix == ".json" or p.name == ".lock" for p in others)
     assert sum(p.stat().st_size for p in others) < 0.05 * artifacts
-    for name in ("brdf_basis", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate"):
+    for name in ("brdf_basis", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
+                 "d2i.truncate_ms"):
         a, b = (open_artifact(w.artifact(name)).read_all() for w in (workdir, fresh))
         assert a.keys() == b.keys()
         for array in a:

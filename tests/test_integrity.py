@@ -20,7 +20,7 @@ from pipeline.scene import load_scene
 from pipeline.store import Workdir, open_artifact, read_record
 
 STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer", "d2i.bounce",
-          "d2i.truncate")
+          "d2i.truncate", "d2i.truncate_ms")
 
 
 @pytest.fixture(scope="module")

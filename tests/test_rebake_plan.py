@@ -238,7 +238,8 @@ EXPECTED = {
     ("sg", "map"): {"sg.env_prefilter": {"all"}},
     # the camera: the view-dependent stages only
     ("d2i", "camera"): {s: EVERY for s in ("gbuffer", "d2i.gather", "d2i.transfer",
-                                           "d2i.bounce", "d2i.truncate")},
+                                           "d2i.bounce", "d2i.truncate",
+                                           "d2i.truncate_ms")},
     ("sg", "camera"): {},
 }
 

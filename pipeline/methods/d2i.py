@@ -3,7 +3,8 @@
 Stages (stages.yaml, ``d2i.*``): ``d2i.gather`` (gather samples by backward photon
 shooting), ``d2i.transfer`` (per-pixel T and D rows over the gather disks, Haar
 compressed, pixel tiles), ``d2i.bounce`` (Ms between gather samples, blocks),
-``d2i.truncate`` (rows cut to the renderer's budgets); shared: ``geometry``,
+``d2i.truncate`` (T and D rows cut to the renderer's budgets, pixel tiles),
+``d2i.truncate_ms`` (Ms rows cut, blocks); shared: ``geometry``,
 ``gbuffer``, ``brdf_basis``. Renderer: pipeline/render/d2i.py.
 
 Run-time options (``prt render --option NAME=VALUE``):
@@ -41,7 +42,8 @@ METHOD = Method(
     name="d2i",
     description="paper 000: direct-to-indirect transfer, PCA-linearized BRDF editing",
     renderer="pipeline.render.d2i:d2i_renderer",
-    reads=("geometry", "gbuffer", "brdf_basis", "d2i.gather", "d2i.truncate"),
+    reads=("geometry", "gbuffer", "brdf_basis", "d2i.gather", "d2i.truncate",
+           "d2i.truncate_ms"),
     reference="first-glossy",
     headline="rel_rmse_surfaces",
     components={"indirect": Component(subtract="direct", transport="first-glossy-indirect")},

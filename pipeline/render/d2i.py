@@ -51,12 +51,20 @@ from pipeline.math.lights import shade_direct
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import light_visibility
-from pipeline.rows import Rows
+from pipeline.rows import Rows, sort_rows
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
 GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
+
+
+def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
+    """The ``prefix`` (d or t) rows of the compressed_transport artifact, stored tile by
+    tile, in raster order of their pixels (a pixel's rows keep their order)."""
+    rows = sort_rows(stored[f"{prefix}_pixel"], {k: stored[f"{prefix}_{k}"]
+                                                 for k in ("count", "index", "value")})
+    return Rows.from_counts(rows["count"], rows["index"], rows["value"], size)
 
 
 class D2iRenderer:
@@ -84,11 +92,13 @@ class D2iRenderer:
         self.gather_area = gather.read("area").astype(np.float64)
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
-        read = transport.read
-        self.ms, self.d, self.t = (
-            Rows.from_counts(read(f"{m}_count"), read(f"{m}_index"), read(f"{m}_value"),
-                             self.size) for m in ("ms", "d", "t"))
-        self.t_pixel = read("t_pixel")
+        ms = artifacts["d2i.truncate_ms"].read_all()
+        self.ms = Rows.from_counts(ms["ms_count"], ms["ms_index"], ms["ms_value"], self.size)
+        # D and T rows are stored tile by tile: put them in raster order of their pixels
+        # (a pixel's T rows b0..bk stay in order)
+        stored = transport.read_all()
+        self.d, self.t = (_raster_rows(stored, m, self.size) for m in ("d", "t"))
+        self.t_pixel = np.sort(stored["t_pixel"], kind="stable")
         npix = len(self.direct.material_id)
         self.glossy_first = np.full(npix, -1, np.int32)
         self.glossy_rows = np.zeros(npix, np.int32)

@@ -1,5 +1,8 @@
-"""Stage ``d2i.truncate``: cut the stored Haar rows of T, D and Ms down to the renderer's budgets
-(paper 000 §3.4, §7.2). One chunk. Schema ``compressed_transport``.
+"""Stage ``d2i.truncate``: cut the stored Haar rows of T and D down to the renderer's
+budgets (paper 000 §3.4, §7.2), one chunk per pixel tile of the transfer stage, each
+reading only its twin transfer tile and the bases of the materials it sees (so an edit
+of one material re-cuts only the tiles that see it). Schema ``compressed_transport``.
+Ms is cut by ``d2i.truncate_ms`` (pipeline/stages/truncate_bounce.py) by the same rules.
 
 The ``transfer`` and ``bounce`` stages keep each row near-losslessly (its near entries
 in the gather domain, then Haar coefficients largest first, to
@@ -26,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.rows import ROW_CHUNKS, cut_rows, sort_rows
+from pipeline.rows import ROW_CHUNKS, cut_rows
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 BUDGETS = ("tolerance", "proportional")
@@ -60,46 +63,41 @@ def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
     return np.minimum(needed + 1, count)
 
 
-def _budget(ctx: AssembleContext, prefix: str, arrays: dict[str, np.ndarray],
-            proportional: np.ndarray | None) -> dict[str, np.ndarray]:
+def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndarray],
+                  haar_length: int, proportional: np.ndarray | None = None
+                  ) -> dict[str, np.ndarray]:
+    """The rows ``{prefix}_count/_index/_value`` (and ``_residual``) cut by
+    ``truncate.budget``: to ``truncate.tolerance``, or to ``proportional`` (else
+    ``truncate.coefficients``) entries besides their near ones (index ≥ haar_length)."""
+    if params["truncate.budget"] not in BUDGETS:
+        raise PrtError(None, f"truncate.budget = {params['truncate.budget']!r}: "
+                       f"expected one of {', '.join(BUDGETS)}")
     count, value = arrays[f"{prefix}_count"], arrays[f"{prefix}_value"]
-    near = arrays[f"{prefix}_index"] >= int(ctx.inputs["d2i.transfer"].attrs["haar_length"])
-    if ctx.params["truncate.budget"] == "tolerance":
+    near = arrays[f"{prefix}_index"] >= haar_length
+    if params["truncate.budget"] == "tolerance":
         keep = kept_counts(count, arrays[f"{prefix}_residual"], value,
-                           float(ctx.params["truncate.tolerance"]), near)
+                           float(params["truncate.tolerance"]), near)
     else:
         near_count = np.bincount(np.repeat(np.arange(len(count)), count), weights=near,
                                  minlength=len(count)).astype(np.int64)
         keep = near_count + (proportional if proportional is not None else
-                             np.full(len(count), int(ctx.params["truncate.coefficients"])))
+                             np.full(len(count), int(params["truncate.coefficients"])))
     out = cut_rows(count, arrays[f"{prefix}_index"], value, keep)
     return {f"{prefix}_{k}": v for k, v in out.items()}
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    if ctx.params["truncate.budget"] not in BUDGETS:
-        raise PrtError(None, f"truncate.budget = {ctx.params['truncate.budget']!r}: "
-                       f"expected one of {', '.join(BUDGETS)}")
-    transfer, bounce = ctx.inputs["d2i.transfer"], ctx.inputs["d2i.bounce"]
-    arrays: dict[str, Any] = {n: transfer.read(n) for n in transfer.names}
-    arrays.update({n: bounce.read(n) for n in bounce.names})
-    out = _by_pixel(_budget(ctx, "d", arrays, None), arrays["d_pixel"], "d")
-    out.update(_budget(ctx, "ms", arrays, None))
-    out.update(_by_pixel(_budget(ctx, "t", arrays, _proportional_t(ctx, arrays)),
-                         arrays["t_pixel"], "t"))
-    out["t_pixel"] = np.sort(arrays["t_pixel"], kind="stable")
+    """The tile's D and T rows, cut (in the transfer tile's row order)."""
+    transfer = ctx.inputs["d2i.transfer"]
+    arrays = {n: transfer.read_piece(n, ctx.chunk.id) for n in transfer.names}
+    haar = int(transfer.attrs["haar_length"])
+    out = cut_to_budget(ctx.params, "d", arrays, haar)
+    out.update(cut_to_budget(ctx.params, "t", arrays, haar, _proportional_t(ctx, arrays)))
+    out.update(d_pixel=arrays["d_pixel"], t_pixel=arrays["t_pixel"])
     return out
 
 
-def _by_pixel(rows: dict[str, np.ndarray], pixel: np.ndarray, prefix: str
-              ) -> dict[str, np.ndarray]:
-    """Rows (in the transfer stage's tile order) in raster order of their pixels, a
-    pixel's rows staying in order."""
-    plain = {k[len(prefix) + 1:]: v for k, v in rows.items()}
-    return {f"{prefix}_{k}": v for k, v in sort_rows(pixel, plain).items()}
-
-
-def _proportional_t(ctx: AssembleContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
+def _proportional_t(ctx: ChunkContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
     """Per T row: truncate.coefficients × σ_j/σ_1 of the pixel's material (row 0: all)."""
     coefficients = int(ctx.params["truncate.coefficients"])
     pixel = arrays["t_pixel"]
