@@ -199,18 +199,20 @@ PART_DIGEST = 16  # hex digits kept of each part's digest in a chunk's record
 
 
 def chunk_key_parts(code: str, schema_version: int, params: dict[str, Any],
-                    sections: dict[str, Any], inputs: dict[str, Any]) -> dict[str, str]:
-    """A chunk's key part by part, each a short digest, named as ``prt status`` says
-    them: ``code``, ``schema``, ``param NAME``, ``scene SECTION``, ``input STAGE`` (or
-    ``input STAGE[NAME]`` per chunk of a ``chunk_inputs`` input). Recorded with each
-    written chunk, so that a stale chunk's record says which parts changed."""
+                    sections: dict[str, Any], inputs: dict[str, Any],
+                    chunk_id: str) -> dict[str, str]:
+    """Chunk ``chunk_id``'s key part by part, each a short digest, named as ``prt status``
+    says them: ``code``, ``schema``, ``param NAME``, ``scene SECTION``, ``input STAGE``
+    (or ``input STAGE[NAME]`` per chunk of a ``chunk_inputs`` input, ``input
+    STAGE[twin]`` for its twin chunk). Recorded with each written chunk, so that a stale
+    chunk's record says which parts changed."""
     parts = {"code": code[:PART_DIGEST], "schema": str(schema_version)}
     parts.update({f"param {k}": digest(v)[:PART_DIGEST] for k, v in params.items()})
     parts.update({f"scene {k}": digest(v)[:PART_DIGEST] for k, v in sections.items()})
     for dep, value in inputs.items():
         if isinstance(value, dict):
-            parts.update({f"input {dep}[{w}]": digest(d)[:PART_DIGEST]
-                          for w, d in value.items()})
+            parts.update({f"input {dep}[{'twin' if w == chunk_id else w}]":
+                          digest(d)[:PART_DIGEST] for w, d in value.items()})
         else:
             parts[f"input {dep}"] = digest(value)[:PART_DIGEST]
     return parts
@@ -244,7 +246,8 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
         p.seeds[c.id] = seed_from_key(data)
         p.chunk_keys[c.id] = digest({"data": data, "code": code,
                                      "schema_version": schema_version})
-        p.chunk_parts[c.id] = chunk_key_parts(code, schema_version, params, sections, inputs)
+        p.chunk_parts[c.id] = chunk_key_parts(code, schema_version, params, sections, inputs,
+                                              c.id)
     p.key = digest({"stage": spec.name, "chunks": p.chunk_keys})
     scene_digests = {path: digest(value) for s in p.sections.values()
                      for path, value in s.items()}
