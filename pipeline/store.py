@@ -248,10 +248,10 @@ class Artifact:
     def read_piece(self, name: str, chunk_id: str) -> np.ndarray:
         """Chunk ``chunk_id``'s piece of segmented array ``name`` as it was written
         (local: no ``offset_by`` shift); PrtError if the artifact has no such piece."""
-        node = self._node(name)
-        piece = dict(node.arrays()).get(chunk_id.replace("/", "~"))
-        if piece is None:
-            raise PrtError(self.path / name, f"no piece for chunk {chunk_id!r}")
+        try:  # the one piece's metadata, not every piece's (a group lists them all)
+            piece = self._node(name)[chunk_id.replace("/", "~")]
+        except KeyError:
+            raise PrtError(self.path / name, f"no piece for chunk {chunk_id!r}") from None
         return self._read_array(piece)
 
     def read(self, name: str, region: tuple[slice, ...] | None = None) -> np.ndarray:
