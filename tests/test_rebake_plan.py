@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from helpers import (
     TESTS,
     TOY_STAGEFILE,
@@ -268,3 +269,30 @@ def test_method_edits_rebake_exactly_the_forecast(method_bakes, tmp_path, method
             assert actual[stage] and all(c.startswith("ball/") for c in actual[stage])
         else:
             assert actual[stage] == chunks, stage
+
+
+def test_chunk_inputs_must_be_scoped_by_object_material_or_twin(tmp_path):
+    """A stage may read only some chunks of an input chunked by object or material, or
+    its twin chunk of an input chunked exactly as it is; any other ``chunk_inputs`` is
+    refused in one line naming the stage file."""
+    from pipeline.errors import PrtError
+
+    doc = yaml.safe_load(TOY_STAGEFILE.read_text())
+    doc["stages"]["tiles"]["chunk_inputs"] = ["total"]  # total is one chunk, tiles by tile
+    path = tmp_path / "stages.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(PrtError, match="stages.tiles.chunk_inputs: 'total' is not chunked "
+                                       "by object or material, nor as this stage is"):
+        load_stagefile(path)
+
+
+def test_a_missing_piece_is_one_error_line(toy):
+    """Artifact.read_piece of a chunk the artifact has no piece for names the array."""
+    from pipeline.errors import PrtError
+    from pipeline.store import open_artifact
+
+    _, workdir, _ = toy
+    artifact = open_artifact(workdir.artifact("per_object"))
+    assert artifact.read_piece("noise", "ball").shape == (1,)
+    with pytest.raises(PrtError, match="no piece for chunk 'nope'"):
+        artifact.read_piece("noise", "nope")
