@@ -169,7 +169,10 @@ class DaskExecutor:
                 yield future.result()
         finally:
             if pending:  # an error, or the caller stopped early
-                running = {key for keys in client.processing().values() for key in keys}
+                try:
+                    running = {key for keys in client.processing().values() for key in keys}
+                except Exception:  # the scheduler is gone: nothing to wait for
+                    running = set()
                 client.cancel([f for f in pending if f.key not in running])
                 # a chunk still running would write into the artifact after the caller
                 # has dealt with the error: wait for those
