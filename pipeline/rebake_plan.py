@@ -15,7 +15,8 @@ incomplete, its dependents wait and every chunk of theirs is counted.
 The rules behind the counts are the stage file's declarations: a chunk's key holds the
 scene sections it declares (``materials.*`` bound to the chunk's materials, ``objects.*``
 to its object), the parameters it declares, and each input either whole (its output
-digest) or, for ``chunk_inputs``, only the chunks of the chunk's own material or object.
+digest) or, for ``chunk_inputs``, only the chunks of the chunk's own material or object
+(or its twin chunk, for an input chunked as the stage is).
 """
 
 from __future__ import annotations
@@ -48,11 +49,6 @@ class StageForecast:
     chunks: list[str] | None = None
     reasons: dict[str, int] = field(default_factory=dict)
     rule: str = ""
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "state": self.state, "total": self.total,
-                "rerun": self.rerun, "chunks": self.chunks, "reasons": self.reasons,
-                "rule": self.rule}
 
 
 def rebake_plan(scene: Scene, stagefile: StageFile, workdir: Workdir,
@@ -125,13 +121,10 @@ def _forecast(p: Any, stagefile: StageFile, workdir: Workdir
 
 def _layout(p: Any, stagefile: StageFile, workdir: Workdir) -> dict[str, Any]:
     """The layout the run will give the stage's artifact (from its inputs as they are)."""
-    from pipeline.runner import load_impl, stage_context
+    from pipeline.runner import load_impl, stage_context, stage_layout
     from pipeline.schema import load_schema
-    from pipeline.stages import Layout
 
-    impl = load_impl(p.spec.impl)
-    layout = impl.layout(stage_context(p, stagefile, workdir)) if hasattr(impl, "layout") \
-        else Layout()
+    layout = stage_layout(load_impl(p.spec.impl), stage_context(p, stagefile, workdir))
     return chunkwrite.layout_record(load_schema(p.spec.output), layout.shapes, layout.sizes)
 
 

@@ -476,6 +476,11 @@ def stage_context(p: StagePlan, stagefile: StageFile, workdir: Workdir) -> Assem
     return AssembleContext(params=p.params, scene=sections, inputs=inputs)
 
 
+def stage_layout(impl: Any, ctx: AssembleContext) -> Layout:
+    """The layout a stage gives its artifact (its ``layout``, else the default)."""
+    return impl.layout(ctx) if hasattr(impl, "layout") else Layout()
+
+
 def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdir,
                executor: Executor, progress: bool, forced: bool) -> StageRun:
     """Run the chunks of one stage that have no current record, in place, then finish
@@ -487,7 +492,7 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
     impl = load_impl(spec.impl)
     schema = load_schema(spec.output)
     ctx = stage_context(p, stagefile, workdir)
-    layout = impl.layout(ctx) if hasattr(impl, "layout") else Layout()
+    layout = stage_layout(impl, ctx)
     path = workdir.artifact(name)
     ids = [c.id for c in p.chunks]
     previous = read_record_or_none(path)
