@@ -55,9 +55,16 @@ def _corrected(error: float, noise: float) -> float:
 @click.option("--set", "settings", multiple=True, help="Stage parameter NAME=VALUE.")
 @click.option("--material-edit", "edits", multiple=True, help="Run-time OBJECT.PARAM=V.")
 @click.option("--bounces", type=int, default=32, show_default=True)
+@click.option("--one-bounce", is_flag=True,
+              help="Indirect light of one bounce only: d2i without its bounce loop, the "
+                   "references cut after the second vertex (max_depth 2).")
+@click.option("--size", type=int, help="Square image side [default: the scene camera's].")
 @click.option("--out", type=click.Path(path_type=Path), required=True)
-def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, out):
+def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, one_bounce, size,
+         out):
     base = load_scene(scene_path or default_scene_path())
+    if size:
+        base = base.with_image_size(size, size)
     params = {}
     for item in settings:
         name, _, value = item.partition("=")
@@ -66,16 +73,20 @@ def main(scene_path, workdir, reference_dir, spp, settings, edits, bounces, out)
     wd = job.workdir_for(baked, workdir)
     job.bake(baked, wd, quiet=True)
     scene = with_material_edits(baked, list(edits)) if edits else baked
+    if one_bounce:
+        bounces = 0
     frame = job.render_frame(scene, wd, "d2i", {"max_bounces": bounces}).rgb
     direct = job.render_frame(scene, wd, "direct").rgb
     ref_wd = job.workdir_for(scene, reference_dir) if reference_dir else wd
-    refs = {t: job.reference(scene, ref_wd, ReferenceSettings(t, tolerance=0.0, min_spp=spp,
-                                                          max_spp=spp), quiet=True).image
+    refs = {t: job.reference(scene, ref_wd, ReferenceSettings(
+        t, tolerance=0.0, min_spp=spp, max_spp=spp, max_depth=2 if one_bounce else -1),
+        quiet=True).image
             for t in ("first-glossy", "first-glossy-indirect")}
     full, indirect_ref = refs["first-glossy"], refs["first-glossy-indirect"]
     surfaces = ~emitter_pixels(scene, wd)
     indirect = frame - direct
-    result = {"settings": params, "edits": list(edits), "spp": spp, "bounces": bounces}
+    result = {"settings": params, "edits": list(edits), "spp": spp, "bounces": bounces,
+              "one_bounce": one_bounce}
     for name, image, ref, mask in (("full", frame, full, np.ones_like(surfaces)),
                                    ("surfaces", frame, full, surfaces),
                                    ("indirect", indirect, indirect_ref, surfaces)):

@@ -166,3 +166,42 @@ def test_subarea_points_lie_on_each_disk(cornell):
     np.testing.assert_allclose(np.mean(np.sum(offset ** 2, -1), axis=1), radius ** 2 / 2,
                                rtol=0.15)
 
+
+
+def test_stratified_surface_samples_cover_each_triangle_and_spread_evenly():
+    """pipeline/stages/gather.py ``_surface_samples``: every face gets a sample, each face
+    ⌊n_f⌋ or ⌈n_f⌉ of its expected share, points inside their triangles, the weights sum
+    to the area exactly. The count in a cell (a gather sample's share: here the
+    nearest of 400 random sites on a unit square of two triangles, 8 samples per site on
+    average) departs from the cell's area × 3200 by about half as much as with
+    independent uniform points (median of 4 seeds, measured: 0.16 against 0.36 of the
+    mean count; Poisson: 1/√8 = 0.35)."""
+    from scipy.spatial import cKDTree
+
+    from pipeline.stages.gather import _surface_samples
+
+    corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 1]])  # the last one degenerate, area 0
+    p0, p1, p2 = (corners[faces[:, i]] for i in range(3))
+    face_area = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+    sites = cKDTree(np.random.default_rng(7).random((400, 2)))
+    grid = (np.stack(np.meshgrid(np.arange(500), np.arange(500)), -1).reshape(-1, 2) + 0.5) / 500
+    expected = 3200.0 * np.bincount(sites.query(grid)[1], minlength=400) / len(grid)
+
+    def spread(points: np.ndarray) -> float:
+        return float(np.std(np.bincount(sites.query(points)[1], minlength=400) - expected)
+                     / 8.0)
+
+    stratified, uniform = [], []
+    for seed in range(4):
+        face, points, weight = _surface_samples(p0, p1, p2, face_area, 3200,
+                                                np.random.default_rng(seed))
+        per_face = np.bincount(face, minlength=3)
+        assert per_face[2] == 1 and abs(int(per_face[0]) - int(per_face[1])) <= 1
+        assert weight.sum() == pytest.approx(1.0, abs=1e-12)
+        on = face < 2
+        x, y = points[on, 0], points[on, 1]
+        assert np.all(np.where(face[on] == 0, y <= x + 1e-12, y >= x - 1e-12))
+        stratified.append(spread(points[on, :2]))
+        uniform.append(spread(np.random.default_rng(100 + seed).random((on.sum(), 2))))
+    assert np.median(stratified) < 0.55 * np.median(uniform)

@@ -23,13 +23,14 @@ component's axis and sign), then along a 2D Hilbert curve in that chart's plane
 (pipeline/math/spacecurve.py, ``chart_order``), so that rows of T, D and Ms are smooth in
 the gather index (DESIGN §7) and runs of samples fill squares on planar surfaces.
 
-Areas |A_g|. Uniform surface samples, one on every triangle plus more in proportion to
-area (``gather.area_samples`` per gather sample in all), each carrying the area it stands
-for, are taken on both sides of the surface. Each is assigned to the nearest of its
-``NEIGHBOURS`` nearest gather samples on the same object whose normal faces the same way
-(n_g · n_s > ``FACING``), that lies within ``REACH`` × g's local spacing (the distance
-from g to its ``SPACING_K``-th nearest neighbour on the object) and whose shooting view
-sample (the pixel g's ray left from) sees the surface sample. Surface samples with none
+Areas |A_g|. Stratified surface samples (``_surface_samples``), one on every triangle
+plus more in proportion to area (``gather.area_samples`` per gather sample in all), each
+carrying the area it stands for, are taken on both sides of the surface. Each is
+assigned to the nearest of its ``NEIGHBOURS`` nearest gather samples on the same
+object whose normal faces the same way (n_g · n_s > ``FACING``), that lies within
+``REACH`` × g's local spacing (the distance from g to its ``SPACING_K``-th nearest
+neighbour on the object) and whose shooting view sample (the pixel g's ray left from)
+sees the surface sample. Surface samples with none
 are dropped: the insides of closed meshes, the outsides of the Cornell box's walls, and
 regions no gather ray reaches (the floor under a box, the ceiling behind the luminaire).
 For a Poisson spread of gather samples the chance that a point of a sampled region lies
@@ -39,6 +40,9 @@ without it the floor kept a ≈ 20 mm band around each box's footprint, and at 6
 gathers the floor's and the boxes' indirect light came out 6–7 % high against the
 reference (with it: floor +1.7 %, boxes 0.4 %, walls 2–4 % low). |A_g| is the
 sum of the areas assigned to g; the attribute ``dropped_area`` records what was dropped.
+The estimate's scatter is the gather's weight in every product: measured on the Tableau
+(64k gathers) as the spread between two seeds, ±40 % with 8 independent uniform samples
+per gather (5.5 % of the gathers got none), ±12 % with 32 stratified ones (0.15 %).
 
 Disks and sub-area samples. K_g is the disk of area |A_g| (radius √(|A_g|/π)) about g in
 its tangent plane. Its sub-area samples are the shared unit-disk pattern ``disk_pattern``
@@ -194,14 +198,7 @@ def _areas(position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
     cross = np.cross(p1 - p0, p2 - p0)
     face_area = 0.5 * np.linalg.norm(cross, axis=1)
     face_normal = cross / np.maximum(2.0 * face_area, 1e-300)[:, None]
-    extra = max(total - len(faces), 0)
-    per_face = 1 + rng.multinomial(extra, face_area / face_area.sum())
-    face = np.repeat(np.arange(len(faces)), per_face)
-    u = rng.random((len(face), 2))
-    su = np.sqrt(u[:, 0])  # uniform in the triangle (Turk 1990)
-    points = (p0[face] * (1 - su)[:, None] + p1[face] * (su * (1 - u[:, 1]))[:, None]
-              + p2[face] * (su * u[:, 1])[:, None])
-    weight = face_area[face] / per_face[face]
+    face, points, weight = _surface_samples(p0, p1, p2, face_area, total, rng)
     area = np.zeros(len(position))
     dropped = float(weight.sum() * 2.0)
     for obj in np.unique(object_id):
@@ -232,6 +229,38 @@ def _areas(position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
             area[own] += kept
             dropped -= float(kept.sum())
     return area, dropped
+
+
+R2_STEP = 1.0 / np.array([1.32471795724474602596, 1.32471795724474602596 ** 2])
+"""Step of the R2 sequence (Roberts 2018; the plastic number's powers): the 2D
+sequence u_i = frac(u_0 + i·R2_STEP) spreads any number of points evenly."""
+
+
+def _surface_samples(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, face_area: np.ndarray,
+                     total: int, rng: np.random.Generator
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """About ``total`` stratified surface samples: (face (S,), point (S, 3), the area each
+    stands for (S,)). Every face gets one, the rest go in proportion to area by
+    systematic sampling (each face ⌊n_f⌋ or ⌈n_f⌉ of its expected n_f); within a face the
+    points follow the R2 sequence from a random start, folded into the triangle
+    (u + v > 1 ↦ (1 − u, 1 − v): uniform, and the fold keeps the spread).
+
+    Stratified, the share of samples that fall in a gather sample's cell varies far less
+    than with independent uniform points: with ≈ 5 uniform points per cell (the old
+    default on the Tableau) |A_g| scattered by ±59 % and 5.4 % of the samples got none;
+    each gather's area is its weight in every product, so that scatter became speckle in
+    narrow glossy reflections (NOTES.md)."""
+    extra = max(total - len(face_area), 0)
+    expected = np.cumsum(extra * face_area / face_area.sum())
+    per_face = 1 + np.diff(np.floor(np.r_[0.0, expected] + rng.random())).astype(np.int64)
+    face = np.repeat(np.arange(len(face_area)), per_face)
+    first = np.cumsum(per_face) - per_face
+    index = np.arange(len(face)) - first[face]
+    u = np.mod(rng.random((len(face_area), 2))[face] + index[:, None] * R2_STEP, 1.0)
+    folded = u.sum(axis=1) > 1.0
+    u[folded] = 1.0 - u[folded]
+    points = p0[face] + u[:, :1] * (p1 - p0)[face] + u[:, 1:] * (p2 - p0)[face]
+    return face, points, face_area[face] / per_face[face]
 
 
 def layout(ctx: AssembleContext) -> Layout:

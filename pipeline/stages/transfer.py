@@ -45,6 +45,7 @@ from pipeline.math.transfer import (
     GlossyTable,
     Receivers,
     disk_polygons,
+    fill_sourceless,
     split_near,
     subarea_points,
 )
@@ -178,7 +179,9 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
     """Dense rows (n, G) per unit source area as CSR rows over the renderer's radiance
     vector (Haar coefficients, then gather-domain values): each row's near entries
     (pipeline.math.transfer.split_near) first, as index haar_length + g, then its far
-    part's Haar coefficients truncated by pipeline.math.haar.truncate (largest first;
+    part's Haar coefficients — its columns of sources without area and the padding filled
+    smoothly first (fill_sourceless: the product never reads them) — truncated by
+    pipeline.math.haar.truncate (largest first;
     ``residual`` is relative to the far part). Row blocks run on all cores (NumPy's
     loops, partitions and sorts release the GIL)."""
     if len(rows) <= COMPRESS_BLOCK:
@@ -191,10 +194,11 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
 
 def _compress_block(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
                     max_coefficients: int) -> dict[str, np.ndarray]:
+    offset = haar.padded_length(rows.shape[1])
     far, (near_row, near_column, near_value) = split_near(rows, area)
+    far = fill_sourceless(far, area, offset)  # after the split: no spike spreads into it
     haar_rows = haar.truncate(haar.forward(far), keep_tolerance, max_coefficients)
     near_count = np.bincount(near_row, minlength=len(rows))
-    offset = haar.padded_length(rows.shape[1])
     return merge_rows({"count": near_count, "index": near_column + offset,
                        "value": near_value}, haar_rows)
 
