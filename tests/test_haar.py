@@ -128,3 +128,29 @@ def test_cut_keeps_near_entries_and_counts_them_for_no_energy():
     kept = kept_counts(count, residual, value, 0.1, near)
     # tolerance 0.1: a tail may drop 0.01 × 85.25 = 0.85; 0.5² may go, 0.5² + 1² not
     np.testing.assert_array_equal(kept, [2 + 4, 2, 0, 4])
+
+
+def test_cut_keeps_the_coarsest_coefficients_so_a_spike_cannot_take_the_mean():
+    """A row like a wall pixel's beside the floor (64k gathers): a narrow spike (samples
+    just below the near bar) on a broad far field holding half the product. The spike's
+    chain of coefficients holds almost all the energy; its coarse end, like the field's
+    mean, is small in energy, so a 2 % tolerance is met without coefficients 0..15 —
+    and a row without its mean (detail coefficients sum to zero) has no product with a
+    uniform radiance at all (measured: 0.0). The truncate stage keeps the coefficients
+    below COARSE_KEPT whatever their size: the product is kept (measured: exact)."""
+    from pipeline.stages.truncate import COARSE_KEPT, cut_to_budget, kept_counts
+
+    length = 1 << 16
+    row = 0.02 * (1.0 + 0.4 * np.sin(np.linspace(0.0, 6.0, length)))[None]  # the field
+    row[0, 9000:9004] = [150.0, 600.0, 600.0, 150.0]                           # the spike
+    stored = haar.truncate(haar.forward(row), 1e-4, 512)
+    uniform = haar.forward(np.ones((1, length)))[0]
+    exact = float(row[0].sum())
+    params = {"truncate.budget": "tolerance", "truncate.tolerance": 0.02}
+    cut = cut_to_budget(params, "d", {f"d_{k}": v for k, v in stored.items()}, length)
+    coarse = {int(i) for i in stored["index"] if i < COARSE_KEPT}
+    assert len(coarse) > 8 and coarse <= set(cut["d_index"].tolist())
+    assert float(cut["d_value"] @ uniform[cut["d_index"]]) == pytest.approx(exact, rel=0.01)
+    alone = int(kept_counts(stored["count"], stored["residual"], stored["value"], 0.02)[0])
+    product_alone = float(stored["value"][:alone] @ uniform[stored["index"][:alone]])
+    assert abs(product_alone) < 0.1 * exact
