@@ -56,6 +56,28 @@ def cut_rows(count: np.ndarray, index: np.ndarray, value: np.ndarray, keep: np.n
             "value": value[mask].astype(np.float32)}
 
 
+def quantise_values(count: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CSR values as the cut stages store them: per row a float32 ``scale`` (the RMS of
+    its entries; 1 for a row without entries or only zeros) and the values over it as
+    float16. No entry can overflow (|v| / RMS ≤ √count ≤ 2^9 for rows of up to 2^18
+    entries); rounding is ≤ 2^-11 relative down to 2^-14 × the RMS, then absolute
+    (float16 subnormals, steps of 2^-24 × the RMS). The RMS rather than the largest
+    entry: a row's near entries can be 10^3 × its far coefficients."""
+    count = count.astype(np.int64)
+    row = np.repeat(np.arange(len(count)), count)
+    energy = np.bincount(row, weights=np.square(value.astype(np.float64)), minlength=len(count))
+    scale = np.sqrt(energy / np.maximum(count, 1))
+    scale[scale == 0] = 1.0
+    scale = scale.astype(np.float32)
+    return scale, (value / scale[row]).astype(np.float16)
+
+
+def expand_values(count: np.ndarray, value: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """float32 values of rows stored by :func:`quantise_values`."""
+    row = np.repeat(np.arange(len(count)), count.astype(np.int64))
+    return value.astype(np.float32) * scale[row]
+
+
 @dataclass
 class Rows:
     """CSR rows on the host: ``offsets`` (rows + 1,) int32, ``index`` uint16 where the

@@ -138,6 +138,7 @@ def test_cut_keeps_the_coarsest_coefficients_so_a_spike_cannot_take_the_mean():
     and a row without its mean (detail coefficients sum to zero) has no product with a
     uniform radiance at all (measured: 0.0). The truncate stage keeps the coefficients
     below COARSE_KEPT whatever their size: the product is kept (measured: exact)."""
+    from pipeline.rows import expand_values
     from pipeline.stages.truncate import COARSE_KEPT, cut_to_budget, kept_counts
 
     length = 1 << 16
@@ -150,7 +151,31 @@ def test_cut_keeps_the_coarsest_coefficients_so_a_spike_cannot_take_the_mean():
     cut = cut_to_budget(params, "d", {f"d_{k}": v for k, v in stored.items()}, length)
     coarse = {int(i) for i in stored["index"] if i < COARSE_KEPT}
     assert len(coarse) > 8 and coarse <= set(cut["d_index"].tolist())
-    assert float(cut["d_value"] @ uniform[cut["d_index"]]) == pytest.approx(exact, rel=0.01)
+    value = expand_values(cut["d_count"], cut["d_value"], cut["d_scale"])
+    assert float(value @ uniform[cut["d_index"]]) == pytest.approx(exact, rel=0.01)
     alone = int(kept_counts(stored["count"], stored["residual"], stored["value"], 0.02)[0])
     product_alone = float(stored["value"][:alone] @ uniform[stored["index"][:alone]])
     assert abs(product_alone) < 0.1 * exact
+
+
+def test_stored_values_round_trip_within_float16_over_the_row_rms():
+    """pipeline/rows.py quantise_values / expand_values: rows with near entries 10^3 ×
+    their far coefficients, an all-zero row and an empty row. Each value comes back to
+    2^-11 of itself or 2^-24 × its row's RMS (float16 subnormals), whichever is larger;
+    nothing overflows; zero rows stay zero."""
+    from pipeline.rows import expand_values, quantise_values
+
+    rng = np.random.default_rng(4)
+    far = rng.normal(0.0, 1e-2, 500) * np.exp(-np.arange(500) / 100.0)  # decaying sizes
+    rows = [np.r_[[982.0, 375.0, 4.3], far], np.zeros(7), np.zeros(0), rng.normal(size=50)]
+    count = np.array([len(r) for r in rows])
+    value = np.concatenate(rows).astype(np.float32)
+    scale, stored = quantise_values(count, value)
+    assert stored.dtype == np.float16 and scale.dtype == np.float32
+    assert np.all(np.isfinite(stored))
+    back = expand_values(count, stored, scale)
+    rms = np.repeat(scale, count)
+    bound = np.maximum(np.abs(value) * 2.0 ** -11, rms * 2.0 ** -24)
+    assert np.all(np.abs(back - value) <= bound * (1 + 1e-6))
+    np.testing.assert_array_equal(back[503:510], 0.0)  # the zero row
+    assert scale[1] == 1.0 and scale[2] == 1.0

@@ -51,7 +51,7 @@ from pipeline.math.lights import shade_direct
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import light_visibility
-from pipeline.rows import Rows, sort_rows
+from pipeline.rows import Rows, expand_values, sort_rows
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
@@ -62,8 +62,10 @@ RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapola
 def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
     """The ``prefix`` (d or t) rows of the compressed_transport artifact, stored tile by
     tile, in raster order of their pixels (a pixel's rows keep their order)."""
-    rows = sort_rows(stored[f"{prefix}_pixel"], {k: stored[f"{prefix}_{k}"]
-                                                 for k in ("count", "index", "value")})
+    count = stored[f"{prefix}_count"]
+    rows = sort_rows(stored[f"{prefix}_pixel"], {
+        "count": count, "index": stored[f"{prefix}_index"],
+        "value": expand_values(count, stored[f"{prefix}_value"], stored[f"{prefix}_scale"])})
     return Rows.from_counts(rows["count"], rows["index"], rows["value"], size)
 
 
@@ -93,7 +95,9 @@ class D2iRenderer:
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
         ms = artifacts["d2i.truncate_ms"].read_all()
-        self.ms = Rows.from_counts(ms["ms_count"], ms["ms_index"], ms["ms_value"], self.size)
+        self.ms = Rows.from_counts(ms["ms_count"], ms["ms_index"],
+                                   expand_values(ms["ms_count"], ms["ms_value"], ms["ms_scale"]),
+                                   self.size)
         # D and T rows are stored tile by tile: put them in raster order of their pixels
         # (a pixel's T rows b0..bk stay in order)
         stored = transport.read_all()

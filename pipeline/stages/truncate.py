@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import PrtError
-from pipeline.rows import ROW_CHUNKS, cut_rows
+from pipeline.rows import ROW_CHUNKS, cut_rows, quantise_values
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 BUDGETS = ("tolerance", "proportional")
@@ -79,7 +79,8 @@ def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndar
                   ) -> dict[str, np.ndarray]:
     """The rows ``{prefix}_count/_index/_value`` (and ``_residual``) cut by
     ``truncate.budget``: to ``truncate.tolerance``, or to ``proportional`` (else
-    ``truncate.coefficients``) entries besides their near ones (index ≥ haar_length)."""
+    ``truncate.coefficients``) entries besides their near ones (index ≥ haar_length);
+    values stored as float16 over a float32 scale per row (pipeline.rows.quantise_values)."""
     if params["truncate.budget"] not in BUDGETS:
         raise PrtError(None, f"truncate.budget = {params['truncate.budget']!r}: "
                        f"expected one of {', '.join(BUDGETS)}")
@@ -95,6 +96,7 @@ def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndar
         keep = near_count + (proportional if proportional is not None else
                              np.full(len(count), int(params["truncate.coefficients"])))
     out = cut_rows(count, index, value, keep)
+    out["scale"], out["value"] = quantise_values(out["count"], out["value"])
     return {f"{prefix}_{k}": v for k, v in out.items()}
 
 
