@@ -74,9 +74,9 @@ def _indirect_errors(scene: Scene, baked: Scene, workdir: Path, spp: int,
     masks = {"surfaces": (object_id >= 0) & ~np.isin(object_id, emitters)}
     masks.update({o: object_id == names.index(o) for o in objects})
     out: dict[str, Any] = {"bounces": frame.timings["bounces"],
-                           "gather_count": int(open_artifact(wd.artifact("gather"), "gather")
+                           "gather_count": int(open_artifact(wd.artifact("d2i.gather"), "gather")
                                                .attrs["count"])}
-    gather_object = open_artifact(wd.artifact("gather"), "gather").read("object_id")
+    gather_object = open_artifact(wd.artifact("d2i.gather"), "gather").read("object_id")
     for o in objects:
         out[f"gathers_on_{o}"] = int(np.sum(gather_object == names.index(o)))
     for key, mask in masks.items():
