@@ -286,15 +286,16 @@ def fill_sourceless(rows: np.ndarray, area: np.ndarray, length: int) -> np.ndarr
     """Rows (n, G) per unit source area extended to ``length`` ≥ G columns (the Haar
     length), with every column whose source has no area — |A_g| = 0, and the padding
     g ≥ G — set by linear interpolation between the nearest columns with area on either
-    side (the nearest one beyond the last).
+    side (before the first and beyond the last: the nearest one's value).
 
     The product with the radiance vector (|A_g| L_g, zero in those columns) never reads
     them, so any value is exact; zeros would not be harmless, though. A hole is a spike
     down of the whole row's height: truncation drops its fine coefficients and keeps its
     share of the coarse ones, so the kept row sits lower across its neighbours, where
     the radiance is not zero. On the Tableau (64k gathers, 5.4 % of them without area)
-    the holes took 3.6 % of a bounce's light and compounded over the bounces (indirect
-    mean −5.9 %, NOTES.md)."""
+    the first bounce came out 3.6 % dark and the indirect mean −5.9 %; with the holes
+    filled and the areas stratified (pipeline/stages/gather.py), −1.4 % and −2.05 %
+    (NOTES.md)."""
     count = rows.shape[1]
     source = np.flatnonzero(area[:count] > 0)
     out = np.empty((len(rows), length), rows.dtype)

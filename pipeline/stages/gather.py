@@ -30,9 +30,9 @@ assigned to the nearest of its ``NEIGHBOURS`` nearest gather samples on the same
 object whose normal faces the same way (n_g · n_s > ``FACING``), that lies within
 ``REACH`` × g's local spacing (the distance from g to its ``SPACING_K``-th nearest
 neighbour on the object) and whose shooting view sample (the pixel g's ray left from)
-sees the surface sample. Surface samples with none
-are dropped: the insides of closed meshes, the outsides of the Cornell box's walls, and
-regions no gather ray reaches (the floor under a box, the ceiling behind the luminaire).
+sees the surface sample. Surface samples with none are dropped: the insides of closed
+meshes, the outsides of the Cornell box's walls, and regions no gather ray reaches (the
+floor under a box, the ceiling behind the luminaire).
 For a Poisson spread of gather samples the chance that a point of a sampled region lies
 farther than the reach from every sample is ≈ exp(−4π·SPACING_K/3) ≈ 4e-6. The
 visibility test removes the band around hidden regions that the reach alone lets in:
@@ -246,10 +246,10 @@ def _surface_samples(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, face_area: 
     (u + v > 1 ↦ (1 − u, 1 − v): uniform, and the fold keeps the spread).
 
     Stratified, the share of samples that fall in a gather sample's cell varies far less
-    than with independent uniform points: with ≈ 5 uniform points per cell (the old
-    default on the Tableau) |A_g| scattered by ±59 % and 5.4 % of the samples got none;
-    each gather's area is its weight in every product, so that scatter became speckle in
-    narrow glossy reflections (NOTES.md)."""
+    than with independent uniform points (the scatter measured on the Tableau: module
+    docstring). Each gather's area is its weight in every product, so the scatter is
+    noise in every product (and likely the speckle once seen in narrow glossy
+    reflections; not isolated)."""
     extra = max(total - len(face_area), 0)
     expected = np.cumsum(extra * face_area / face_area.sum())
     per_face = 1 + np.diff(np.floor(np.r_[0.0, expected] + rng.random())).astype(np.int64)

@@ -181,9 +181,9 @@ def compress_rows(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
     (pipeline.math.transfer.split_near) first, as index haar_length + g, then its far
     part's Haar coefficients — its columns of sources without area and the padding filled
     smoothly first (fill_sourceless: the product never reads them) — truncated by
-    pipeline.math.haar.truncate (largest first;
-    ``residual`` is relative to the far part). Row blocks run on all cores (NumPy's
-    loops, partitions and sorts release the GIL)."""
+    pipeline.math.haar.truncate (largest first; ``residual`` is relative to the far
+    part). Row blocks run on all cores (NumPy's loops, partitions and sorts release the
+    GIL)."""
     if len(rows) <= COMPRESS_BLOCK:
         return _compress_block(rows, area, keep_tolerance, max_coefficients)
     parts = map_slices(lambda block: _compress_block(rows[block], area, keep_tolerance,

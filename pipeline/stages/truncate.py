@@ -87,8 +87,9 @@ def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndar
     if params["truncate.budget"] not in BUDGETS:
         raise PrtError(None, f"truncate.budget = {params['truncate.budget']!r}: "
                        f"expected one of {', '.join(BUDGETS)}")
-    count, index, value = coarse_first(arrays[f"{prefix}_count"], arrays[f"{prefix}_index"],
-                                       arrays[f"{prefix}_value"], haar_length)
+    count = arrays[f"{prefix}_count"]
+    index, value = coarse_first(count, arrays[f"{prefix}_index"], arrays[f"{prefix}_value"],
+                                haar_length)
     near = index >= haar_length
     if params["truncate.budget"] == "tolerance":
         keep = kept_counts(count, arrays[f"{prefix}_residual"], value,
@@ -104,14 +105,14 @@ def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndar
 
 
 def coarse_first(count: np.ndarray, index: np.ndarray, value: np.ndarray, haar_length: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CSR rows (near entries first, then Haar coefficients largest first) with each
-    row's coefficients below ``COARSE_KEPT`` moved right after its near entries; the
-    order is otherwise kept."""
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The entries (index, value) of CSR rows (near entries first, then Haar coefficients
+    largest first) with each row's coefficients below ``COARSE_KEPT`` moved right after
+    its near entries; the order is otherwise kept (the counts do not change)."""
     row = np.repeat(np.arange(len(count)), count)
     group = np.where(index >= haar_length, 0, np.where(index < COARSE_KEPT, 1, 2))
     order = np.lexsort((np.arange(len(index)), group, row))
-    return count, index[order], value[order]
+    return index[order], value[order]
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
