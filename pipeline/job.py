@@ -93,26 +93,31 @@ def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
            ) -> list[StagePlan]:
     """The state (fresh, stale or missing) of every stage the scene's methods need (a
     custom ``stagefile``: all of its stages) and why, without running anything."""
-    from pipeline.graph import with_upstream
-
     graph = stages(stagefile)
-    targets = None if stagefile else with_upstream(graph, sorted(baked_stages(scene)))
-    return plan(scene, graph, workdir, targets)
+    return plan(scene, graph, workdir, _planned_stages(scene, graph, stagefile))
 
 
 def rebake_forecast(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None,
                     until: str | tuple[str, ...] | None = None) -> list[Any]:
     """What the next ``prt run`` (``until``: ``--until``) will re-bake, stage by stage,
     with chunk counts and reasons (pipeline/rebake_plan.py), without running anything."""
-    from pipeline.graph import with_upstream
     from pipeline.rebake_plan import rebake_plan
 
     graph = stages(stagefile)
+    return rebake_plan(scene, graph, workdir, _planned_stages(scene, graph, stagefile, until))
+
+
+def _planned_stages(scene: Scene, graph: StageFile, stagefile: str | Path | None,
+                    until: str | tuple[str, ...] | None = None) -> set[str] | None:
+    """The stages ``prt status`` and a dry run plan: ``until`` (``--until``) and their
+    upstream, else those the scene's methods read and their upstream; None (all) for a
+    custom ``stagefile`` without ``until``."""
+    from pipeline.graph import with_upstream
+
     if isinstance(until, str):
         until = (until,)
     wanted = list(until) if until else None if stagefile else sorted(baked_stages(scene))
-    targets = None if wanted is None else with_upstream(graph, wanted)
-    return rebake_plan(scene, graph, workdir, targets)
+    return None if wanted is None else with_upstream(graph, wanted)
 
 
 def chunk_progress(workdir: Workdir, stage: str) -> tuple[int, int] | None:
