@@ -2,6 +2,7 @@
 
 Run from the project root:
   python benchmarks/bench_triple_tables.py [--quick] [--defaults] [--compare REV]
+  python benchmarks/bench_triple_tables.py --light-only [--out FILE]   (a GPU run)
 Writes benchmarks/results/triple_tables.json and triple_storage.png. Scene:
 scenes/bunny_grace.yaml (the Grace map, the bunny's Blinn-Phong material, the Lambertian
 ground); settings the stage defaults of stages.yaml unless a sweep says otherwise; times
@@ -317,6 +318,28 @@ def compare(rev: str) -> dict[str, Any]:
                                         if k.endswith("_s")}}
 
 
+def light_only(rgb: np.ndarray, scene: Any, params: dict[str, Any]) -> None:
+    """``--light-only [--out FILE]``: the rotation-grid rebuild and one BRDF table at
+    the stages' defaults, on ``cl.device()`` (PRT_CL_DEVICE: a GPU run), no accuracy
+    references; JSON to FILE (default benchmarks/results/triple_tables_<device>.json)."""
+    result: dict[str, Any] = {"device": cl.device().name, "cpu_count": os.cpu_count(),
+                              "load_average_at_start": os.getloadavg()}
+    light_stage.leaf_means_buffer(light_stage.prefiltered_map(rgb, params),
+                                  light_stage.frame_grid(params), 0, 1, 4,
+                                  int(params["triple.light_refine"]))  # build the kernels
+    result["light"] = _median([light_rebuild(rgb, params)[0] for _ in range(REPEATS)])
+    print(f"light rebuild: {result['light']}", flush=True)
+    brdf_table(scene, "bunny", params)  # build the kernels
+    result["brdf_table"] = _median([brdf_table(scene, "bunny", params)[0]
+                                    for _ in range(REPEATS + 2)])
+    print(f"brdf table: {result['brdf_table']}", flush=True)
+    name = cl.device().name.replace(" ", "_")
+    out = Path(sys.argv[sys.argv.index("--out") + 1]) if "--out" in sys.argv else \
+        ROOT / "benchmarks" / "results" / f"triple_tables_{name}.json"
+    out.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {out}")
+
+
 def main() -> None:
     scene = load_scene(ROOT / "scenes" / "bunny_grace.yaml")
     rgb = read_environment(scene.environment_file())
@@ -329,6 +352,9 @@ def main() -> None:
         result["compare"]["load_average_at_end"] = os.getloadavg()
         path.write_text(json.dumps(result, indent=1) + "\n")
         print(json.dumps(result["compare"], indent=1))
+        return
+    if "--light-only" in sys.argv:
+        light_only(rgb, scene, params)
         return
     refines = [0, 1] if QUICK else [0, 1, 2]
     light_refines = brdf_refines = refines

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -68,12 +69,22 @@ def queue() -> Any:
     return cl.CommandQueue(context(), properties=cl.command_queue_properties.PROFILING_ENABLE)
 
 
+_SIGNATURES: dict[tuple[Path, ...], tuple[float, str]] = {}
+RESTAT_S = 1.0  # a folder's files are stat'ed again after this many seconds
+
+
 def _source_hash(folders: list[Path]) -> str:
     """Hash of the folders' kernel sources and headers; re-read only when a file's name,
-    size or modification time changes (a frame builds many kernels: stat, not read)."""
+    size or modification time changes, and those stat'ed at most once per ``RESTAT_S``
+    (a frame looks up several kernels: a few hundred stat calls each time were ≈ 2 ms
+    of a GPU frame)."""
+    key, now = tuple(folders), time.monotonic()
+    if key in _SIGNATURES and now - _SIGNATURES[key][0] < RESTAT_S:
+        return _SIGNATURES[key][1]
     paths = sorted(p for folder in folders for p in folder.glob("*.[ch]*"))
     signature = tuple((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in paths)
-    return _hash_sources(tuple(paths), signature)
+    _SIGNATURES[key] = (now, _hash_sources(tuple(paths), signature))
+    return _SIGNATURES[key][1]
 
 
 @cache
@@ -130,18 +141,31 @@ def run(kernel: Any, size: int, *args: Any, out: Any, out_buffer: Any | None = N
         local: int | None = None) -> float:
     """One launch of ``kernel`` over ``size`` work-items with ``args`` and, last, the
     output buffer (``out_buffer``, or a new write-only one of ``out``'s size); the output
-    is copied into the host array ``out``. Returns the kernel's milliseconds. With
-    ``local``, work-groups of that size (the global size rounded up: the kernel skips
-    the extra items): PoCL builds a kernel once per work-group size, so a size that
-    changes from frame to frame (pixels seen) would otherwise re-build it (seconds)."""
+    is copied into the host array ``out`` (``out=None``: it stays in ``out_buffer``, for
+    a later kernel). Returns the kernel's milliseconds. With ``local``, work-groups of
+    that size (the global size rounded up: the kernel skips the extra items): PoCL
+    builds a kernel once per work-group size, so a size that changes from frame to frame
+    (pixels seen) would otherwise re-build it (seconds)."""
     import pyopencl as cl
 
     if out_buffer is None:
         out_buffer = cl.Buffer(context(), cl.mem_flags.WRITE_ONLY, out.nbytes)
     shape = (size,) if local is None else (-(-size // local) * local,)
     event = kernel(queue(), shape, None if local is None else (local,), *args, out_buffer)
-    cl.enqueue_copy(queue(), out, out_buffer, wait_for=[event])
+    if out is not None:
+        cl.enqueue_copy(queue(), out, out_buffer, wait_for=[event])
     return event_ms(event)
+
+
+def scratch_buffer(cache: dict[str, Any], name: str, nbytes: int) -> Any:
+    """A read-write device buffer of at least ``nbytes`` (≥ 1), kept in ``cache`` under
+    ``name`` and grown when a larger one is asked for (per-frame intermediates)."""
+    import pyopencl as cl
+
+    nbytes = max(int(nbytes), 1)
+    if name not in cache or cache[name].size < nbytes:
+        cache[name] = cl.Buffer(context(), cl.mem_flags.READ_WRITE, nbytes)
+    return cache[name]
 
 
 def event_ms(event: Any) -> float:

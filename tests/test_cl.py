@@ -22,12 +22,15 @@ def test_a_cpu_context_leaves_blas_one_thread():
     assert all(pool["num_threads"] == 1 for pool in blas)
 
 
-def test_kernel_source_hash_follows_file_changes(tmp_path):
+def test_kernel_source_hash_follows_file_changes(tmp_path, monkeypatch):
     """Kernels are cached by a hash of the folders' sources, re-read only when a file's
-    size or modification time changes; an edit changes the hash."""
+    size or modification time changes; an edit changes the hash once the files are
+    stat'ed again (after RESTAT_S; 0 here), and not before."""
     source = tmp_path / "k.cl"
     source.write_text("__kernel void k() {}\n")
     first = cl._source_hash([tmp_path])
     assert cl._source_hash([tmp_path]) == first
     source.write_text("__kernel void k() { int unused = 1; }\n")
+    assert cl._source_hash([tmp_path]) == first  # within RESTAT_S: not looked at
+    monkeypatch.setattr(cl, "RESTAT_S", 0.0)
     assert cl._source_hash([tmp_path]) != first

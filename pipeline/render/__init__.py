@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -49,3 +50,38 @@ def scatter_pixels(image: np.ndarray, pixel: np.ndarray, values: np.ndarray) -> 
     record = np.dtype((np.void, 3 * image.itemsize))
     image.view(record).reshape(-1)[pixel] = \
         np.ascontiguousarray(values, image.dtype).view(record).reshape(-1)
+
+
+class DeviceImage:
+    """A frame assembled on the OpenCL device: per-pixel results, still in device
+    buffers, are scattered into one (H·W, 3) float32 image buffer (kernel ``scatter_rgb``,
+    kernels/image.cl; the twin of :func:`scatter_pixels`), which comes back in one copy.
+    Keeps the host out of the frame's per-pixel work (a 1024×768 frame's two host
+    scatters and read-backs cost more than its shading kernel on a GPU)."""
+
+    def __init__(self, pixels: int) -> None:
+        from pipeline import cl
+
+        self.pixels = pixels
+        self.buffers: dict[str, Any] = {}
+        self.image = cl.scratch_buffer(self.buffers, "image", 12 * pixels)
+
+    def scatter(self, values: Any, pixel: Any, count: int, scale: float = 1.0) -> float:
+        """``image[pixel[i]] = scale · values[i]`` for the ``count`` (P) rows of device
+        buffers ``values`` (P, 3) float32 and ``pixel`` (P,) int32; kernel ms."""
+        from pipeline import cl
+
+        if count == 0:
+            return 0.0
+        return cl.run(cl.kernel("image.cl", "scatter_rgb"), count, values, pixel,
+                      np.float32(scale), np.int32(count), out=None, out_buffer=self.image)
+
+    def read(self) -> np.ndarray:
+        """The image (H·W, 3) float32, copied from the device."""
+        import pyopencl as pcl
+
+        from pipeline import cl
+
+        out = np.empty((self.pixels, 3), np.float32)
+        pcl.enqueue_copy(cl.queue(), out, self.image)
+        return out

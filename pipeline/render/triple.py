@@ -62,7 +62,7 @@ from pipeline.math.sphwavelet import (
 )
 from pipeline.math.wavelet_rows import from_half
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
-from pipeline.render import Frame, camera_key, scatter_pixels
+from pipeline.render import DeviceImage, Frame, camera_key
 from pipeline.render.triple_dense import DenseTables, dense_level
 from pipeline.render.triple_gbuffer import (
     WORK_GROUP,
@@ -282,15 +282,20 @@ def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, floa
 
 
 def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuffer,
-                  lookup: LookupTables, turn: float, static: dict[str, Any]
-                  ) -> tuple[np.ndarray, dict[str, float], int]:
+                  lookup: LookupTables, turn: float, static: dict[str, Any],
+                  out_buffer: Any | None = None
+                  ) -> tuple[np.ndarray | None, dict[str, float], int]:
     """Radiance (P, 3) float32 of the G-buffer's pixels, with the lookups on the device:
     the dense top-only kernel (lookups fused) where ``dense`` is given, else
     ``triple_lookups`` then the sparse ``triple_shade``. Also the kernels' milliseconds
     (``lookup_ms``: 0 when fused, ``kernel_ms``) and the bytes they read and wrote (the
-    tables once, the G-buffer, the lookups where they go through memory, the output)."""
+    tables once, the G-buffer, the lookups where they go through memory, the output).
+    With ``out_buffer`` (a device buffer of ≥ P · 12 bytes) the radiance stays there
+    and None is returned in its place."""
     n = gbuffer.count
-    out = np.empty((max(n, 1), 3), np.float32)
+    out = None if out_buffer is not None else np.empty((max(n, 1), 3), np.float32)
+    result = None if out is None else out[:n]
+    out_bytes = 12 * max(n, 1)
     args = kernel_arguments(gbuffer, tables, lookup, turn, static)
     gbuffer_bytes = sum(getattr(gbuffer, a).nbytes for a in (
         "normal", "tangent", "view", "texel_xy", "object", "material_a", "material_b",
@@ -300,21 +305,21 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
                            {"SW_LEVELS": tables.basis.leaf_level,
                             "TRIPLE_T": dense.triangles, "TRIPLE_W": dense.vector_width})
         ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out,
-                    local=WORK_GROUP)
-        moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf, out))
-        return out[:n], {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
+                    out_buffer=out_buffer, local=WORK_GROUP)
+        moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf)) + out_bytes
+        return result, {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
     buffers, lookup_ms = device_lookups(gbuffer, tables, lookup, turn, static)
     basis = kernel_tables(tables.basis)
     kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level})
     table_args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
     ms = cl.run(kernel, max(n, 1), *table_args, *buffers,
                 *(cl.read_only_buffer(basis[k]) for k in ("root_area", "wavelet", "tensor")),
-                np.int32(n), out=out, local=WORK_GROUP)
+                np.int32(n), out=out, out_buffer=out_buffer, local=WORK_GROUP)
     lookup_bytes = n * 4 * (2 * LIGHT_ROWS + 2 * VIS_ROWS + 4 * BRDF_ROWS)
     moved = sum(a.nbytes for t in (tables.light, tables.visibility, tables.brdf)
                 for a in (t.start, t.index, t.value))
-    return out[:n], {"lookup_ms": lookup_ms, "kernel_ms": ms}, \
-        moved + gbuffer_bytes + 2 * lookup_bytes + out.nbytes
+    return result, {"lookup_ms": lookup_ms, "kernel_ms": ms}, \
+        moved + gbuffer_bytes + 2 * lookup_bytes + out_bytes
 
 
 def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
@@ -549,6 +554,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     edited: list[tuple[WaveletRows, DenseTables]] = []  # the last edited BRDF table's
     static: dict[str, Any] = {}  # device buffers kept across frames (atlas, map)
     cached: dict[tuple, GBuffer] = {}  # the last camera's G-buffer
+    images: dict[int, DeviceImage] = {}  # the frame's device image, per pixel count
 
     def dense_of(brdf: WaveletRows) -> DenseTables | None:
         """The dense tables for these BRDF rows (converted once per edited table)."""
@@ -577,24 +583,30 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
         brdfs = scene_brdfs(scene, material_names)
         lookup = LookupTables.of(frame_tables, atlas, np.array([b.albedo for b in brdfs]),
                                  np.array([b.specular for b in brdfs]))
-        shaded, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
-                                                    lookup, turn, static)
+        # shading, background and their scatter into the image stay on the device; the
+        # frame comes back in one copy
+        image = images.get(cam.width * cam.height) or images.setdefault(
+            cam.width * cam.height, DeviceImage(cam.width * cam.height))
+        shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * gbuffer.count)
+        _, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
+                                               lookup, turn, static, out_buffer=shaded)
         scale = float(light.get("scale", 1.0))
-        rgb = np.empty((cam.width * cam.height, 3), np.float32)
-        shaded *= scale
-        scatter_pixels(rgb, gbuffer.pixel, shaded)
+        pixel, miss_pixel = gbuffer.pixel_device
+        scatter_ms = image.scatter(shaded, pixel, gbuffer.count, scale)
         background_ms = 0.0
         if len(gbuffer.miss_pixel):
             if "map" not in static:
                 static["map"] = cl.read_only_buffer(env_map)
-            miss = np.empty((len(gbuffer.miss_pixel), 3), np.float32)
+            miss = cl.scratch_buffer(image.buffers, "miss", 12 * len(gbuffer.miss_pixel))
             kernel = cl.kernel("triple.cl", "triple_background",
                                {"SW_LEVELS": tables.basis.leaf_level})
-            background_ms = cl.run(kernel, len(miss), static["map"], np.int32(env_map.shape[1]),
-                                   np.int32(env_map.shape[0]), gbuffer.miss_uv_device,
-                                   np.float32(turn), np.float32(scale), np.int32(len(miss)),
-                                   out=miss, local=WORK_GROUP)
-            scatter_pixels(rgb, gbuffer.miss_pixel, miss)
+            background_ms = cl.run(kernel, len(gbuffer.miss_pixel), static["map"],
+                                   np.int32(env_map.shape[1]), np.int32(env_map.shape[0]),
+                                   gbuffer.miss_uv_device, np.float32(turn), np.float32(scale),
+                                   np.int32(len(gbuffer.miss_pixel)), out=None, out_buffer=miss,
+                                   local=WORK_GROUP)
+            scatter_ms += image.scatter(miss, miss_pixel, len(gbuffer.miss_pixel))
+        rgb = image.read()
         t3 = time.perf_counter()
         shading_ms = kernel_times["lookup_ms"] + kernel_times["kernel_ms"]
         timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
@@ -602,7 +614,9 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                    "resample_ms": (t_resample - t1) * 1e3,
                    "lookup_ms": kernel_times["lookup_ms"],
                    "shade_ms": kernel_times["kernel_ms"], "background_ms": background_ms,
-                   "kernel_ms": shading_ms + background_ms, "counted_kernel_ms": shading_ms,
+                   "scatter_ms": scatter_ms,
+                   "kernel_ms": shading_ms + background_ms + scatter_ms,
+                   "counted_kernel_ms": shading_ms,
                    "setup_ms": (t_resample - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
         return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved,
                      read_bytes=frame_tables.nbytes + atlas.nbytes)

@@ -104,6 +104,13 @@ class GBuffer:
         return out, cl.event_ms(event)
 
     @cached_property
+    def pixel_device(self) -> tuple[Any, Any]:
+        """The shaded and the missing pixels' ids (P,), (M,) int32 on the device, for the
+        frame's scatter into a DeviceImage (pipeline/render/__init__.py)."""
+        return (cl.read_only_buffer(self.pixel.astype(np.int32)),
+                cl.read_only_buffer(self.miss_pixel.astype(np.int32)))
+
+    @cached_property
     def miss_uv_device(self) -> Any:
         """The missing rays' map coordinates (M, 2) float32 (u, v) in an unrotated map
         (envmap.direction_to_uv), on the device: a turn of the map about +y only adds

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Benchmarks and kernel tests on a lent GPU machine, through its vendor's OpenCL ICD.
+#
+# Usage, from the repository root on that machine: benchmarks/device_run.sh OUTDIR STEP...
+# Steps: tests (the kernels' NumPy-twin tests on the GPU), tables (triple's rotation grid
+# and one BRDF table), triple (bench_triple at 1024x768, 80 / 320 / as stored), d2i
+# (bench_d2i at 400², 16k gathers, the host path and the device path). Results go to
+# OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
+# travel in .whl/ (cp312 manylinux, `pip download --no-deps`), the shared meshes and maps
+# the scenes name in .devdata/ (PRT_DATA). PoCL is not needed there.
+set -u
+out=${1:?usage: benchmarks/device_run.sh OUTDIR STEP...}
+shift
+mkdir -p "$out"
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+    --target /tmp/site .whl/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD PRT_CL_DEVICE=gpu PRT_DATA=$PWD/.devdata PYTHONUNBUFFERED=1
+mkdir -p /etc/OpenCL/vendors
+echo /usr/lib/libnvidia-opencl.so.1 > /etc/OpenCL/vendors/nvidia.icd
+python3 -c 'from pipeline import cl; d = cl.device(); print(d.name, d.version, d.global_mem_size >> 20, "MiB")' || exit 1
+nvidia-smi --query-gpu=name,clocks.sm,clocks.mem,power.draw --format=csv
+for step in "$@"; do
+    echo "=== $step $(date +%T)"
+    case $step in
+    tests) timeout 150 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{cl,fastmath,\
+sphwavelet,wavelet_select,triple_gbuffer,triple_tables,direct,transfer,d2i,bvh}.py \
+               2>/dev/null) 2>&1 | tail -25 ;;
+    tables) timeout 120 python3 benchmarks/bench_triple_tables.py --light-only \
+                --out "$out/triple_tables_gpu.json" ;;
+    triple) timeout 300 python3 benchmarks/bench_triple.py --budgets 80,320,0 --frames 7 \
+                --workdir /tmp/bench_triple --out "$out/triple_frame_1024x768_gpu.json" ;;
+    d2i) timeout 330 python3 benchmarks/bench_d2i.py --size 400 --workdir /tmp/bench_d2i \
+             --out "$out/d2i_bench_400_gpu.json" ;;
+    *) echo "unknown step $step" ;;
+    esac
+done
+echo "=== done $(date +%T)"
