@@ -144,8 +144,10 @@ def test_brdf_stage_rows_match_the_numpy_path():
 def test_half_values_equal_to_half_of_the_float_rows(channels):
     """select_rows_buffer(half=True) converts on the device what wavelet_rows.to_half
     converts on the host: the same float32 division by the row's largest kept |value|
-    and float16 round-to-nearest-even, so bit for bit equal (incl. an all-zero row,
-    scale 1), over rows spanning 25 octaves."""
+    and float16 round-to-nearest-even (incl. an all-zero row, scale 1), over rows
+    spanning 25 octaves. Bit for bit where the device divides correctly rounded (PoCL);
+    OpenCL allows a float division 2.5 ulp (NVIDIA's driver uses that), which can move a
+    quotient across a float16 rounding boundary: then one float16 step, on few values."""
     from pipeline import cl
     from pipeline.wavelet_select_cl import select_rows_buffer
 
@@ -158,6 +160,11 @@ def test_half_values_equal_to_half_of_the_float_rows(channels):
     rows = select_rows_buffer(buffer, 0, 60, channels, 2, 120, 0.01, 40, weights)
     half = select_rows_buffer(buffer, 0, 60, channels, 2, 120, 0.01, 40, weights, half=True)
     value, scale = to_half(rows["count"], rows["value"])
-    assert np.array_equal(half["value"].view(np.uint16), value.view(np.uint16))
+    steps = np.abs(half["value"].view(np.uint16).astype(np.int32)
+                   - value.view(np.uint16).astype(np.int32))  # same sign: bits are ordered
+    if "Portable" in cl.device().platform.name:
+        assert steps.max() == 0
+    # a 2.5-ulp quotient crosses a float16 boundary on ≈ 2.5 · 2^-13 of the values
+    assert steps.max() <= 1 and np.mean(steps != 0) < 0.01
     assert np.array_equal(half["scale"], scale)
     assert half["scale"][4] == 1.0 and rows["count"][4] == 0
