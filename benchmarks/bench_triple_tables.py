@@ -343,6 +343,7 @@ def light_only(rgb: np.ndarray, scene: Any, params: dict[str, Any]) -> None:
 def main() -> None:
     scene = load_scene(ROOT / "scenes" / "bunny_grace.yaml")
     rgb = read_environment(scene.environment_file())
+    rgb.setflags(write=False)  # as the runner's chunks get it: prefiltered once
     params = dict(PARAMS)
     if "--compare" in sys.argv:
         rev = sys.argv[sys.argv.index("--compare") + 1]

@@ -353,9 +353,26 @@ def arrays_digest(arrays: dict[str, Any], attrs: dict[str, Any] | None = None) -
     return h.hexdigest()
 
 
+_ENVIRONMENT: dict[str, Any] = {}  # the last map read by this process: key and array
+
+
+def _environment(path: str) -> np.ndarray:
+    """The environment map at ``path``, read once per process while the file is unchanged
+    (size and modification time), read-only: the chunks of a stage share one read (and
+    what they derive from it, e.g. light_rotations' prefiltered map)."""
+    from pipeline.images import read_environment
+
+    stat = Path(path).stat()
+    key = (path, stat.st_size, stat.st_mtime_ns)
+    if _ENVIRONMENT.get("key") != key:
+        rgb = read_environment(path)
+        rgb.setflags(write=False)
+        _ENVIRONMENT.update(key=key, map=rgb)
+    return _ENVIRONMENT["map"]
+
+
 def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     """Run one chunk, write its arrays into the artifact in place and record it."""
-    from pipeline.images import read_environment
     from pipeline.meshio import primitive_mesh, read_mesh
 
     one_blas_thread()
@@ -365,7 +382,7 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
                   for name, (kind, src) in task.meshes.items()}
         inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
                   task.inputs.items()}
-        environment = read_environment(task.environment) if task.environment else None
+        environment = _environment(task.environment) if task.environment else None
         ctx = ChunkContext(params=task.params, scene=task.scene, inputs=inputs,
                            chunk=task.chunk, key=task.key,
                            rng=np.random.default_rng(task.seed), meshes=meshes,
