@@ -1,11 +1,24 @@
-"""Shadow rays toward every light sample, traced with Embree each frame."""
+"""Shadow rays toward every light sample, traced each frame: with Embree on the host
+(:func:`light_visibility`), or on the OpenCL device against pipeline/bvh.py's hierarchy
+(:class:`DeviceShadows`, kernel ``light_visibility`` of kernels/shadow_rays.cl: the same
+rays, so that a GPU frame's visibility never crosses the bus)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from pipeline import cl
+from pipeline.bvh import LEAF, Bvh
 from pipeline.executors import map_slices
-from pipeline.math.lights import TYPE_CODES, LightRow, light_sample_points, total_samples
+from pipeline.math.lights import (
+    TYPE_CODES,
+    LightRow,
+    light_defines,
+    light_sample_points,
+    total_samples,
+)
 from pipeline.raytrace import RayTracer
 
 SHADOW_EPSILON = 1e-4  # ray origin offset along the normal, relative to the scene diagonal
@@ -56,3 +69,35 @@ def _batch_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
         blocked = tracer.occluded(origin[point], dirs, dists, threads=1)
         vis[point, off + sample] = ~blocked
     return vis
+
+
+class DeviceShadows:
+    """Shadow rays on the OpenCL device against the scene's BVH (built once)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.bvh = Bvh.build(vertices, faces)
+
+    def visibility(self, position: Any, normal: Any, pixel: Any, count: int,
+                   packed: np.ndarray, scene_diagonal: float, out: Any | None = None
+                   ) -> tuple[Any, float]:
+        """Device buffer (count, max(total_samples, 1)) uint8, as :func:`light_visibility`
+        of the ``count`` points in device buffers ``position``, ``normal`` (float32 ×3)
+        and ``pixel`` (uint32 ids); written into ``out`` when given; and kernel ms."""
+        import pyopencl as pcl
+
+        stride = max(total_samples(packed), 1)
+        if out is None:
+            out = pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, max(count * stride, 1))
+        if count == 0 or not len(packed):
+            if count:
+                pcl.enqueue_fill_buffer(cl.queue(), out, np.uint8(0), 0, count * stride)
+            return out, 0.0
+        kernel = cl.kernel("shadow_rays.cl", "light_visibility",
+                           {**light_defines(), "BVH_LEAF": LEAF})
+        ms = cl.run(kernel, count, *self.bvh.device, np.int32(self.bvh.leaves), position,
+                    normal, pixel, cl.read_only_buffer(np.asarray(packed, np.float32)),
+                    np.int32(len(packed)), np.int32(stride),
+                    np.float32(SHADOW_EPSILON * scene_diagonal),
+                    np.float32(4.0 * scene_diagonal), np.int32(count), out=None,
+                    out_buffer=out, local=64)
+        return out, ms

@@ -1,0 +1,62 @@
+/* Occlusion against the implicit BVH of pipeline/bvh.py (see its docstring): node k's
+ * box is lo[k], hi[k] (float4, w unused), its children 2k and 2k + 1, the `leaves`
+ * leaves are nodes leaves … 2·leaves − 1, leaf j holds triangles j·BVH_LEAF … + BVH_LEAF
+ * − 1, each three float4 (v0, e1, e2). Build with -D BVH_LEAF. */
+#ifndef PRT_BVH_H
+#define PRT_BVH_H
+
+#define BVH_STACK 64
+
+/* Whether the ray o + t d enters the box for some t in [0, tmax]; inv = 1 / d. Each
+ * axis takes the entry plane by the sign of inv, so an inverted (empty) box is never
+ * entered; 0 · inf = NaN (a ray in a box face's plane) is dropped by fmin/fmax. */
+inline bool bvh_box(float4 lo, float4 hi, float3 o, float3 inv, float tmax) {
+    float3 t_lo = (lo.xyz - o) * inv, t_hi = (hi.xyz - o) * inv;
+    int3 forward = isgreaterequal(inv, (float3)(0.0f));
+    float3 t_in = select(t_hi, t_lo, forward), t_out = select(t_lo, t_hi, forward);
+    float enter = fmax(fmax(t_in.x, t_in.y), fmax(t_in.z, 0.0f));
+    float leave = fmin(fmin(t_out.x, t_out.y), fmin(t_out.z, tmax));
+    return enter <= leave;
+}
+
+/* Möller–Trumbore, both sides: a hit at 0 < t < tmax (t in units of |d|). */
+inline bool bvh_triangle(__global const float4* tri, float3 o, float3 d, float tmax) {
+    float3 v0 = tri[0].xyz, e1 = tri[1].xyz, e2 = tri[2].xyz;
+    float3 p = cross(d, e2);
+    float det = dot(e1, p);
+    if (det == 0.0f) return false;  /* parallel, or a padding triangle */
+    float inv = 1.0f / det;
+    float3 s = o - v0;
+    float u = dot(s, p) * inv;
+    if (u < 0.0f || u > 1.0f) return false;
+    float3 q = cross(s, e1);
+    float v = dot(d, q) * inv;
+    if (v < 0.0f || u + v > 1.0f) return false;
+    float t = dot(e2, q) * inv;
+    return t > 0.0f && t < tmax;
+}
+
+/* Whether anything lies on o + t d, 0 < t < tmax: depth first, any hit ends it. */
+inline bool bvh_occluded(__global const float4* lo, __global const float4* hi,
+                         __global const float4* tri, int leaves, float3 o, float3 d,
+                         float tmax) {
+    float3 inv = 1.0f / d;
+    int stack[BVH_STACK];
+    int top = 0, node = 1;
+    for (;;) {
+        if (bvh_box(lo[node], hi[node], o, inv, tmax)) {
+            if (node < leaves) {
+                stack[top++] = 2 * node + 1;
+                node = 2 * node;
+                continue;
+            }
+            __global const float4* t = tri + 3 * (node - leaves) * BVH_LEAF;
+            for (int k = 0; k < BVH_LEAF; ++k)
+                if (bvh_triangle(t + 3 * k, o, d, tmax)) return true;
+        }
+        if (top == 0) return false;
+        node = stack[--top];
+    }
+}
+
+#endif

@@ -1,0 +1,59 @@
+/* Shadow rays on the device, against the BVH of pipeline/bvh.py (kernels/bvh.h). */
+#include "bvh.h"
+
+/* rays: n · (origin.xyz, tmax; direction.xyz, 0); out[i] = 1 where occluded. */
+__kernel void occluded_rays(__global const float4* lo, __global const float4* hi,
+                            __global const float4* tri, const int leaves,
+                            __global const float4* rays, const int n, __global uchar* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float4 a = rays[2 * i], b = rays[2 * i + 1];
+    out[i] = bvh_occluded(lo, hi, tri, leaves, a.xyz, b.xyz, a.w) ? 1 : 0;
+}
+
+/* Visibility of every light sample from n points (build with light_defines() and
+ * BVH_LEAF): vis[i · stride + offset + s] = 1 where sample s of a light is unoccluded,
+ * as pipeline/render/shadows.py's light_visibility traces it with Embree — rays from
+ * the point moved eps along its normal, only towards samples in front (n · (q − o) > 0,
+ * else 0), stopping just short of the sample (t < 1 − 1e-4 in units of q − o) or, for
+ * a directional light, at `far`. Quad samples: sampling.h's stratified_square of
+ * (pixel id, light, sample), as lights.h shades them. */
+#include "lights.h"
+
+__kernel void light_visibility(__global const float4* lo, __global const float4* hi,
+                               __global const float4* tri, const int leaves,
+                               __global const float* position, __global const float* normal,
+                               __global const uint* pixel, __global const float* lights,
+                               const int nlights, const int stride, const float eps,
+                               const float far, const int n, __global uchar* vis)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float3 nn = vload3(i, normal);
+    float3 o = vload3(i, position) + eps * nn;
+    __global uchar* row = vis + (size_t)i * stride;
+    for (int l = 0; l < nlights; ++l) {
+        __global const float* light = lights + l * LIGHT_FLOATS;
+        int kind = (int)light[LIGHT_TYPE], off = (int)light[LIGHT_SAMPLE_OFFSET];
+        if (kind == LIGHT_DIRECTIONAL) {
+            float3 d = -light_vec(light, LIGHT_DIRECTION);
+            row[off] = dot(nn, d) > 0.0f && !bvh_occluded(lo, hi, tri, leaves, o, d, far);
+            continue;
+        }
+        int count = kind == LIGHT_QUAD ? (int)light[LIGHT_SAMPLES] : 1;
+        uint m = (uint)round(sqrt((float)count));
+        float3 corner = light_vec(light, LIGHT_CORNER), eu = light_vec(light, LIGHT_EDGE_U),
+               ev = light_vec(light, LIGHT_EDGE_V);
+        for (int s = 0; s < count; ++s) {
+            float3 q = corner;
+            if (kind == LIGHT_QUAD) {
+                float2 uv = stratified_square(pixel[i], (uint)l, (uint)s, m);
+                q = corner + uv.x * eu + uv.y * ev;
+            }
+            float3 d = q - o;
+            row[off + s] = dot(nn, d) > 0.0f
+                && !bvh_occluded(lo, hi, tri, leaves, o, d, 1.0f - 1e-4f);
+        }
+    }
+}
