@@ -155,10 +155,9 @@ def product_kernels(renderer: D2iRenderer, scene, in_frame_ms: float) -> dict[st
     time over ``REPEATS`` back-to-back launches (as the probe is timed) and in a frame."""
     frozen = renderer.freeze(renderer.coefficients(scene))
     renderer.trace_lights(scene)
-    radiance_w, _ = renderer.gather_radiance(np.array([p.albedo for p in scene_brdfs(
+    renderer.gather_radiance(np.array([p.albedo for p in scene_brdfs(
         scene, renderer.material_names)]))
-    back_to_back = statistics.median(renderer.products(radiance_w, frozen)[2]
-                                     for _ in range(REPEATS))
+    back_to_back = statistics.median(renderer.products(frozen)[2] for _ in range(REPEATS))
     return {"bytes": float(product_bytes(renderer, frozen)), "ms": back_to_back,
             "ms_in_frame": in_frame_ms}
 

@@ -30,3 +30,85 @@ __kernel void combine(__global const float* direct, __global const float4* dl,
     }
     vstore3(rgb, p, out);
 }
+
+/* ---- The bounce loop on the device (pipeline/render/d2i.py, gather_radiance) ----
+ * Per bounce: the radiance vector [W (|A| ⊙ L); |A| ⊙ L] of the gathers' radiance L
+ * (haar_input, then haar_level once per level: pipeline/math/haar.py's orthonormal
+ * transform in its standard layout), the sparse product with Ms (sparse_rows.cl), and
+ * bounce_step; the host reads a few sums per work-group to decide when to stop. */
+
+#define D2I_SQRT_HALF 0.70710678118654752f
+#define D2I_GROUP 64  /* bounce_step's work-group size (its reduction) */
+
+/* scaling[i] = |A_i| L_i for i < g, 0 up to the Haar length n; vec[n + i] = |A_i| L_i. */
+__kernel void haar_input(__global const float4* radiance, __global const float* area,
+                         const int g, const int n, __global float4* vec,
+                         __global float4* scaling)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float4 x = i < g ? area[i] * radiance[i] : (float4)(0.0f);
+    scaling[i] = x;
+    if (i < g) vec[n + i] = x;
+}
+
+/* One Haar level: the 2·m scaling coefficients `src` give m wavelets, written at
+ * vec[m + i], and m scaling coefficients in `dst`; the last level (m = 1) also writes
+ * the coarsest scaling coefficient, vec[0]. */
+__kernel void haar_level(__global const float4* src, const int m,
+                         __global float4* dst, __global float4* vec)
+{
+    int i = get_global_id(0);
+    if (i >= m) return;
+    float4 a = src[2 * i], b = src[2 * i + 1];
+    float4 s = (a + b) * D2I_SQRT_HALF;
+    dst[i] = s;
+    vec[m + i] = (a - b) * D2I_SQRT_HALF;
+    if (m == 1) vec[0] = s;
+}
+
+/* L_{n+1} = kd ⊙ (Ms^w · W (|A| ⊙ L_n)) from the product `ms` (g float4); `bounce` holds
+ * L_n and is overwritten with L_{n+1}; total += L_{n+1}. Per work-group, into
+ * partial[2·group], partial[2·group + 1]: (Σ |A| L_{n+1} per channel, Σ |L_{n+1}|²)
+ * and (Σ |A| L_n per channel, Σ |total|²) — the bounce's power, the previous one's, and
+ * the norms the stopping rule compares. */
+__kernel void bounce_step(__global const float4* ms, __global const int* material,
+                          __global const float4* albedo, __global const float* area,
+                          const int g, __global float4* bounce, __global float4* total,
+                          __global float4* partial)
+{
+    __local float4 sums[2][D2I_GROUP];
+    int i = get_global_id(0), l = get_local_id(0);
+    float4 now = (float4)(0.0f), before = (float4)(0.0f);
+    if (i < g) {
+        float4 previous = bounce[i];
+        float4 next = albedo[material[i]] * (float4)(ms[i].xyz, 0.0f);
+        float4 sum = total[i] + next;
+        bounce[i] = next;
+        total[i] = sum;
+        now = (float4)(area[i] * next.xyz, dot(next, next));
+        before = (float4)(area[i] * previous.xyz, dot(sum, sum));
+    }
+    sums[0][l] = now;
+    sums[1][l] = before;
+    for (int step = D2I_GROUP / 2; step > 0; step >>= 1) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (l < step) {
+            sums[0][l] += sums[0][l + step];
+            sums[1][l] += sums[1][l + step];
+        }
+    }
+    if (l == 0) {
+        partial[2 * get_group_id(0)] = sums[0][0];
+        partial[2 * get_group_id(0) + 1] = sums[1][0];
+    }
+}
+
+/* total += factor ⊙ bounce (the closed-form tail of a settled series; factor.w = 0). */
+__kernel void add_scaled(__global const float4* bounce, const float4 factor, const int g,
+                         __global float4* total)
+{
+    int i = get_global_id(0);
+    if (i >= g) return;
+    total[i] += factor * bounce[i];
+}

@@ -47,16 +47,18 @@ from pipeline.errors import PrtError
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
 from pipeline.math.brdf_pca import read_basis
-from pipeline.math.lights import shade_direct
+from pipeline.math.lights import shade_direct, total_samples
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
-from pipeline.render.shadows import light_visibility
+from pipeline.render.shadows import DeviceShadows, light_visibility
 from pipeline.rows import Rows, expand_values, sort_rows
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
 GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
+BOUNCE_GROUP = 64  # kernels/d2i.cl bounce_step's work-group (D2I_GROUP)
+SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU, else Embree
 
 
 def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
@@ -73,10 +75,17 @@ class D2iRenderer:
     """The d2i frame of one baked scene; keeps device buffers and cached products."""
 
     def __init__(self, scene: Scene, artifacts: Mapping[str, Artifact], max_bounces: int = 32,
-                 bounce_tolerance: float = 1e-3) -> None:
+                 bounce_tolerance: float = 1e-3, shadows: str = "auto") -> None:
         import pyopencl as pcl
 
         self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
+        if shadows not in SHADOW_TRACERS:
+            raise PrtError("--option", f"shadows={shadows!r}: expected one of "
+                           f"{', '.join(SHADOW_TRACERS)}")
+        on_gpu = bool(cl.device().type & pcl.device_type.GPU)
+        geo = artifacts["geometry"]
+        self.device_shadows = DeviceShadows(geo.read("vertices"), geo.read("faces")) \
+            if shadows == "device" or (shadows == "auto" and on_gpu) else None
         # the sparse-row products since the frame began: their kernel time and the bytes
         # they moved at least (Frame.kernel_bytes and timings["counted_kernel_ms"])
         self.counted_ms, self.counted_bytes = 0.0, 0
@@ -85,7 +94,7 @@ class D2iRenderer:
         transport, gather = artifacts["d2i.truncate"], artifacts["d2i.gather"]
         self.basis = artifacts["brdf_basis"]
         self.bases: dict[str, Any] = {}  # material -> BrdfBasis (None: Lambertian)
-        self.direct = DirectShader(artifacts, scene.camera)
+        self.direct = DirectShader(artifacts, scene.camera, shadows=self.device_shadows)
         self.material_names = self.direct.material_names
         self.haar_length = int(transport.attrs["haar_length"])
         self.gather_position = gather.read("position").astype(np.float64)
@@ -112,12 +121,22 @@ class D2iRenderer:
         self.rmax = int(max(self.glossy_rows.max(initial=0), 1))
         self.buffers: dict[str, dict[str, Any]] = {}
         # the radiance vector of every product, rewritten before each (float4 per entry)
-        self.radiance_buffer = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.READ_ONLY,
+        self.radiance_buffer = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.READ_WRITE,
                                                16 * self.size)
         for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t)):
             self.upload(name, rows)
         self.irradiance = np.zeros((len(self.gather_material), 3))
         self.notes: list[str] = []
+        # the gathers on the device: the bounce loop's inputs and the shadow rays' origins
+        self.gather_buffers = {
+            "area": cl.read_only_buffer(self.gather_area.astype(np.float32)),
+            "material": cl.read_only_buffer(self.gather_material.astype(np.int32)),
+            "position": cl.read_only_buffer(self.gather_position.astype(np.float32)),
+            "normal": cl.read_only_buffer(self.gather_normal.astype(np.float32)),
+            "id": cl.read_only_buffer(np.arange(len(self.gather_area), dtype=np.uint32)
+                                      + np.uint32(GATHER_ID_OFFSET))}
+        self.work: dict[str, Any] = {}  # per-frame device intermediates (cl.scratch_buffer)
+        self.static: dict[str, Any] = {}  # per-pixel device inputs of the combination
 
     # ------------------------------------------------------------------------ device
 
@@ -129,23 +148,28 @@ class D2iRenderer:
         self.buffers[name]["out"] = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY,
                                                     16 * max(rows.count, 1))
 
-    def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray) -> tuple[np.ndarray, float]:
-        """Each row's product with ``radiance_w`` (N, 4): (rows, 4) and kernel ms. Adds
-        the launch to the counted kernels: its time, and the bytes it moves at least
-        (the rows' offsets, indices and values, the radiance vector once, the output)."""
-        out = np.zeros((rows.count, 4), np.float32)
+    def _sparse(self, name: str, rows: Rows, radiance_w: np.ndarray | None = None,
+                read: bool = True) -> tuple[np.ndarray | None, float]:
+        """Each row's product with the radiance vector (N, 4) — ``radiance_w`` uploaded
+        first when given, else the one the bounce loop left on the device —, written to
+        the device buffer ``buffers[name]["out"]`` and, with ``read``, returned (rows, 4);
+        and kernel ms. Adds the launch to the counted kernels: its time, and the bytes it
+        moves at least (the rows' offsets, indices and values, the radiance vector once,
+        the output)."""
+        out = np.zeros((rows.count, 4), np.float32) if read else None
         if rows.count == 0:
             return out, 0.0
         buf = self.buffers[name]
-        radiance = np.ascontiguousarray(radiance_w, np.float32)
-        self.pcl.enqueue_copy(self.queue, self.radiance_buffer, radiance)
+        if radiance_w is not None:
+            self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
+                                  np.ascontiguousarray(radiance_w, np.float32))
         index_type = "ushort" if rows.index.dtype == np.uint16 else "int"
         ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type}),
                     rows.count, buf["offsets"], buf["index"], buf["value"],
                     self.radiance_buffer, np.int32(rows.count), out=out,
                     out_buffer=buf["out"])
         self.counted_ms += ms
-        self.counted_bytes += rows.nbytes + radiance.nbytes + out.nbytes
+        self.counted_bytes += rows.nbytes + 16 * self.size + 16 * rows.count
         return out, ms
 
     # ------------------------------------------------------------------------ stages
@@ -155,48 +179,104 @@ class D2iRenderer:
         t0 = time.perf_counter()
         packed, self.notes = self.direct.packed_lights(scene)
         _check_lights(packed)
-        self.direct.trace(packed)
+        kernel_ms = self.direct.trace(packed)
         ids = np.arange(len(self.gather_position)) + GATHER_ID_OFFSET
         self.irradiance = np.zeros((len(ids), 3))
         if len(packed) and len(ids):
-            vis = light_visibility(self.direct.tracer, self.gather_position, self.gather_normal,
-                                   ids, packed, self.direct.diagonal)
+            if self.device_shadows is not None:  # traced on the device, read back (G · S B)
+                g = self.gather_buffers
+                buffer, ms = self.device_shadows.visibility(
+                    g["position"], g["normal"], g["id"], len(ids), packed, self.direct.diagonal,
+                    cl.scratch_buffer(self.work, "gather_visibility",
+                                      len(ids) * max(total_samples(packed), 1)))
+                vis = np.empty((len(ids), max(total_samples(packed), 1)), np.uint8)
+                self.pcl.enqueue_copy(self.queue, vis, buffer)
+                kernel_ms += ms
+            else:
+                vis = light_visibility(self.direct.tracer, self.gather_position,
+                                       self.gather_normal, ids, packed, self.direct.diagonal)
             self.irradiance = shade_direct(self.gather_position, self.gather_normal, ids,
                                            lambda wi: np.ones(wi.shape), packed, vis)
-        return {"shadow_ms": (time.perf_counter() - t0) * 1e3}
+        return {"shadow_ms": (time.perf_counter() - t0) * 1e3, "shadow_kernel_ms": kernel_ms}
 
-    def gather_radiance(self, albedo: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
-        """W L (N, 4) float32, L = Σ_n L_n from the irradiance and per-material albedos
-        ``albedo`` (materials, 3); and timings with the bounce count."""
+    def gather_radiance(self, albedo: np.ndarray) -> dict[str, float]:
+        """L = Σ_n L_n from the irradiance and per-material albedos ``albedo``
+        (materials, 3), on the device: its radiance vector W L is left in
+        ``radiance_buffer`` for the products; timings with the bounce count. Each bounce
+        reads back 8 floats per 64 gathers (the stopping rule's sums), nothing else."""
         t0 = time.perf_counter()
-        kd = albedo[self.gather_material] if len(self.gather_material) else np.zeros((0, 3))
-        total = kd / np.pi * self.irradiance
-        bounce = total
-        kernel_ms, bounces, ratio = 0.0, 0, None
-        for _ in range(self.max_bounces):
-            if not np.any(bounce):
+        g = len(self.gather_material)
+        kd = albedo[self.gather_material] if g else np.zeros((0, 3))
+        first = np.zeros((max(g, 1), 4), np.float32)
+        first[:g, :3] = kd / np.pi * self.irradiance
+        bounce = cl.scratch_buffer(self.work, "bounce", first.nbytes)
+        total = cl.scratch_buffer(self.work, "total", first.nbytes)
+        self.pcl.enqueue_copy(self.queue, bounce, first)
+        self.pcl.enqueue_copy(self.queue, total, first)
+        albedo4 = np.zeros((max(len(albedo), 1), 4), np.float32)
+        albedo4[:len(albedo), :3] = albedo
+        albedo_buffer = cl.read_only_buffer(albedo4)
+        groups = -(-max(g, 1) // BOUNCE_GROUP)
+        partial = np.empty((groups, 2, 4), np.float32)
+        partial_buffer = cl.scratch_buffer(self.work, "partial", partial.nbytes)
+        step = cl.kernel("d2i.cl", "bounce_step")
+        kernel_ms, product_ms, bounces, ratio = 0.0, 0.0, 0, None
+        alive = bool(np.any(first))
+        for _ in range(self.max_bounces if g else 0):
+            if not alive:
                 break
-            ms_l, ms = self._sparse("ms", self.ms, self._to_haar(bounce))
-            kernel_ms += ms
-            previous, bounce = bounce, kd * ms_l[:, :3]
-            total = total + bounce
+            kernel_ms += self.radiance_vector(bounce)
+            _, ms = self._sparse("ms", self.ms, read=False)
+            kernel_ms, product_ms = kernel_ms + ms, product_ms + ms
+            kernel_ms += cl.run(step, g, self.buffers["ms"]["out"], self.gather_buffers["material"],
+                                albedo_buffer, self.gather_buffers["area"], np.int32(g), bounce,
+                                total, out=partial, out_buffer=partial_buffer,
+                                local=BOUNCE_GROUP)
+            sums = partial.astype(np.float64).sum(axis=0)
+            power_now, norm_now = sums[0, :3], np.sqrt(sums[0, 3])
+            power_before, norm_total = sums[1, :3], np.sqrt(sums[1, 3])
             bounces += 1
-            if np.linalg.norm(bounce) <= self.bounce_tolerance * np.linalg.norm(total):
+            alive = norm_now > 0
+            if norm_now <= self.bounce_tolerance * norm_total:
                 break
-            ratio, settled = _settled_ratio(previous, bounce, ratio, self.gather_area)
+            ratio, settled = _settled_ratio(power_now, power_before, ratio)
             if settled and bounces < self.max_bounces:
                 # the rest is geometric: Σ_{m>n} L_m = L_n ρ/(1 − ρ) per channel
-                total = total + bounce * (ratio / (1.0 - ratio))
+                factor = np.zeros(4, np.float32)
+                factor[:3] = ratio / (1.0 - ratio)
+                kernel_ms += cl.run(cl.kernel("d2i.cl", "add_scaled"), g, bounce, factor,
+                                    np.int32(g), out=None, out_buffer=total)
                 break
-        out = self._to_haar(total)
-        return out, {"bounce_ms": (time.perf_counter() - t0) * 1e3,
-                     "bounce_kernel_ms": kernel_ms, "bounces": float(bounces)}
+        kernel_ms += self.radiance_vector(total)
+        return {"bounce_ms": (time.perf_counter() - t0) * 1e3,
+                "bounce_kernel_ms": kernel_ms, "bounce_product_ms": product_ms,
+                "bounces": float(bounces)}
 
-    def _to_haar(self, radiance: np.ndarray) -> np.ndarray:
-        """[W (|A| ⊙ L); |A| ⊙ L] as (N + G, 4) float32 (RGB, 0), N = haar_length: the
-        rows of T, D and Ms are stored per unit source area, their far parts as Haar
-        coefficients (indices < N), their near entries in the gather domain (N + g)
-        (pipeline/stages/transfer.py)."""
+    def radiance_vector(self, radiance: Any) -> float:
+        """[W (|A| ⊙ L); |A| ⊙ L] of the gathers' radiance in device buffer ``radiance``
+        (G, float4) into ``radiance_buffer`` (kernels haar_input, haar_level; the twin of
+        :meth:`to_haar`); kernel ms."""
+        n, g = self.haar_length, len(self.gather_area)
+        if g == 0:
+            return 0.0
+        a = cl.scratch_buffer(self.work, "haar_a", 16 * n)
+        b = cl.scratch_buffer(self.work, "haar_b", 16 * n)
+        ms = cl.run(cl.kernel("d2i.cl", "haar_input"), n, radiance, self.gather_buffers["area"],
+                    np.int32(g), np.int32(n), self.radiance_buffer, out=None, out_buffer=a)
+        level = cl.kernel("d2i.cl", "haar_level")
+        half = n // 2
+        while half >= 1:
+            ms += cl.run(level, half, a, np.int32(half), b, out=None,
+                         out_buffer=self.radiance_buffer)
+            a, b = b, a
+            half //= 2
+        return ms
+
+    def to_haar(self, radiance: np.ndarray) -> np.ndarray:
+        """[W (|A| ⊙ L); |A| ⊙ L] as (N + G, 4) float32 (RGB, 0), N = haar_length, in
+        NumPy (the twin of :meth:`radiance_vector`): the rows of T, D and Ms are stored
+        per unit source area, their far parts as Haar coefficients (indices < N), their
+        near entries in the gather domain (N + g) (pipeline/stages/transfer.py)."""
         out = np.zeros((self.size, 4), np.float32)
         if len(radiance):
             weighted = (radiance * self.gather_area[:, None]).astype(np.float32)
@@ -204,15 +284,13 @@ class D2iRenderer:
             out[self.haar_length:, :3] = weighted
         return out
 
-    def products(self, radiance_w: np.ndarray, frozen: Rows | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, float]:
-        """D L (pixels, 4) and T L (T rows, or the frozen rows, 4); kernel ms."""
-        dl, ms_d = self._sparse("d", self.d, radiance_w)
-        if frozen is None:
-            tl, ms_t = self._sparse("t", self.t, radiance_w)
-        else:
-            tl, ms_t = self._sparse("frozen", frozen, radiance_w)
-        return dl, tl, ms_d + ms_t
+    def products(self, frozen: Rows | None = None) -> tuple[Any, Any, float]:
+        """D L (pixels, float4) and T L (T rows, or the frozen rows, float4) of the
+        radiance vector on the device, as device buffers; kernel ms."""
+        _, ms_d = self._sparse("d", self.d, read=False)
+        name, rows = ("t", self.t) if frozen is None else ("frozen", frozen)
+        _, ms_t = self._sparse(name, rows, read=False)
+        return self.buffers["d"]["out"], self.buffers[name]["out"], ms_d + ms_t
 
     def coefficients(self, scene: Scene) -> np.ndarray:
         """c(γ) per material (materials, rmax): [1, c_1(γ), ..., c_k(γ)], 0 for Lambert."""
@@ -249,22 +327,26 @@ class D2iRenderer:
         self.upload("frozen", rows)
         return rows
 
-    def combine(self, direct: np.ndarray, dl: np.ndarray, tl: np.ndarray,
-                materials: np.ndarray, coefficients: np.ndarray, frozen: bool
-                ) -> tuple[np.ndarray, float]:
-        """The frame (pixels, 3) float32 and the kernel's milliseconds."""
-        npix = len(direct)
-        first, rows = self.glossy_first, self.glossy_rows
+    def combine(self, direct: Any, dl: Any, tl: Any, materials: np.ndarray,
+                coefficients: np.ndarray, frozen: bool) -> tuple[np.ndarray, float]:
+        """The frame (pixels, 3) float32 from device buffers ``direct`` (pixels, 3),
+        ``dl`` (pixels, float4) and ``tl`` (T or frozen rows, float4); kernel ms."""
+        npix = len(self.direct.material_id)
+        key = "frozen" if frozen else "rows"
+        if key not in self.static:
+            first, rows = self.glossy_first, self.glossy_rows
+            if frozen:
+                glossy = first >= 0
+                first = np.where(glossy, np.cumsum(glossy) - 1, -1).astype(np.int32)
+                rows = glossy.astype(np.int32)
+            self.static[key] = (cl.read_only_buffer(first), cl.read_only_buffer(rows))
+            self.static.setdefault("material_id", cl.read_only_buffer(self.direct.material_id))
         if frozen:
-            glossy = first >= 0
-            first = np.where(glossy, np.cumsum(glossy) - 1, -1).astype(np.int32)
-            rows = glossy.astype(np.int32)
             coefficients = np.ones((len(materials), 1), np.float32)
         out = np.empty((npix, 3), np.float32)
-        ms = cl.run(cl.kernel("d2i.cl", "combine"), npix, cl.read_only_buffer(direct),
-                    cl.read_only_buffer(dl), cl.read_only_buffer(self.direct.material_id),
-                    cl.read_only_buffer(materials), cl.read_only_buffer(first),
-                    cl.read_only_buffer(rows), cl.read_only_buffer(tl),
+        ms = cl.run(cl.kernel("d2i.cl", "combine"), npix, direct, dl,
+                    self.static["material_id"], cl.read_only_buffer(materials),
+                    *self.static[key], tl,
                     cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
                     np.int32(coefficients.shape[1]), np.int32(npix), out=out)
         return out, ms
@@ -284,11 +366,9 @@ class D2iRenderer:
         t0 = time.perf_counter()
         self._count_from_here()
         timings = self.trace_lights(scene)
-        radiance_w, bounce_t = self.gather_radiance(_albedo(scene_brdfs(scene,
-                                                                        self.material_names)))
-        timings.update(bounce_t)
+        timings.update(self.gather_radiance(_albedo(scene_brdfs(scene, self.material_names))))
         t1 = time.perf_counter()
-        dl, tl, product_ms = self.products(radiance_w)
+        dl, tl, product_ms = self.products()
         frame = self._finish(scene, dl, tl, frozen=False, t0=t0, t1=t1, timings=timings)
         frame.timings["kernel_ms"] += product_ms
         frame.timings["product_kernel_ms"] = product_ms
@@ -300,8 +380,8 @@ class D2iRenderer:
         edits change L: such a frame bounces again (still without tracing)."""
         self.trace_lights(scene)
         albedo = _albedo(scene_brdfs(scene, self.material_names))
-        radiance_w, _ = self.gather_radiance(albedo)
-        dl, tl, _ = self.products(radiance_w)
+        self.gather_radiance(albedo)
+        dl, tl, _ = self.products()
         cache = {"albedo": albedo, "dl": dl, "tl": tl}
 
         def frame(edited: Scene) -> Frame:
@@ -310,9 +390,8 @@ class D2iRenderer:
             timings: dict[str, float] = {"shadow_ms": 0.0}
             new_albedo = _albedo(scene_brdfs(edited, self.material_names))
             if not np.array_equal(new_albedo, cache["albedo"]):
-                radiance, bounce_t = self.gather_radiance(new_albedo)
-                timings.update(bounce_t)
-                cache["dl"], cache["tl"], _ = self.products(radiance)
+                timings.update(self.gather_radiance(new_albedo))
+                cache["dl"], cache["tl"], _ = self.products()
                 cache["albedo"] = new_albedo
             return self._finish(edited, cache["dl"], cache["tl"], frozen=False, t0=t0,
                                 t1=time.perf_counter(), timings=timings)
@@ -333,11 +412,10 @@ class D2iRenderer:
             t0 = time.perf_counter()
             self._count_from_here()
             timings = self.trace_lights(edited)
-            radiance_w, bounce_t = self.gather_radiance(
-                _albedo(scene_brdfs(edited, self.material_names)))
-            timings.update(bounce_t)
+            timings.update(self.gather_radiance(_albedo(scene_brdfs(edited,
+                                                                   self.material_names))))
             t1 = time.perf_counter()
-            dl, tl, product_ms = self.products(radiance_w, frozen)
+            dl, tl, product_ms = self.products(frozen)
             out = self._finish(edited, dl, tl, frozen=True, t0=t0, t1=t1, timings=timings)
             out.timings["kernel_ms"] += product_ms
             out.timings["product_kernel_ms"] = product_ms
@@ -345,19 +423,22 @@ class D2iRenderer:
 
         return frame
 
-    def _finish(self, scene: Scene, dl: np.ndarray, tl: np.ndarray, frozen: bool, t0: float,
+    def _finish(self, scene: Scene, dl: Any, tl: Any, frozen: bool, t0: float,
                 t1: float, timings: dict[str, float]) -> Frame:
         """Direct term and combination: the frame, with ``timings`` completed."""
         materials = pack_materials(scene_brdfs(scene, self.material_names))
         coefficients = self.coefficients(scene)
-        direct, direct_ms, _ = self.direct.shade(materials, np.asarray(scene.camera.position))
+        direct = cl.scratch_buffer(self.work, "direct", 12 * len(self.direct.material_id))
+        _, direct_ms, _ = self.direct.shade(materials, np.asarray(scene.camera.position),
+                                            out_buffer=direct)
         rgb, combine_ms = self.combine(direct, dl, tl, materials, coefficients, frozen)
         rgb = self.direct.emitters.draw(rgb, scene)
         t2 = time.perf_counter()
         timings = {**timings, "direct_kernel_ms": direct_ms, "combine_kernel_ms": combine_ms,
                    "pixel_ms": (t2 - t1) * 1e3, "total_ms": (t2 - t0) * 1e3,
                    "setup_ms": (t1 - t0) * 1e3,
-                   "kernel_ms": direct_ms + combine_ms + timings.get("bounce_kernel_ms", 0.0),
+                   "kernel_ms": direct_ms + combine_ms + timings.get("bounce_kernel_ms", 0.0)
+                   + timings.get("shadow_kernel_ms", 0.0),
                    "counted_kernel_ms": self.counted_ms}
         h, w = self.direct.height, self.direct.width
         return Frame("d2i", rgb.reshape(h, w, 3), timings, list(self.notes),
@@ -368,14 +449,13 @@ class D2iRenderer:
         self.counted_ms, self.counted_bytes = 0.0, 0
 
 
-def _settled_ratio(previous: np.ndarray, bounce: np.ndarray, last: np.ndarray | None,
-                   area: np.ndarray) -> tuple[np.ndarray, bool]:
-    """ρ (3,): each channel's power (Σ_g |A_g| L_g) of ``bounce`` over ``previous``, and
-    whether it is settled — within ``RATIO_SETTLED`` of ``last`` bounce's ratio, below 1
-    — so that later bounces shrink by the same factor (the power iteration has found
-    the dominant eigenvector of kd ⊙ Ms)."""
-    power = area @ bounce, area @ previous
-    ratio = np.divide(power[0], power[1], out=np.zeros(3), where=power[1] > 0)
+def _settled_ratio(power: np.ndarray, previous: np.ndarray, last: np.ndarray | None
+                   ) -> tuple[np.ndarray, bool]:
+    """ρ (3,): each channel's power (Σ_g |A_g| L_g) of a bounce, ``power``, over the
+    ``previous`` bounce's, and whether it is settled — within ``RATIO_SETTLED`` of
+    ``last`` bounce's ratio, below 1 — so that later bounces shrink by the same factor
+    (the power iteration has found the dominant eigenvector of kd ⊙ Ms)."""
+    ratio = np.divide(power, previous, out=np.zeros(3), where=previous > 0)
     settled = last is not None and bool(np.all(ratio < 1) and np.all(
         np.abs(ratio - last) <= RATIO_SETTLED * ratio))
     return ratio, settled

@@ -23,7 +23,7 @@ from pipeline.math.lights import LIGHT_FLOATS, light_defines, pack_lights, total
 from pipeline.raytrace import RayTracer
 from pipeline.render import Frame
 from pipeline.render.emitters import EmitterOverlay, object_bounds, unbound_lights
-from pipeline.render.shadows import light_visibility
+from pipeline.render.shadows import DeviceShadows, light_visibility
 from pipeline.scene import Camera, Scene
 from pipeline.store import Artifact
 
@@ -49,7 +49,8 @@ class DirectShader:
     (render/emitters.py) for ``camera``, the camera the G-buffer was baked for."""
 
     def __init__(self, artifacts: Mapping[str, Artifact], camera: Camera,
-                 tracer: RayTracer | None = None) -> None:
+                 tracer: RayTracer | None = None, shadows: DeviceShadows | None = None
+                 ) -> None:
         gbuf, geo = artifacts["gbuffer"], artifacts["geometry"]
         self.height, self.width = gbuf.attrs["height"], gbuf.attrs["width"]
         self.object_names = geo.attrs["object_names"]
@@ -66,7 +67,14 @@ class DirectShader:
         self.gbuffer = [cl.read_only_buffer(a) for a in (self.position, self.normal, self.tangent,
                                                   self.object_id, self.material_id)]
         self.lights = np.zeros((0, LIGHT_FLOATS), np.float32)
-        self.visibility = np.zeros((len(self.position), 1), np.uint8)
+        # the shadow rays' answers, (pixels, max(samples, 1)) uint8, on the device: traced
+        # there (``shadows``: a GPU's frame) or by Embree and uploaded once per trace
+        self.shadows = shadows
+        self.visibility_buffer = cl.read_only_buffer(np.zeros((len(self.position), 1), np.uint8))
+        self.visibility_stride = 1
+        self.pixel_ids = cl.read_only_buffer(np.arange(len(self.position), dtype=np.uint32)) \
+            if shadows is not None else None
+        self.buffers: dict[str, object] = {}  # per-frame device intermediates (cl.scratch_buffer)
         # the pixels that see a surface, and their points: the shadow rays' origins
         self.hit = np.flatnonzero(self.material_id >= 0)
         self.hit_position, self.hit_normal = self.position[self.hit], self.normal[self.hit]
@@ -78,29 +86,42 @@ class DirectShader:
         its baked emitter geometry unbound from it."""
         return packed_scene_lights(scene, self.object_names, self.emitters.moved(scene))
 
-    def trace(self, packed_lights: np.ndarray) -> None:
-        """Shadow rays from every pixel to every light sample."""
+    def trace(self, packed_lights: np.ndarray) -> float:
+        """Shadow rays from every pixel to every light sample; the device kernel's
+        milliseconds (0 for Embree's)."""
         self.lights = packed_lights
         n = len(self.position)
-        self.visibility = np.zeros((n, max(total_samples(packed_lights), 1)), np.uint8)
+        self.visibility_stride = max(total_samples(packed_lights), 1)
+        if self.shadows is not None:
+            out = cl.scratch_buffer(self.buffers, "visibility", n * self.visibility_stride)
+            self.visibility_buffer, ms = self.shadows.visibility(
+                self.gbuffer[0], self.gbuffer[1], self.pixel_ids, n, packed_lights,
+                self.diagonal, out)
+            return ms
+        visibility = np.zeros((n, self.visibility_stride), np.uint8)
         if len(packed_lights):
-            self.visibility[self.hit, :total_samples(packed_lights)] = light_visibility(
+            visibility[self.hit, :total_samples(packed_lights)] = light_visibility(
                 self.tracer, self.hit_position, self.hit_normal, self.hit, packed_lights,
                 self.diagonal)
+        self.visibility_buffer = cl.read_only_buffer(visibility)
+        return 0.0
 
-    def shade(self, materials: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, float, int]:
-        """Radiance (P, 3) float32, kernel milliseconds and the bytes it moved."""
+    def shade(self, materials: np.ndarray, camera: np.ndarray, out_buffer: object = None
+              ) -> tuple[np.ndarray | None, float, int]:
+        """Radiance (P, 3) float32 (left in device buffer ``out_buffer`` when given, and
+        None returned), kernel milliseconds and the bytes it moved."""
         n = len(self.position)
-        out = np.empty((n, 3), np.float32)
+        out = None if out_buffer is not None else np.empty((n, 3), np.float32)
         rows = self.lights if len(self.lights) else np.zeros((1, LIGHT_FLOATS), np.float32)
         kernel = cl.kernel("direct.cl", "direct_lighting", light_defines())
         ms = cl.run(kernel, n, *self.gbuffer, cl.read_only_buffer(materials),
                     cl.read_only_buffer(rows), np.int32(len(self.lights)),
-                    cl.read_only_buffer(self.visibility), np.int32(self.visibility.shape[1]),
-                    np.array([*camera, 0.0], np.float32), np.int32(n), out=out)
+                    self.visibility_buffer, np.int32(self.visibility_stride),
+                    np.array([*camera, 0.0], np.float32), np.int32(n), out=out,
+                    out_buffer=out_buffer)
         moved = sum(a.nbytes for a in (self.position, self.normal, self.tangent,
-                                       self.object_id, self.material_id, materials, rows,
-                                       self.visibility, out))
+                                       self.object_id, self.material_id, materials, rows)) \
+            + n * self.visibility_stride + 12 * n
         return out, ms, moved
 
 
