@@ -17,9 +17,14 @@ Measures, in one run on this machine:
   run in the same process: timed back to back like the probe (median of ``REPEATS``),
   and as they ran inside the frames.
 
+* shadow rays of the scene's lights from every pixel and gather sample: Embree's rate
+  against the device kernel's (pipeline/bvh.py) on the same rays, and how many differ.
+
 Run from the project root: python benchmarks/bench_d2i.py [--size 400] [--gathers 16384]
-Writes benchmarks/results/d2i_bench_<size>.json. Bakes into --workdir (default
-.prt/bench_d2i_<size>); a second run reuses the bake unless --rebake.
+[--shadows auto|device|embree] [--out FILE]; on a GPU, PRT_CL_DEVICE=gpu (the frames
+then trace their shadows on the device). Writes benchmarks/results/d2i_bench_<size>.json.
+Bakes into --workdir (default .prt/bench_d2i_<size>); a second run reuses the bake
+unless --rebake.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import job
+from pipeline import cl, job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
 from pipeline.method import get_method
@@ -129,9 +134,57 @@ def point_light_scene(scene):
     return replace(scene, lights=(light,), raw=raw)
 
 
-def frame_times(scene, workdir) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
+def shadow_rates(scene, workdir) -> dict[str, float]:
+    """Shadow rays of the scene's own lights (the area light's 16 samples) from every
+    pixel and gather sample: Embree (render/shadows.light_visibility, its thread pool)
+    against the device kernel on the same rays (medians of 5; the device time is its
+    kernel's), in millions of rays per second; and how many answers differ."""
+    import pyopencl
+
+    from pipeline import cl
+    from pipeline.math.lights import total_samples
+    from pipeline.render.shadows import DeviceShadows, light_visibility
+
+    renderer = D2iRenderer(scene, job.method_artifacts(get_method("d2i"), workdir),
+                           shadows="embree")
+    direct = renderer.direct
+    packed, _ = direct.packed_lights(scene)
+    position = np.concatenate([direct.hit_position, renderer.gather_position]).astype(np.float32)
+    normal = np.concatenate([direct.hit_normal, renderer.gather_normal]).astype(np.float32)
+    ids = np.concatenate([direct.hit, np.arange(len(renderer.gather_position)) + (1 << 26)]
+                         ).astype(np.uint32)
+    rays = len(position) * total_samples(packed)
+    embree = []
+    for _ in range(5):
+        start = time.perf_counter()
+        expected = light_visibility(direct.tracer, position, normal, ids, packed, direct.diagonal)
+        embree.append(time.perf_counter() - start)
+    shadows = DeviceShadows(*(renderer_geometry(workdir)))
+    buffers = [cl.read_only_buffer(a) for a in (position, normal, ids)]
+    kernel = []
+    for _ in range(6):
+        out, ms = shadows.visibility(*buffers, len(position), packed, direct.diagonal)
+        kernel.append(ms)
+    got = np.empty_like(expected)
+    pyopencl.enqueue_copy(cl.queue(), got, out)
+    return {"rays": rays, "embree_mrays_s": rays / statistics.median(embree) / 1e6,
+            "device_mrays_s": rays / statistics.median(kernel[1:]) / 1e3,
+            "device": cl.device().name, "differ": int((got != expected).sum()),
+            "bvh_mb": shadows.bvh.nbytes / 1e6}
+
+
+def renderer_geometry(workdir) -> tuple[np.ndarray, np.ndarray]:
+    from pipeline.store import open_artifact
+
+    geo = open_artifact(workdir.artifact("geometry"))
+    return geo.read("vertices"), geo.read("faces")
+
+
+def frame_times(scene, workdir, shadows: str = "auto"
+                ) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
     """Median frame timings per mode, and the product kernels' measurement."""
-    renderer = D2iRenderer(scene, job.method_artifacts(get_method("d2i"), workdir))
+    renderer = D2iRenderer(scene, job.method_artifacts(get_method("d2i"), workdir),
+                           shadows=shadows)
     renderer.render(scene)  # builds kernels
     results = {}
     for label, sc in (("light_edit_point", point_light_scene(scene)),
@@ -181,6 +234,12 @@ def main() -> None:
     parser.add_argument("--gathers", type=int, default=16384)
     parser.add_argument("--workdir", type=Path, default=None)
     parser.add_argument("--rebake", action="store_true")
+    parser.add_argument("--shadows", default="auto", choices=["auto", "device", "embree"],
+                        help="the frames' shadow rays (auto: the device's BVH on a GPU)")
+    parser.add_argument("--skip-breakdown", action="store_true",
+                        help="leave out the transfer stage's breakdown (a GPU run)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON file (default benchmarks/results/d2i_bench_<size>.json)")
     args = parser.parse_args()
     scene = load_scene(default_scene_path()).with_image_size(args.size, args.size) \
         .with_settings({"gather.count": args.gathers})
@@ -196,7 +255,7 @@ def main() -> None:
                      for p in job.status(scene, workdir)
                      if workdir.artifact(p.spec.name).exists()}
     bandwidth = probe()
-    times, products = frame_times(scene, workdir)
+    times, products = frame_times(scene, workdir, args.shadows)
     gbs = products["bytes"] / (products["ms"] * 1e-3) / 1e9
     gbs_in_frame = products["bytes"] / (products["ms_in_frame"] * 1e-3) / 1e9
     result = {
@@ -204,7 +263,10 @@ def main() -> None:
         "gathers": args.gathers, "stages_ran_now": [r.name for r in report if r.action == "ran"],
         "bake_wall_s_now": bake_wall, "stage_seconds": stage_seconds,
         "bake_s_total": sum(stage_seconds.values()),
-        "transfer_breakdown": transfer_breakdown(scene, workdir),
+        "transfer_breakdown": None if args.skip_breakdown
+        else transfer_breakdown(scene, workdir),
+        "device": cl.device().name, "shadows": args.shadows,
+        "shadow_rays": shadow_rates(scene, workdir),
         "storage": storage(workdir), "frames": times, "bandwidth_probe": bandwidth,
         "product_kernels": products, "product_kernel_gbs": gbs,
         "product_kernel_bandwidth_fraction": gbs / bandwidth["opencl_copy_gbs"],
@@ -212,10 +274,10 @@ def main() -> None:
         / bandwidth["opencl_copy_gbs"],
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / f"d2i_bench_{args.size}.json"
+    out = args.out or RESULTS / f"d2i_bench_{args.size}.json"
     out.write_text(json.dumps(result, indent=1))
     print(json.dumps({k: result[k] for k in ("bake_s_total", "stage_seconds",
-                                             "transfer_breakdown")}, indent=1))
+                                             "transfer_breakdown", "shadow_rays")}, indent=1))
     for label, t in times.items():
         if isinstance(t, dict):
             print(f"{label:<20} total {t['total_ms']:.1f} ms  (shadow {t['shadow_ms']:.1f}, "

@@ -226,10 +226,13 @@ def main() -> None:
                         help="sparse path: time every N-th pixel")
     parser.add_argument("--workdir", type=Path, default=ROOT / ".prt" / "bench_triple")
     parser.add_argument("--reuse", action="store_true", help="use the workdir's bake as is")
+    parser.add_argument("--bake-size", type=int, default=None,
+                        help="bake at N×N instead of the scene's 256² (a short GPU run: the "
+                             "frame's per-pixel work does not depend on it)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
 
-    from pipeline import job
+    from pipeline import cl, job
     from pipeline.bandwidth import probe
     from pipeline.math.brdf import scene_brdfs
     from pipeline.method import get_method
@@ -241,6 +244,8 @@ def main() -> None:
     from pipeline.surface_detail import SceneDetail
 
     scene = job.open_scene(SCENE)
+    if args.bake_size:
+        scene = scene.with_image_size(args.bake_size, args.bake_size)
     workdir = job.workdir_for(scene, args.workdir)
     if not args.reuse:
         job.bake(scene, workdir)
@@ -260,7 +265,8 @@ def main() -> None:
     result: dict[str, Any] = {
         "scene": "bunny_grace", "bake_size": [scene.camera.width, scene.camera.height],
         "size": [args.width, args.height], "frames": args.frames,
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                    "device": cl.device().name},
         "load_average_start": os.getloadavg()[0], "budgets": {}}
 
     names = artifacts["geometry"].attrs["material_names"]

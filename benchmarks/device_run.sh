@@ -2,9 +2,9 @@
 # Benchmarks and kernel tests on a lent GPU machine, through its vendor's OpenCL ICD.
 #
 # Usage, from the repository root on that machine: benchmarks/device_run.sh OUTDIR STEP...
-# Steps: tests (the kernels' NumPy-twin tests on the GPU), tables (triple's rotation grid
-# and one BRDF table), triple (bench_triple at 1024x768, 80 / 320 / as stored), d2i
-# (bench_d2i at 400², 16k gathers, the host path and the device path). Results go to
+# Steps: tests (the newest kernels' tests on the GPU), alltests (every kernel test file),
+# tables (triple's rotation grid and one BRDF table), triple (bench_triple at 1024x768,
+# 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device). Results go to
 # OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
 # travel in .whl/ (cp312 manylinux, `pip download --no-deps`), the shared meshes and maps
 # the scenes name in .devdata/ (PRT_DATA). PoCL is not needed there.
@@ -22,15 +22,18 @@ nvidia-smi --query-gpu=name,clocks.sm,clocks.mem,power.draw --format=csv
 for step in "$@"; do
     echo "=== $step $(date +%T)"
     case $step in
-    tests) timeout 150 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{cl,fastmath,\
-sphwavelet,wavelet_select,triple_gbuffer,triple_tables,direct,transfer,d2i,bvh}.py \
-               2>/dev/null) 2>&1 | tail -25 ;;
-    tables) timeout 120 python3 benchmarks/bench_triple_tables.py --light-only \
+    tests) timeout 90 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{bvh,d2i,\
+render_pixels,wavelet_select}.py 2>/dev/null) 2>&1 | tail -25 ;;
+    alltests) timeout 150 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{cl,\
+fastmath,sphwavelet,wavelet_select,triple_gbuffer,triple_tables,direct,transfer,d2i,bvh,\
+render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
+    tables) timeout 60 python3 benchmarks/bench_triple_tables.py --light-only \
                 --out "$out/triple_tables_gpu.json" ;;
-    triple) timeout 300 python3 benchmarks/bench_triple.py --budgets 80,320,0 --frames 7 \
-                --workdir /tmp/bench_triple --out "$out/triple_frame_1024x768_gpu.json" ;;
-    d2i) timeout 330 python3 benchmarks/bench_d2i.py --size 400 --workdir /tmp/bench_d2i \
-             --out "$out/d2i_bench_400_gpu.json" ;;
+    triple) timeout 150 python3 benchmarks/bench_triple.py --budgets 80,320 --frames 9 \
+                --bake-size 128 --workdir /tmp/bench_triple \
+                --out "$out/triple_frame_1024x768_gpu.json" 2>&1 | grep -v "chunk/s" ;;
+    d2i) timeout 240 python3 benchmarks/bench_d2i.py --size 400 --workdir /tmp/bench_d2i \
+             --skip-breakdown --out "$out/d2i_bench_400_gpu.json" 2>&1 | grep -v "chunk/s" ;;
     *) echo "unknown step $step" ;;
     esac
 done

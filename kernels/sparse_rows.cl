@@ -3,28 +3,43 @@
  * float4 (RGB, w unused) per entry of the renderer's radiance vector.
  *
  * Defines: INDEX_T = the type of the row indices (ushort where the radiance vector has
- *          at most 2^16 entries, else int). */
+ *          at most 2^16 entries, else int); VALUE_HALF = 1 where values are float16 over
+ *          a float32 scale per row (pipeline/rows.py quantise_values: 4 bytes per entry
+ *          instead of 6), 0 for float32 values (scale unused). */
 
-/* out[r] = sum over row r of value * radiance[index]  (one work-item per row).
- * Four independent partial sums, four entries per step: one accumulator would chain
- * every add on the previous one (latency-bound: 45 against 25 ms for the 400² bake's
- * D rows on PoCL's CPU device), so the loop keeps several loads in flight; it then
- * streams the rows at about three quarters of the copy probe's rate
+#if VALUE_HALF
+#define ROW_VALUE(e) vload_half((e), value)
+typedef half row_value_t;
+#else
+#define ROW_VALUE(e) value[e]
+typedef float row_value_t;
+#endif
+
+/* out[r] = sum over row r of value * radiance[index]  (one work-item per row), times
+ * the row's scale. Four independent partial sums, four entries per step: one
+ * accumulator would chain every add on the previous one (latency-bound: 45 against 25
+ * ms for the 400² bake's D rows on PoCL's CPU device), so the loop keeps several loads
+ * in flight; it then streams the rows at about three quarters of the copy probe's rate
  * (benchmarks/bench_d2i.py). Written as mul + add: fma() was slower on PoCL. */
 __kernel void sparse_rows(__global const int* offsets, __global const INDEX_T* index,
-                          __global const float* value, __global const float4* radiance,
-                          const int rows, __global float4* out)
+                          __global const row_value_t* value, __global const float* scale,
+                          __global const float4* radiance, const int rows,
+                          __global float4* out)
 {
     int r = get_global_id(0);
     if (r >= rows) return;
     float4 a0 = (float4)(0.0f), a1 = a0, a2 = a0, a3 = a0;
     int e = offsets[r], end = offsets[r + 1];
     for (; e + 4 <= end; e += 4) {
-        a0 += value[e] * radiance[index[e]];
-        a1 += value[e + 1] * radiance[index[e + 1]];
-        a2 += value[e + 2] * radiance[index[e + 2]];
-        a3 += value[e + 3] * radiance[index[e + 3]];
+        a0 += ROW_VALUE(e) * radiance[index[e]];
+        a1 += ROW_VALUE(e + 1) * radiance[index[e + 1]];
+        a2 += ROW_VALUE(e + 2) * radiance[index[e + 2]];
+        a3 += ROW_VALUE(e + 3) * radiance[index[e + 3]];
     }
-    for (; e < end; ++e) a0 += value[e] * radiance[index[e]];
-    out[r] = (a0 + a1) + (a2 + a3);
+    for (; e < end; ++e) a0 += ROW_VALUE(e) * radiance[index[e]];
+    float4 sum = (a0 + a1) + (a2 + a3);
+#if VALUE_HALF
+    sum *= scale[r];
+#endif
+    out[r] = sum;
 }

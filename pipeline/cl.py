@@ -150,11 +150,19 @@ def run(kernel: Any, size: int, *args: Any, out: Any, out_buffer: Any | None = N
 
     if out_buffer is None:
         out_buffer = cl.Buffer(context(), cl.mem_flags.WRITE_ONLY, out.nbytes)
-    shape = (size,) if local is None else (-(-size // local) * local,)
-    event = kernel(queue(), shape, None if local is None else (local,), *args, out_buffer)
+    event = enqueue(kernel, size, *args, out_buffer, local=local)
     if out is not None:
         cl.enqueue_copy(queue(), out, out_buffer, wait_for=[event])
     return event_ms(event)
+
+
+def enqueue(kernel: Any, size: int, *args: Any, local: int | None = None) -> Any:
+    """One launch of ``kernel`` over ``size`` work-items (rounded up to ``local``, as
+    :func:`run`), not waited for: its event. Launches that follow one another on the
+    in-order queue need no host round trip between them; :func:`event_ms` of each, once
+    the last is done, gives their times."""
+    shape = (size,) if local is None else (-(-size // local) * local,)
+    return kernel(queue(), shape, None if local is None else (local,), *args)
 
 
 def scratch_buffer(cache: dict[str, Any], name: str, nbytes: int) -> Any:

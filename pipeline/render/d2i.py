@@ -3,8 +3,11 @@
 A frame, from the ``compressed_transport`` artifact (T, D, Ms as Haar rows), the gather
 samples and the G-buffer:
 
-1. direct light at the pixels with the exact BRDF and shadows (render/direct.py), and
-   irradiance E_g at the gather samples with shadows (NumPy, pipeline/math/lights.py);
+1. shadow rays to every light sample from the pixels and the gather samples — Embree on
+   the host, or (``shadows``: ``device``, the default on a GPU) the BVH kernel of
+   render/shadows.py on the device —, direct light at the pixels with the exact BRDF
+   (render/direct.py), and irradiance E_g at the gather samples (NumPy,
+   pipeline/math/lights.py);
 2. L_d = kd_g/π ⊙ E_g, the gather samples' directly lit radiance (Lambertian);
 3. bounces in the Haar domain (paper eq. 17): L_{n+1} = kd_g ⊙ (Ms^w · W (|A| ⊙ L_n)),
    the rows stored per unit source area (pipeline/stages/transfer.py), summed
@@ -12,10 +15,14 @@ samples and the G-buffer:
    ``max_bounces`` bounces. Once the power ratio of consecutive bounces has settled
    (two ratios within ``RATIO_SETTLED``), the bounces are a power iteration that has
    found its dominant eigenvector, and the rest of the series is summed in closed form,
-   L_n ρ/(1 − ρ): a few products instead of the ≈ 10 that the tolerance takes;
-4. per pixel: D L and T_j L as sparse products (kernels/sparse_rows.cl) with
-   W (|A| ⊙ L) (and, for a row's near entries, with |A| ⊙ L itself), then (kernels/d2i.cl)
-   I = direct + kd ⊙ D L + ρs ⊙ max(0, Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0).
+   L_n ρ/(1 − ρ): a few products instead of the ≈ 10 that the tolerance takes. The
+   loop runs on the device (kernels/d2i.cl: the Haar transform level by level, the
+   product, the bounce step); the host reads back only the stopping rule's sums;
+4. per pixel: D L and T_j L as sparse products (kernels/sparse_rows.cl; values float16
+   over a per-row scale, as stored) with W (|A| ⊙ L) (and, for a row's near entries,
+   with |A| ⊙ L itself), then (kernels/d2i.cl) I = direct + kd ⊙ D L + ρs ⊙ max(0,
+   Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0); every term stays in device buffers
+   and the frame is read back once.
 
 Edits reuse what did not change (paper §6.2, "freezing", done as caching):
 
@@ -51,7 +58,7 @@ from pipeline.math.lights import shade_direct, total_samples
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import DeviceShadows, light_visibility
-from pipeline.rows import Rows, expand_values, sort_rows
+from pipeline.rows import Rows, quantise_values, sort_rows
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
@@ -63,12 +70,12 @@ SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU
 
 def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
     """The ``prefix`` (d or t) rows of the compressed_transport artifact, stored tile by
-    tile, in raster order of their pixels (a pixel's rows keep their order)."""
-    count = stored[f"{prefix}_count"]
+    tile, in raster order of their pixels (a pixel's rows keep their order); values kept
+    as stored, float16 over a per-row scale."""
     rows = sort_rows(stored[f"{prefix}_pixel"], {
-        "count": count, "index": stored[f"{prefix}_index"],
-        "value": expand_values(count, stored[f"{prefix}_value"], stored[f"{prefix}_scale"])})
-    return Rows.from_counts(rows["count"], rows["index"], rows["value"], size)
+        "count": stored[f"{prefix}_count"], "index": stored[f"{prefix}_index"],
+        "value": stored[f"{prefix}_value"], "scale": stored[f"{prefix}_scale"]})
+    return Rows.from_counts(rows["count"], rows["index"], rows["value"], size, rows["scale"])
 
 
 class D2iRenderer:
@@ -104,9 +111,8 @@ class D2iRenderer:
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
         ms = artifacts["d2i.truncate_ms"].read_all()
-        self.ms = Rows.from_counts(ms["ms_count"], ms["ms_index"],
-                                   expand_values(ms["ms_count"], ms["ms_value"], ms["ms_scale"]),
-                                   self.size)
+        self.ms = Rows.from_counts(ms["ms_count"], ms["ms_index"], ms["ms_value"], self.size,
+                                   ms["ms_scale"])
         # D and T rows are stored tile by tile: put them in raster order of their pixels
         # (a pixel's T rows b0..bk stay in order)
         stored = transport.read_all()
@@ -145,6 +151,8 @@ class D2iRenderer:
         ``_sparse(name, rows, ...)``."""
         self.buffers[name] = {k: cl.read_only_buffer(getattr(rows, k))
                               for k in ("offsets", "index", "value")}
+        self.buffers[name]["scale"] = cl.read_only_buffer(
+            np.ones(1, np.float32) if rows.scale is None else rows.scale)
         self.buffers[name]["out"] = self.pcl.Buffer(self.ctx, self.pcl.mem_flags.WRITE_ONLY,
                                                     16 * max(rows.count, 1))
 
@@ -163,9 +171,10 @@ class D2iRenderer:
         if radiance_w is not None:
             self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
                                   np.ascontiguousarray(radiance_w, np.float32))
-        index_type = "ushort" if rows.index.dtype == np.uint16 else "int"
-        ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", {"INDEX_T": index_type}),
-                    rows.count, buf["offsets"], buf["index"], buf["value"],
+        defines = {"INDEX_T": "ushort" if rows.index.dtype == np.uint16 else "int",
+                   "VALUE_HALF": int(rows.scale is not None)}
+        ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", defines),
+                    rows.count, buf["offsets"], buf["index"], buf["value"], buf["scale"],
                     self.radiance_buffer, np.int32(rows.count), out=out,
                     out_buffer=buf["out"])
         self.counted_ms += ms
@@ -261,16 +270,16 @@ class D2iRenderer:
             return 0.0
         a = cl.scratch_buffer(self.work, "haar_a", 16 * n)
         b = cl.scratch_buffer(self.work, "haar_b", 16 * n)
-        ms = cl.run(cl.kernel("d2i.cl", "haar_input"), n, radiance, self.gather_buffers["area"],
-                    np.int32(g), np.int32(n), self.radiance_buffer, out=None, out_buffer=a)
+        events = [cl.enqueue(cl.kernel("d2i.cl", "haar_input"), n, radiance,
+                             self.gather_buffers["area"], np.int32(g), np.int32(n),
+                             self.radiance_buffer, a)]
         level = cl.kernel("d2i.cl", "haar_level")
         half = n // 2
-        while half >= 1:
-            ms += cl.run(level, half, a, np.int32(half), b, out=None,
-                         out_buffer=self.radiance_buffer)
+        while half >= 1:  # one launch per level, queued back to back
+            events.append(cl.enqueue(level, half, a, np.int32(half), b, self.radiance_buffer))
             a, b = b, a
             half //= 2
-        return ms
+        return sum(cl.event_ms(e) for e in events)
 
     def to_haar(self, radiance: np.ndarray) -> np.ndarray:
         """[W (|A| ⊙ L); |A| ⊙ L] as (N + G, 4) float32 (RGB, 0), N = haar_length, in
@@ -321,9 +330,10 @@ class D2iRenderer:
         key = pixel_of_entry.astype(np.int64) * self.size + self.t.index
         unique, inverse = np.unique(key, return_inverse=True)
         value = np.zeros(len(unique))
-        np.add.at(value, inverse, self.t.value * scale[row_of_entry])
+        np.add.at(value, inverse, self.t.values() * scale[row_of_entry])
         per_pixel = np.bincount(unique // self.size, minlength=int(first.sum()))
-        rows = Rows.from_counts(per_pixel, unique % self.size, value, self.size)
+        row_scale, half = quantise_values(per_pixel, value)  # as the truncate stage stores
+        rows = Rows.from_counts(per_pixel, unique % self.size, half, self.size, row_scale)
         self.upload("frozen", rows)
         return rows
 
