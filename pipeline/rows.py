@@ -115,6 +115,10 @@ class Rows:
         extra = 0 if self.scale is None else self.scale.nbytes
         return self.offsets.nbytes + self.index.nbytes + self.value.nbytes + extra
 
+    def expanded(self) -> Rows:
+        """The same rows with float32 values (no scale)."""
+        return self if self.scale is None else Rows(self.offsets, self.index, self.values())
+
     def values(self) -> np.ndarray:
         """The entries' values as float32 (scaled back where stored as float16)."""
         if self.scale is None:

@@ -12,7 +12,7 @@ from pipeline.errors import PrtError
 from pipeline.method import get_method
 from pipeline.reference import ReferenceSettings
 from pipeline.render.d2i import D2iRenderer
-from pipeline.rows import Rows
+from pipeline.rows import Rows, quantise_values
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.scene_edits import with_light_offset, with_material_edits
 from pipeline.store import open_artifact
@@ -85,14 +85,15 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked):
     rng = np.random.default_rng(0)
     radiance = rng.random((renderer.size, 4)).astype(np.float32)
     assert renderer.d.index.dtype == np.uint16  # a small radiance vector: 16-bit indices
-    assert renderer.d.value.dtype == np.float16  # as stored, over a per-row scale
     wide = Rows(renderer.d.offsets, renderer.d.index.astype(np.int32), renderer.d.value,
                 renderer.d.scale)
-    dense_values = Rows(renderer.d.offsets, renderer.d.index, renderer.d.values())
-    renderer.upload("d_float32", dense_values)  # float32 values, no scale
+    # float16 values over a per-row scale (a GPU's rows) and float32 (PoCL's)
+    scale, half = quantise_values(np.diff(renderer.d.offsets), renderer.d.values())
+    halves = Rows(renderer.d.offsets, renderer.d.index, half, scale)
+    renderer.upload("d_half", halves)
     renderer.upload("d_int32", wide)  # the index type of radiance vectors beyond 2^16
     for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms),
-                       ("d_int32", wide), ("d_float32", dense_values)):
+                       ("d_int32", wide), ("d_half", halves)):
         out, _ = renderer._sparse(name, rows, radiance)
         counts = np.diff(rows.offsets)
         expected = np.zeros((rows.count, 4))
@@ -299,10 +300,11 @@ def test_device_shadow_rays_give_embree_s_frame(baked):
     pipeline/bvh.py, as a GPU frame traces them) equals the Embree frame except where a
     ray grazes an edge (tests/test_bvh.py): the images are within 1e-3 relative RMSE;
     its light-edit frames equal its full renders."""
-    scene, workdir, renderer = baked
+    scene, workdir, _ = baked
     device = D2iRenderer(scene, d2i_artifacts(workdir), shadows="device")
-    assert device.device_shadows is not None and renderer.device_shadows is None
-    a, b = device.render(scene), renderer.render(scene)
+    embree = D2iRenderer(scene, d2i_artifacts(workdir), shadows="embree")
+    assert device.device_shadows is not None and embree.device_shadows is None
+    a, b = device.render(scene), embree.render(scene)
     assert metrics.relative_rmse(a.rgb, b.rgb) < 1e-3
     frame = device.light_edits(scene)(with_light_offset(scene, 0, (30.0, 0.0, 0.0)))
     _close(frame.rgb, device.render(with_light_offset(scene, 0, (30.0, 0.0, 0.0))).rgb)
