@@ -22,17 +22,17 @@ nvidia-smi --query-gpu=name,clocks.sm,clocks.mem,power.draw --format=csv
 for step in "$@"; do
     echo "=== $step $(date +%T)"
     case $step in
-    tests) timeout 90 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{bvh,d2i,\
+    tests) timeout 60 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{bvh,d2i,\
 render_pixels,wavelet_select}.py 2>/dev/null) 2>&1 | tail -25 ;;
     alltests) timeout 150 python3 -m pytest -q -p no:cacheprovider $(ls tests/test_{cl,\
 fastmath,sphwavelet,wavelet_select,triple_gbuffer,triple_tables,direct,transfer,d2i,bvh,\
 render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
-    tables) timeout 60 python3 benchmarks/bench_triple_tables.py --light-only \
+    tables) timeout 30 python3 benchmarks/bench_triple_tables.py --light-only \
                 --out "$out/triple_tables_gpu.json" ;;
-    triple) timeout 150 python3 benchmarks/bench_triple.py --budgets 80,320 --frames 9 \
+    triple) timeout 120 python3 benchmarks/bench_triple.py --budgets 80,320 --frames 9 \
                 --bake-size 128 --workdir /tmp/bench_triple \
                 --out "$out/triple_frame_1024x768_gpu.json" 2>&1 | grep -v "chunk/s" ;;
-    d2i) timeout 240 python3 benchmarks/bench_d2i.py --size 400 --workdir /tmp/bench_d2i \
+    d2i) timeout 165 python3 benchmarks/bench_d2i.py --size 400 --workdir /tmp/bench_d2i \
              --skip-breakdown --out "$out/d2i_bench_400_gpu.json" 2>&1 | grep -v "chunk/s" ;;
     *) echo "unknown step $step" ;;
     esac
