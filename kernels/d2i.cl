@@ -39,6 +39,9 @@ __kernel void combine(__global const float* direct, __global const float4* dl,
 
 #define D2I_SQRT_HALF 0.70710678118654752f
 #define D2I_GROUP 64  /* bounce_step's work-group size (its reduction) */
+#ifndef HAAR_BLOCK     /* haar_blocks' largest work-group (d2i.py HAAR_BLOCK passes it) */
+#define HAAR_BLOCK 256
+#endif
 
 /* scaling[i] = |A_i| L_i for i < g, 0 up to the Haar length n; vec[n + i] = |A_i| L_i. */
 __kernel void haar_input(__global const float4* radiance, __global const float* area,
@@ -52,19 +55,37 @@ __kernel void haar_input(__global const float4* radiance, __global const float* 
     if (i < g) vec[n + i] = x;
 }
 
-/* One Haar level: the 2·m scaling coefficients `src` give m wavelets, written at
- * vec[m + i], and m scaling coefficients in `dst`; the last level (m = 1) also writes
- * the coarsest scaling coefficient, vec[0]. */
-__kernel void haar_level(__global const float4* src, const int m,
-                         __global float4* dst, __global float4* vec)
+/* HAAR_BLOCK levels of the transform at once: work-group b (size B = min(HAAR_BLOCK,
+ * length), a power of two) takes the scaling coefficients src[b·B, (b + 1)·B) of the
+ * current `length` through log2 B levels in local memory, writing each level's wavelets
+ * where the level-by-level transform puts them (level half-length h: vec[h + b·B/2^k +
+ * i]) and its one remaining scaling coefficient to dst[b]; the pass that starts with a
+ * single block (length = B) also writes vec[0]. A 2^14-entry transform is 2 launches
+ * instead of 14. */
+__kernel void haar_blocks(__global const float4* src, const int length,
+                          __global float4* dst, __global float4* vec)
 {
-    int i = get_global_id(0);
-    if (i >= m) return;
-    float4 a = src[2 * i], b = src[2 * i + 1];
-    float4 s = (a + b) * D2I_SQRT_HALF;
-    dst[i] = s;
-    vec[m + i] = (a - b) * D2I_SQRT_HALF;
-    if (m == 1) vec[0] = s;
+    __local float4 block[HAAR_BLOCK];
+    int i = get_local_id(0), b = get_group_id(0), size = get_local_size(0);
+    block[i] = src[b * size + i];
+    int h = length;  /* the level's global half-length (wavelets at vec[h, 2h)) */
+    for (int m = size / 2; m >= 1; m /= 2) {
+        h /= 2;
+        barrier(CLK_LOCAL_MEM_FENCE);
+        float4 a = (float4)(0.0f), c = a;
+        if (i < m) {
+            a = block[2 * i];
+            c = block[2 * i + 1];
+            vec[h + b * m + i] = (a - c) * D2I_SQRT_HALF;
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (i < m) block[i] = (a + c) * D2I_SQRT_HALF;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (i == 0) {
+        dst[b] = block[0];
+        if (length == size) vec[0] = block[0];
+    }
 }
 
 /* L_{n+1} = kd ⊙ (Ms^w · W (|A| ⊙ L_n)) from the product `ms` (g float4); `bounce` holds

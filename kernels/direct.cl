@@ -40,3 +40,31 @@ __kernel void direct_lighting(__global const float* position,    /* npix * 3 */
     }
     vstore3(rgb, i, out);
 }
+
+/* The gather samples' directly lit radiance L_d = kd/π ⊙ E (method d2i: Lambertian at
+ * the gathers, pipeline/render/d2i.py; NumPy twin kd/π ⊙ pipeline/math/lights.py
+ * shade_direct with a unit BRDF). `materials` holds Lambertian rows of each material's
+ * albedo, so that lights.h's light_reflected (its BRDF kd/π, the viewer along the
+ * normal) gives kd/π times the geometry and visibility sum; `pixel` the gathers' light
+ * sample ids. One work-item per gather; out float4 (RGB, 0). */
+__kernel void gather_direct(__global const float* position, __global const float* normal,
+                            __global const uint* pixel, __global const int* material,
+                            __global const float* materials, __global const float* lights,
+                            const int nlights, __global const uchar* visibility,
+                            const int nsamples, const int n, __global float4* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float3 p = vload3(i, position), nn = vload3(i, normal);
+    float3 t = normalize(cross(nn, fabs(nn.x) > 0.9f ? (float3)(0.0f, 1.0f, 0.0f)
+                                                    : (float3)(1.0f, 0.0f, 0.0f)));
+    __global const float* mat = materials + material[i] * MATERIAL_FLOATS;
+    __global const uchar* vis = visibility + (size_t)i * nsamples;
+    float3 rgb = (float3)(0.0f);
+    for (int l = 0; l < nlights; ++l) {
+        __global const float* row = lights + l * LIGHT_FLOATS;
+        rgb += light_vec(row, LIGHT_RGB) * light_reflected(row, (uint)l, pixel[i], p, nn, t,
+                                                       (float3)(0.0f, 0.0f, 1.0f), mat, vis);
+    }
+    out[i] = (float4)(rgb, 0.0f);
+}

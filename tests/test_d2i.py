@@ -263,9 +263,10 @@ def _read(buffer, shape):
 
 
 def test_device_bounce_loop_equals_its_numpy_twin(baked, monkeypatch):
-    """gather_radiance on the device (Haar levels, Ms products, bounce steps) against the
-    same three bounces in NumPy (to_haar, a float64 sparse product): the radiance vectors
-    agree to float32 rounding of the sums (1e-5 of the largest entry)."""
+    """gather_radiance on the device (the gathers' direct light, Haar blocks, Ms products,
+    bounce steps) against the same three bounces in NumPy (shade_direct, to_haar, a
+    float64 sparse product): they agree to float32 rounding of the sums (1e-5 of the
+    largest entry)."""
     from pipeline.render import d2i
 
     scene, _, renderer = baked
@@ -275,12 +276,20 @@ def test_device_bounce_loop_equals_its_numpy_twin(baked, monkeypatch):
     albedo = np.array([p.albedo for p in d2i.scene_brdfs(scene, three.material_names)])
     assert three.gather_radiance(albedo)["bounces"] == 3
     got = _read(three.radiance_buffer, (three.size, 4))
-    # the radiance vector of the first bounce's input, on its own
+    # the gathers' direct light (kernel gather_direct) against NumPy's shade_direct
+    from pipeline.math.lights import shade_direct
+    from pipeline.render.shadows import light_visibility
+
     kd = albedo[three.gather_material]
-    first = kd / np.pi * three.irradiance
+    ids = np.arange(len(kd)) + d2i.GATHER_ID_OFFSET
+    vis = light_visibility(three.direct.tracer, three.gather_position, three.gather_normal,
+                           ids, three.packed_lights, three.direct.diagonal)
+    first = kd / np.pi * shade_direct(three.gather_position, three.gather_normal, ids,
+                                      lambda wi: np.ones(wi.shape), three.packed_lights, vis)
     buffer = three.pcl.Buffer(three.ctx, three.pcl.mem_flags.READ_WRITE, 16 * len(first))
-    three.pcl.enqueue_copy(three.queue, buffer, np.c_[first, np.zeros(len(first))]
-                           .astype(np.float32))
+    three.direct_gather_radiance(albedo, buffer)
+    _close(_read(buffer, (len(first), 4))[:, :3], first)
+    # the radiance vector of the first bounce's input, on its own
     three.radiance_vector(buffer)
     _close(_read(three.radiance_buffer, (three.size, 4)), three.to_haar(first))
     counts = np.diff(three.ms.offsets)

@@ -6,9 +6,9 @@ samples and the G-buffer:
 1. shadow rays to every light sample from the pixels and the gather samples — Embree on
    the host, or (``shadows``: ``device``, the default on a GPU) the BVH kernel of
    render/shadows.py on the device —, direct light at the pixels with the exact BRDF
-   (render/direct.py), and irradiance E_g at the gather samples (NumPy,
-   pipeline/math/lights.py);
-2. L_d = kd_g/π ⊙ E_g, the gather samples' directly lit radiance (Lambertian);
+   (render/direct.py);
+2. L_d = kd_g/π ⊙ E_g, the gather samples' directly lit radiance (Lambertian; kernel
+   ``gather_direct`` of kernels/direct.cl, twin pipeline/math/lights.py shade_direct);
 3. bounces in the Haar domain (paper eq. 17): L_{n+1} = kd_g ⊙ (Ms^w · W (|A| ⊙ L_n)),
    the rows stored per unit source area (pipeline/stages/transfer.py), summed
    until a bounce adds at most ``bounce_tolerance`` of the total (relative L2) or
@@ -54,7 +54,7 @@ from pipeline.errors import PrtError
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
 from pipeline.math.brdf_pca import read_basis
-from pipeline.math.lights import shade_direct, total_samples
+from pipeline.math.lights import LIGHT_FLOATS, light_defines, total_samples
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import DeviceShadows, light_visibility
@@ -65,6 +65,7 @@ from pipeline.store import Artifact
 GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
 BOUNCE_GROUP = 64  # kernels/d2i.cl bounce_step's work-group (D2I_GROUP)
+HAAR_BLOCK = 256  # Haar levels per launch: log2 of this (work-groups of this size)
 SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU, else Embree
 
 
@@ -136,8 +137,9 @@ class D2iRenderer:
                                                16 * self.size)
         for name, rows in (("ms", self.ms), ("d", self.d), ("t", self.t)):
             self.upload(name, rows)
-        self.irradiance = np.zeros((len(self.gather_material), 3))
         self.notes: list[str] = []
+        self.packed_lights = np.zeros((0, LIGHT_FLOATS), np.float32)
+        self.gather_visibility: Any = None  # (G, samples) uint8 on the device, once traced
         # the gathers on the device: the bounce loop's inputs and the shadow rays' origins
         self.gather_buffers = {
             "area": cl.read_only_buffer(self.gather_area.astype(np.float32)),
@@ -189,29 +191,45 @@ class D2iRenderer:
     # ------------------------------------------------------------------------ stages
 
     def trace_lights(self, scene: Scene) -> dict[str, float]:
-        """Shadow rays of the pixels and the gather samples; irradiance E_g (G, 3)."""
+        """Shadow rays of the pixels and the gather samples; the gathers' visibility is
+        left on the device (``gather_visibility``) for :meth:`gather_radiance`."""
         t0 = time.perf_counter()
         packed, self.notes = self.direct.packed_lights(scene)
         _check_lights(packed)
         kernel_ms = self.direct.trace(packed)
-        ids = np.arange(len(self.gather_position)) + GATHER_ID_OFFSET
-        self.irradiance = np.zeros((len(ids), 3))
-        if len(packed) and len(ids):
-            if self.device_shadows is not None:  # traced on the device, read back (G · S B)
-                g = self.gather_buffers
-                buffer, ms = self.device_shadows.visibility(
-                    g["position"], g["normal"], g["id"], len(ids), packed, self.direct.diagonal,
-                    cl.scratch_buffer(self.work, "gather_visibility",
-                                      len(ids) * max(total_samples(packed), 1)))
-                vis = np.empty((len(ids), max(total_samples(packed), 1)), np.uint8)
-                self.pcl.enqueue_copy(self.queue, vis, buffer)
-                kernel_ms += ms
-            else:
-                vis = light_visibility(self.direct.tracer, self.gather_position,
-                                       self.gather_normal, ids, packed, self.direct.diagonal)
-            self.irradiance = shade_direct(self.gather_position, self.gather_normal, ids,
-                                           lambda wi: np.ones(wi.shape), packed, vis)
+        self.packed_lights = packed
+        g, stride = len(self.gather_position), max(total_samples(packed), 1)
+        out = cl.scratch_buffer(self.work, "gather_visibility", g * stride)
+        if not len(packed) or g == 0:
+            pass  # no light: gather_radiance starts from zero
+        elif self.device_shadows is not None:
+            b = self.gather_buffers
+            self.gather_visibility, ms = self.device_shadows.visibility(
+                b["position"], b["normal"], b["id"], g, packed, self.direct.diagonal, out)
+            kernel_ms += ms
+        else:
+            vis = light_visibility(self.direct.tracer, self.gather_position,
+                                   self.gather_normal,
+                                   np.arange(g) + GATHER_ID_OFFSET, packed, self.direct.diagonal)
+            self.pcl.enqueue_copy(self.queue, out, np.ascontiguousarray(vis))
+            self.gather_visibility = out
         return {"shadow_ms": (time.perf_counter() - t0) * 1e3, "shadow_kernel_ms": kernel_ms}
+
+    def direct_gather_radiance(self, albedo: np.ndarray, out: Any) -> float:
+        """L_d = kd/π ⊙ E_g, the gathers' directly lit radiance (G, float4), into device
+        buffer ``out`` from the traced visibility (kernel ``gather_direct``); kernel ms."""
+        g, packed = len(self.gather_material), self.packed_lights
+        if not len(packed) or g == 0:
+            self.pcl.enqueue_fill_buffer(self.queue, out, np.float32(0), 0, 16 * max(g, 1))
+            return 0.0
+        lambert = pack_materials([BrdfParams("lambert", tuple(a)) for a in albedo])
+        b = self.gather_buffers
+        return cl.run(cl.kernel("direct.cl", "gather_direct", light_defines()), g,
+                      b["position"], b["normal"], b["id"], b["material"],
+                      cl.read_only_buffer(lambert), cl.read_only_buffer(packed),
+                      np.int32(len(packed)), self.gather_visibility,
+                      np.int32(max(total_samples(packed), 1)), np.int32(g), out=None,
+                      out_buffer=out)
 
     def gather_radiance(self, albedo: np.ndarray) -> dict[str, float]:
         """L = Σ_n L_n from the irradiance and per-material albedos ``albedo``
@@ -220,13 +238,10 @@ class D2iRenderer:
         reads back 8 floats per 64 gathers (the stopping rule's sums), nothing else."""
         t0 = time.perf_counter()
         g = len(self.gather_material)
-        kd = albedo[self.gather_material] if g else np.zeros((0, 3))
-        first = np.zeros((max(g, 1), 4), np.float32)
-        first[:g, :3] = kd / np.pi * self.irradiance
-        bounce = cl.scratch_buffer(self.work, "bounce", first.nbytes)
-        total = cl.scratch_buffer(self.work, "total", first.nbytes)
-        self.pcl.enqueue_copy(self.queue, bounce, first)
-        self.pcl.enqueue_copy(self.queue, total, first)
+        bounce = cl.scratch_buffer(self.work, "bounce", 16 * max(g, 1))
+        total = cl.scratch_buffer(self.work, "total", 16 * max(g, 1))
+        kernel_ms = self.direct_gather_radiance(albedo, bounce)
+        self.pcl.enqueue_copy(self.queue, total, bounce, byte_count=16 * max(g, 1))
         albedo4 = np.zeros((max(len(albedo), 1), 4), np.float32)
         albedo4[:len(albedo), :3] = albedo
         albedo_buffer = cl.read_only_buffer(albedo4)
@@ -234,8 +249,8 @@ class D2iRenderer:
         partial = np.empty((groups, 2, 4), np.float32)
         partial_buffer = cl.scratch_buffer(self.work, "partial", partial.nbytes)
         step = cl.kernel("d2i.cl", "bounce_step")
-        kernel_ms, product_ms, bounces, ratio = 0.0, 0.0, 0, None
-        alive = bool(np.any(first))
+        product_ms, bounces, ratio = 0.0, 0, None
+        alive = bool(len(self.packed_lights)) and g > 0
         for _ in range(self.max_bounces if g else 0):
             if not alive:
                 break
@@ -268,8 +283,8 @@ class D2iRenderer:
 
     def radiance_vector(self, radiance: Any) -> float:
         """[W (|A| ⊙ L); |A| ⊙ L] of the gathers' radiance in device buffer ``radiance``
-        (G, float4) into ``radiance_buffer`` (kernels haar_input, haar_level; the twin of
-        :meth:`to_haar`); kernel ms."""
+        (G, float4) into ``radiance_buffer`` (kernels haar_input, haar_blocks; the twin
+        of :meth:`to_haar`); kernel ms."""
         n, g = self.haar_length, len(self.gather_area)
         if g == 0:
             return 0.0
@@ -278,12 +293,14 @@ class D2iRenderer:
         events = [cl.enqueue(cl.kernel("d2i.cl", "haar_input"), n, radiance,
                              self.gather_buffers["area"], np.int32(g), np.int32(n),
                              self.radiance_buffer, a)]
-        level = cl.kernel("d2i.cl", "haar_level")
-        half = n // 2
-        while half >= 1:  # one launch per level, queued back to back
-            events.append(cl.enqueue(level, half, a, np.int32(half), b, self.radiance_buffer))
+        blocks = cl.kernel("d2i.cl", "haar_blocks", {"HAAR_BLOCK": HAAR_BLOCK})
+        length = n
+        while length > 1:  # log2(HAAR_BLOCK) levels per launch, queued back to back
+            size = min(HAAR_BLOCK, length)
+            events.append(cl.enqueue(blocks, length, a, np.int32(length), b,
+                                     self.radiance_buffer, local=size))
             a, b = b, a
-            half //= 2
+            length //= size
         return sum(cl.event_ms(e) for e in events)
 
     def to_haar(self, radiance: np.ndarray) -> np.ndarray:
