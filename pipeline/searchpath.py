@@ -10,6 +10,7 @@ package) or, in an installed wheel, as the package data ``pipeline.kernels`` and
 from __future__ import annotations
 
 import os
+from functools import cache
 from importlib.resources import files
 from pathlib import Path
 
@@ -17,7 +18,10 @@ _EXTRA: dict[str, list[Path]] = {"kernels": [], "data_schema": []}
 _ENV = {"kernels": "PRT_KERNEL_PATH", "data_schema": "PRT_SCHEMA_PATH"}
 
 
+@cache
 def _project_dir(name: str) -> Path:
+    """The project's own ``name`` folder (fixed for the process: looked up once — a
+    frame looks kernels up dozens of times)."""
     checkout = Path(__file__).resolve().parent.parent / name
     # through the regular package: files() of a folder without __init__.py is a
     # MultiplexedPath, whose str() is no file name
