@@ -111,6 +111,7 @@ class ChunkTask:
     marker: str  # where the chunk is recorded once written
     sizes: dict[str, int]  # symbolic zarr chunk sizes of the stage's layout
     parts: dict[str, str]  # what the key is made of, part by part (chunk_key_parts)
+    kernels: tuple[str, ...] = ()  # the kernels the stage declares (its code version's)
 
 
 # ------------------------------------------------------------------------------ planning
@@ -378,6 +379,7 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     one_blas_thread()
     start = time.perf_counter()
     try:
+        _check_code(task)
         meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
                   for name, (kind, src) in task.meshes.items()}
         inputs = {name: open_artifact(Path(path), kind) for name, (path, kind) in
@@ -400,6 +402,19 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
         "digest": arrays_digest(arrays), "seconds": seconds, "meta": ctx.meta,
         "parts": task.parts})
     return task.chunk.id, seconds
+
+
+def _check_code(task: ChunkTask) -> None:
+    """Refuse to run a chunk with other code than the client keyed it with (a dask
+    worker with another checkout or version installed, or sources edited while a bake
+    runs): it would store other bytes under the same key. Sources are parsed once per
+    process while unchanged (pipeline/codeversion.py), so this costs little per chunk."""
+    here = code_version([impl_target(task.impl).partition(":")[0]], task.kernels)
+    if here[:PART_DIGEST] != task.parts["code"]:
+        raise PrtError(task.marker, f"stage {task.stage}: this process runs other code "
+                       f"(version {here[:PART_DIGEST]}) than the run was planned with "
+                       f"({task.parts['code']}): give every worker the same checkout or "
+                       "installed version, and do not edit the sources during a run")
 
 
 def _check_finite(task: ChunkTask, arrays: dict[str, Any]) -> None:
@@ -527,7 +542,8 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
                                           for dep in spec.inputs},
                        _mesh_sources(spec, scene, c), _environment_source(spec, scene),
                        (str(path), spec.output),
-                       str(workdir.marker(name, c.id)), layout.sizes, p.chunk_parts[c.id])
+                       str(workdir.marker(name, c.id)), layout.sizes, p.chunk_parts[c.id],
+                       tuple(spec.kernels))
              for c in todo]
     bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
                file=sys.stderr, leave=False)

@@ -124,3 +124,32 @@ def test_status_and_in_process_runs_do_not_load_dask(tmp_path):
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_a_worker_with_other_code_refuses_its_chunks(tmp_path):
+    """A worker whose code differs from the client's (another checkout on a remote
+    machine, or sources edited during a run) would store other bytes under the client's
+    key: execute_chunk compares the stage's code version it computes with the one the
+    key was made of and refuses, in one line, before writing anything. Simulated by an
+    executor that hands the chunks over with another code part."""
+    import dataclasses
+
+    from pipeline.executors import InProcessExecutor
+
+    class OtherCode(InProcessExecutor):
+        def map_unordered(self, fn, tasks):
+            other = [dataclasses.replace(t, parts={**t.parts, "code": "0" * 16})
+                     for t in tasks]
+            return super().map_unordered(fn, other)
+
+    scene = load_scene(write_scene(tmp_path, small_scene_dict()))
+    workdir = Workdir(tmp_path / "w")
+    with pytest.raises(PrtError, match="other code") as caught:
+        run(scene, load_stagefile(TOY_STAGEFILE), workdir, executor=OtherCode(),
+            progress=False)
+    assert "\n" not in str(caught.value)
+    record = read_record(workdir.artifact("geometry"))
+    assert record["complete"] is False  # the stage's in-progress record, no chunk in it
+    assert not any(workdir.marker("geometry", c).exists() for c in record["chunks"])
+    run(scene, load_stagefile(TOY_STAGEFILE), workdir, progress=False)  # same code: runs
+    assert read_record(workdir.artifact("geometry"))["complete"] is True
