@@ -6,8 +6,12 @@
 # tables (triple's rotation grid and one BRDF table), triple (bench_triple at 1024x768,
 # 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device). Results go to
 # OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
-# travel in .whl/ (cp312 manylinux, `pip download --no-deps`), the shared meshes and maps
-# the scenes name in .devdata/ (PRT_DATA). PoCL is not needed there.
+# travel in .whl/ (cp312 manylinux, `pip download --no-deps`: pyopencl, pytools,
+# platformdirs, siphash24, trimesh, embreex, zarr, numcodecs, donfig, google-crc32c,
+# OpenEXR, xatlas, pydantic, pydantic-core, annotated-types, typing-inspection; ≈ 30 MB),
+# the shared data in .devdata/ (PRT_DATA: copy all of ../shared/data, 16 MB — the tests
+# read meshes the scenes do not name). Both folders listed in .git/info/exclude and named
+# in the run's carry. PoCL is not needed there.
 set -u
 out=${1:?usage: benchmarks/device_run.sh OUTDIR STEP...}
 shift
