@@ -43,3 +43,34 @@ __kernel void sparse_rows(__global const int* offsets, __global const INDEX_T* i
 #endif
     out[r] = sum;
 }
+
+/* The same products with one work-group of SPARSE_GROUP work-items per row (a GPU's
+ * layout, d2i.py): the items read the row's entries SPARSE_GROUP apart, so neighbouring
+ * items touch neighbouring addresses (coalesced; one item per row reads rows ≈ 2 kB
+ * apart), keep a partial sum each, and add them up in local memory. Global size rows ·
+ * SPARSE_GROUP, local SPARSE_GROUP (a power of two). */
+__kernel void sparse_rows_grouped(__global const int* offsets, __global const INDEX_T* index,
+                                  __global const row_value_t* value,
+                                  __global const float* scale,
+                                  __global const float4* radiance, const int rows,
+                                  __global float4* out)
+{
+    __local float4 partial[SPARSE_GROUP];
+    int r = get_group_id(0), l = get_local_id(0);
+    float4 a = (float4)(0.0f);
+    if (r < rows)
+        for (int e = offsets[r] + l, end = offsets[r + 1]; e < end; e += SPARSE_GROUP)
+            a += ROW_VALUE(e) * radiance[index[e]];
+    partial[l] = a;
+    for (int step = SPARSE_GROUP / 2; step > 0; step >>= 1) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (l < step) partial[l] += partial[l + step];
+    }
+    if (l == 0 && r < rows) {
+        float4 sum = partial[0];
+#if VALUE_HALF
+        sum *= scale[r];
+#endif
+        out[r] = sum;
+    }
+}

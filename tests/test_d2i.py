@@ -92,14 +92,18 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked):
     halves = Rows(renderer.d.offsets, renderer.d.index, half, scale)
     renderer.upload("d_half", halves)
     renderer.upload("d_int32", wide)  # the index type of radiance vectors beyond 2^16
-    for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms),
-                       ("d_int32", wide), ("d_half", halves)):
-        out, _ = renderer._sparse(name, rows, radiance)
-        counts = np.diff(rows.offsets)
-        expected = np.zeros((rows.count, 4))
-        np.add.at(expected, np.repeat(np.arange(rows.count), counts),
-                  rows.values()[:, None].astype(np.float64) * radiance[rows.index])
-        _close(out, expected)
+    grouped = renderer.grouped_products
+    # one work-item per row (a CPU's kernel) and a work-group per row (a GPU's)
+    for renderer.grouped_products in (False, True):
+        for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms),
+                           ("d_int32", wide), ("d_half", halves)):
+            out, _ = renderer._sparse(name, rows, radiance)
+            counts = np.diff(rows.offsets)
+            expected = np.zeros((rows.count, 4))
+            np.add.at(expected, np.repeat(np.arange(rows.count), counts),
+                      rows.values()[:, None].astype(np.float64) * radiance[rows.index])
+            _close(out, expected)
+    renderer.grouped_products = grouped
     # combination: I = direct + kd D L + ρs max(0, Σ c_j T_j L)
     npix = len(renderer.direct.material_id)
     direct = rng.random((npix, 3)).astype(np.float32)

@@ -66,6 +66,7 @@ GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart fro
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
 BOUNCE_GROUP = 64  # kernels/d2i.cl bounce_step's work-group (D2I_GROUP)
 HAAR_BLOCK = 256  # Haar levels per launch: log2 of this (work-groups of this size)
+SPARSE_GROUP = 32  # work-items per row of sparse_rows_grouped (a GPU's products)
 SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU, else Embree
 
 
@@ -121,6 +122,9 @@ class D2iRenderer:
         # float16 values halve the products' value bytes; a GPU converts them for free,
         # PoCL's CPU device element by element (the 400² light edit took 2.1× longer)
         self.half_values = on_gpu
+        # a work-group per row (coalesced reads) on a GPU; one work-item per row, which
+        # streams its row through the cache, on a CPU
+        self.grouped_products = on_gpu
         if not self.half_values:
             self.ms, self.d, self.t = (r.expanded() for r in (self.ms, self.d, self.t))
         self.t_pixel = np.sort(stored["t_pixel"], kind="stable")
@@ -179,11 +183,16 @@ class D2iRenderer:
             self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
                                   np.ascontiguousarray(radiance_w, np.float32))
         defines = {"INDEX_T": "ushort" if rows.index.dtype == np.uint16 else "int",
-                   "VALUE_HALF": int(rows.scale is not None)}
-        ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", defines),
-                    rows.count, buf["offsets"], buf["index"], buf["value"], buf["scale"],
-                    self.radiance_buffer, np.int32(rows.count), out=out,
-                    out_buffer=buf["out"])
+                   "VALUE_HALF": int(rows.scale is not None), "SPARSE_GROUP": SPARSE_GROUP}
+        args = (buf["offsets"], buf["index"], buf["value"], buf["scale"],
+                self.radiance_buffer, np.int32(rows.count))
+        if self.grouped_products:
+            ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows_grouped", defines),
+                        rows.count * SPARSE_GROUP, *args, out=out, out_buffer=buf["out"],
+                        local=SPARSE_GROUP)
+        else:
+            ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", defines), rows.count,
+                        *args, out=out, out_buffer=buf["out"])
         self.counted_ms += ms
         self.counted_bytes += rows.nbytes + 16 * self.size + 16 * rows.count
         return out, ms
