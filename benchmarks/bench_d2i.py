@@ -43,7 +43,7 @@ from pipeline import cl, job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
 from pipeline.method import get_method
-from pipeline.render.d2i import D2iRenderer
+from pipeline.render.d2i import GATHER_ID_OFFSET, D2iRenderer
 from pipeline.rows import Rows
 from pipeline.runner import stage_params
 from pipeline.scene import Light, default_scene_path, load_scene
@@ -151,8 +151,8 @@ def shadow_rates(scene, workdir) -> dict[str, float]:
     packed, _ = direct.packed_lights(scene)
     position = np.concatenate([direct.hit_position, renderer.gather_position]).astype(np.float32)
     normal = np.concatenate([direct.hit_normal, renderer.gather_normal]).astype(np.float32)
-    ids = np.concatenate([direct.hit, np.arange(len(renderer.gather_position)) + (1 << 26)]
-                         ).astype(np.uint32)
+    ids = np.concatenate([direct.hit, np.arange(len(renderer.gather_position))
+                          + GATHER_ID_OFFSET]).astype(np.uint32)
     rays = len(position) * total_samples(packed)
     embree = []
     for _ in range(5):

@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from pipeline import cl
+
 
 @dataclass
 class Frame:
@@ -60,8 +62,6 @@ class DeviceImage:
     scatters and read-backs cost more than its shading kernel on a GPU)."""
 
     def __init__(self, pixels: int) -> None:
-        from pipeline import cl
-
         self.pixels = pixels
         self.buffers: dict[str, Any] = {}
         self.image = cl.scratch_buffer(self.buffers, "image", 12 * pixels)
@@ -69,8 +69,6 @@ class DeviceImage:
     def scatter(self, values: Any, pixel: Any, count: int, scale: float = 1.0) -> float:
         """``image[pixel[i]] = scale · values[i]`` for the ``count`` (P) rows of device
         buffers ``values`` (P, 3) float32 and ``pixel`` (P,) int32; kernel ms."""
-        from pipeline import cl
-
         if count == 0:
             return 0.0
         return cl.run(cl.kernel("image.cl", "scatter_rgb"), count, values, pixel,
@@ -79,8 +77,6 @@ class DeviceImage:
     def read(self) -> np.ndarray:
         """The image (H·W, 3) float32, copied from the device."""
         import pyopencl as pcl
-
-        from pipeline import cl
 
         out = np.empty((self.pixels, 3), np.float32)
         pcl.enqueue_copy(cl.queue(), out, self.image)

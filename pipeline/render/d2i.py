@@ -209,8 +209,8 @@ class D2iRenderer:
         self.packed_lights = packed
         g, stride = len(self.gather_position), max(total_samples(packed), 1)
         out = cl.scratch_buffer(self.work, "gather_visibility", g * stride)
-        if not len(packed) or g == 0:
-            pass  # no light: gather_radiance starts from zero
+        if not len(packed) or g == 0:  # nothing to trace: gather_radiance starts from 0
+            self.gather_visibility = out
         elif self.device_shadows is not None:
             b = self.gather_buffers
             self.gather_visibility, ms = self.device_shadows.visibility(

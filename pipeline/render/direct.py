@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -74,7 +75,7 @@ class DirectShader:
         self.visibility_stride = 1
         self.pixel_ids = cl.read_only_buffer(np.arange(len(self.position), dtype=np.uint32)) \
             if shadows is not None else None
-        self.buffers: dict[str, object] = {}  # per-frame device intermediates (cl.scratch_buffer)
+        self.buffers: dict[str, Any] = {}  # per-frame device intermediates (cl.scratch_buffer)
         # the pixels that see a surface, and their points: the shadow rays' origins
         self.hit = np.flatnonzero(self.material_id >= 0)
         self.hit_position, self.hit_normal = self.position[self.hit], self.normal[self.hit]
@@ -106,7 +107,7 @@ class DirectShader:
         self.visibility_buffer = cl.read_only_buffer(visibility)
         return 0.0
 
-    def shade(self, materials: np.ndarray, camera: np.ndarray, out_buffer: object = None
+    def shade(self, materials: np.ndarray, camera: np.ndarray, out_buffer: Any = None
               ) -> tuple[np.ndarray | None, float, int]:
         """Radiance (P, 3) float32 (left in device buffer ``out_buffer`` when given, and
         None returned), kernel milliseconds and the bytes it moved."""

@@ -554,7 +554,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
     edited: list[tuple[WaveletRows, DenseTables]] = []  # the last edited BRDF table's
     static: dict[str, Any] = {}  # device buffers kept across frames (atlas, map)
     cached: dict[tuple, GBuffer] = {}  # the last camera's G-buffer
-    images: dict[int, DeviceImage] = {}  # the frame's device image, per pixel count
+    images: dict[int, DeviceImage] = {}  # the last image size's device image
 
     def dense_of(brdf: WaveletRows) -> DenseTables | None:
         """The dense tables for these BRDF rows (converted once per edited table)."""
@@ -585,8 +585,11 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                                  np.array([b.specular for b in brdfs]))
         # shading, background and their scatter into the image stay on the device; the
         # frame comes back in one copy
-        image = images.get(cam.width * cam.height) or images.setdefault(
-            cam.width * cam.height, DeviceImage(cam.width * cam.height))
+        pixels = cam.width * cam.height
+        if pixels not in images:  # a new image size: the previous buffers are dropped
+            images.clear()
+            images[pixels] = DeviceImage(pixels)
+        image = images[pixels]
         shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * gbuffer.count)
         _, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
                                                lookup, turn, static, out_buffer=shaded)
