@@ -100,11 +100,20 @@ def _hash_sources(paths: tuple[Path, ...], signature: tuple) -> str:
 _PROGRAMS: dict[tuple[str, str, tuple[str, ...], str], Any] = {}
 
 
+_RECENT: dict[tuple, tuple[float, Any]] = {}  # (name, defines) -> (time, program)
+
+
 def program(name: str, defines: dict[str, Any] | None = None) -> Any:
     """The built program of kernel file ``name`` (found in the kernel folders,
-    pipeline/searchpath.py) with ``-D`` defines, cached."""
+    pipeline/searchpath.py) with ``-D`` defines, cached; looked up again (the file found,
+    the sources' hash checked) at most once per ``RESTAT_S`` (a frame asks for its
+    kernels dozens of times)."""
     import pyopencl as cl
 
+    recent_key, now = (name, tuple(sorted((defines or {}).items()))), time.monotonic()
+    recent = _RECENT.get(recent_key)
+    if recent is not None and now - recent[0] < RESTAT_S:
+        return recent[1]
     folders = kernel_dirs()
     path = find_kernel(name)
     if path is None:
@@ -120,6 +129,7 @@ def program(name: str, defines: dict[str, Any] | None = None) -> Any:
             _PROGRAMS[key] = cl.Program(context(), path.read_text()).build(options=list(options))
         except cl.RuntimeError as exc:
             raise PrtError(path, f"OpenCL build failed: {exc}") from None
+    _RECENT[recent_key] = (now, _PROGRAMS[key])
     return _PROGRAMS[key]
 
 
