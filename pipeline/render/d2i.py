@@ -68,6 +68,7 @@ BOUNCE_GROUP = 64  # kernels/d2i.cl bounce_step's work-group (D2I_GROUP)
 HAAR_BLOCK = 256  # Haar levels per launch: log2 of this (work-groups of this size)
 SPARSE_GROUP = 32  # work-items per row of sparse_rows_grouped (a GPU's products)
 SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU, else Embree
+LAYOUTS = ("auto", "gpu", "cpu")  # the products' value type and work shape (D2iRenderer)
 
 
 def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
@@ -81,17 +82,27 @@ def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
 
 
 class D2iRenderer:
-    """The d2i frame of one baked scene; keeps device buffers and cached products."""
+    """The d2i frame of one baked scene; keeps device buffers and cached products.
+
+    ``shadows``: ``device`` (the BVH kernel), ``embree`` or ``auto`` (the device's on a
+    GPU); ``layout``: ``gpu`` (float16 product values, a work-group per row), ``cpu``
+    (float32 values, a work-item per row) or ``auto`` (by the OpenCL device's type).
+    Every combination renders the same frame (to float16 rounding of the frozen rows);
+    the choices are for speed, and let the GPU's kernels be tested on PoCL."""
 
     def __init__(self, scene: Scene, artifacts: Mapping[str, Artifact], max_bounces: int = 32,
-                 bounce_tolerance: float = 1e-3, shadows: str = "auto") -> None:
+                 bounce_tolerance: float = 1e-3, shadows: str = "auto",
+                 layout: str = "auto") -> None:
         import pyopencl as pcl
 
         self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
-        if shadows not in SHADOW_TRACERS:
-            raise PrtError("--option", f"shadows={shadows!r}: expected one of "
-                           f"{', '.join(SHADOW_TRACERS)}")
+        for name, value, allowed in (("shadows", shadows, SHADOW_TRACERS),
+                                     ("layout", layout, LAYOUTS)):
+            if value not in allowed:
+                raise PrtError("--option", f"{name}={value!r}: expected one of "
+                               f"{', '.join(allowed)}")
         on_gpu = bool(cl.device().type & pcl.device_type.GPU)
+        gpu_layout = layout == "gpu" or (layout == "auto" and on_gpu)
         geo = artifacts["geometry"]
         self.device_shadows = DeviceShadows(geo.read("vertices"), geo.read("faces")) \
             if shadows == "device" or (shadows == "auto" and on_gpu) else None
@@ -121,10 +132,10 @@ class D2iRenderer:
         self.d, self.t = (_raster_rows(stored, m, self.size) for m in ("d", "t"))
         # float16 values halve the products' value bytes; a GPU converts them for free,
         # PoCL's CPU device element by element (the 400² light edit took 2.1× longer)
-        self.half_values = on_gpu
+        self.half_values = gpu_layout
         # a work-group per row (coalesced reads) on a GPU; one work-item per row, which
         # streams its row through the cache, on a CPU
-        self.grouped_products = on_gpu
+        self.grouped_products = gpu_layout
         if not self.half_values:
             self.ms, self.d, self.t = (r.expanded() for r in (self.ms, self.d, self.t))
         self.t_pixel = np.sort(stored["t_pixel"], kind="stable")
