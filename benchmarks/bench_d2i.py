@@ -21,10 +21,10 @@ Measures, in one run on this machine:
   against the device kernel's (pipeline/bvh.py) on the same rays, and how many differ.
 
 Run from the project root: python benchmarks/bench_d2i.py [--size 400] [--gathers 16384]
-[--shadows auto|device|embree] [--out FILE]; on a GPU, PRT_CL_DEVICE=gpu (the frames
-then trace their shadows on the device). Writes benchmarks/results/d2i_bench_<size>.json.
-Bakes into --workdir (default .prt/bench_d2i_<size>); a second run reuses the bake
-unless --rebake.
+[--shadows auto|device|embree] [--layout auto|gpu|cpu] [--out FILE]; on a GPU,
+PRT_CL_DEVICE=gpu (the frames then trace their shadows on the device). Writes
+benchmarks/results/d2i_bench_<size>.json. Bakes into --workdir (default
+.prt/bench_d2i_<size>); a second run reuses the bake unless --rebake.
 """
 
 from __future__ import annotations
@@ -180,11 +180,11 @@ def renderer_geometry(workdir) -> tuple[np.ndarray, np.ndarray]:
     return geo.read("vertices"), geo.read("faces")
 
 
-def frame_times(scene, workdir, shadows: str = "auto"
+def frame_times(scene, workdir, shadows: str = "auto", layout: str = "auto"
                 ) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
     """Median frame timings per mode, and the product kernels' measurement."""
     renderer = D2iRenderer(scene, job.method_artifacts(get_method("d2i"), workdir),
-                           shadows=shadows)
+                           shadows=shadows, layout=layout)
     renderer.render(scene)  # builds kernels
     results = {}
     for label, sc in (("light_edit_point", point_light_scene(scene)),
@@ -236,6 +236,8 @@ def main() -> None:
     parser.add_argument("--rebake", action="store_true")
     parser.add_argument("--shadows", default="auto", choices=["auto", "device", "embree"],
                         help="the frames' shadow rays (auto: the device's BVH on a GPU)")
+    parser.add_argument("--layout", default="auto", choices=["auto", "gpu", "cpu"],
+                        help="the products' layout (auto: by the device's type)")
     parser.add_argument("--skip-breakdown", action="store_true",
                         help="leave out the transfer stage's breakdown (a GPU run)")
     parser.add_argument("--out", type=Path, default=None,
@@ -255,7 +257,7 @@ def main() -> None:
                      for p in job.status(scene, workdir)
                      if workdir.artifact(p.spec.name).exists()}
     bandwidth = probe()
-    times, products = frame_times(scene, workdir, args.shadows)
+    times, products = frame_times(scene, workdir, args.shadows, args.layout)
     gbs = products["bytes"] / (products["ms"] * 1e-3) / 1e9
     gbs_in_frame = products["bytes"] / (products["ms_in_frame"] * 1e-3) / 1e9
     result = {
@@ -265,7 +267,7 @@ def main() -> None:
         "bake_s_total": sum(stage_seconds.values()),
         "transfer_breakdown": None if args.skip_breakdown
         else transfer_breakdown(scene, workdir),
-        "device": cl.device().name, "shadows": args.shadows,
+        "device": cl.device().name, "shadows": args.shadows, "layout": args.layout,
         "shadow_rays": shadow_rates(scene, workdir),
         "storage": storage(workdir), "frames": times, "bandwidth_probe": bandwidth,
         "product_kernels": products, "product_kernel_gbs": gbs,

@@ -4,7 +4,8 @@
 # Usage, from the repository root on that machine: benchmarks/device_run.sh OUTDIR STEP...
 # Steps: tests (the newest kernels' tests on the GPU), alltests (every kernel test file),
 # tables (triple's rotation grid and one BRDF table), triple (bench_triple at 1024x768,
-# 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device). Results go to
+# 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device),
+# d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio). Results go to
 # OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
 # travel in .whl/ (cp312 manylinux, `pip download --no-deps`: pyopencl, pytools,
 # platformdirs, siphash24, trimesh, embreex, zarr, numcodecs, donfig, google-crc32c,
@@ -38,6 +39,9 @@ render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
                 --out "$out/triple_frame_1024x768_gpu.json" 2>&1 | grep -v "chunk/s" ;;
     d2i) timeout 165 python3 benchmarks/bench_d2i.py --size 400 --workdir /tmp/bench_d2i \
              --skip-breakdown --out "$out/d2i_bench_400_gpu.json" 2>&1 | grep -v "chunk/s" ;;
+    d2i_cpu_layout) timeout 90 python3 benchmarks/bench_d2i.py --size 400 \
+             --workdir /tmp/bench_d2i --skip-breakdown --layout cpu \
+             --out "$out/d2i_bench_400_gpu_cpu_layout.json" 2>&1 | grep -v "chunk/s" ;;
     *) echo "unknown step $step" ;;
     esac
 done
