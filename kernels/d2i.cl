@@ -43,7 +43,8 @@ __kernel void combine(__global const float* direct, __global const float4* dl,
 #define HAAR_BLOCK 256
 #endif
 
-/* scaling[i] = |A_i| L_i for i < g, 0 up to the Haar length n; vec[n + i] = |A_i| L_i. */
+/* scaling[i] = |A_i| L_i for i < g, 0 up to the Haar length n (a power of two);
+ * vec[n + i] = |A_i| L_i. */
 __kernel void haar_input(__global const float4* radiance, __global const float* area,
                          const int g, const int n, __global float4* vec,
                          __global float4* scaling)
@@ -53,6 +54,7 @@ __kernel void haar_input(__global const float4* radiance, __global const float* 
     float4 x = i < g ? area[i] * radiance[i] : (float4)(0.0f);
     scaling[i] = x;
     if (i < g) vec[n + i] = x;
+    if (n == 1) vec[0] = x;  /* a one-entry transform is the entry (no haar_blocks pass) */
 }
 
 /* HAAR_BLOCK levels of the transform at once: work-group b (size B = min(HAAR_BLOCK,
