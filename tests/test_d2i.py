@@ -346,3 +346,35 @@ def test_device_shadow_rays_give_embree_s_frame(baked):
     _close(frame.rgb, device.render(with_light_offset(scene, 0, (30.0, 0.0, 0.0))).rgb)
     with pytest.raises(PrtError, match="shadows="):
         D2iRenderer(scene, d2i_artifacts(workdir), shadows="optix")
+
+
+def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
+    """The truncate stage's proportional rule: every D row keeps its near entries and at
+    most ``truncate.d_coefficients`` Haar coefficients, T row b0 and every Ms row at most
+    ``truncate.coefficients``, T rows b_j (j ≥ 1) no more than b0's budget; and a D
+    budget of its own changes D only (T's stored rows are byte-identical)."""
+    from pipeline.store import open_artifact
+
+    scene = _scene(16).with_settings({"gather.count": 512, "truncate.coefficients": 40,
+                                      "truncate.d_coefficients": 40})
+    workdir = job.workdir_for(scene, tmp_path / "w")
+    job.bake(scene, workdir, quiet=True)
+
+    def rows(stage, prefix):
+        art = open_artifact(workdir.artifact(stage))
+        haar = int(open_artifact(workdir.artifact("d2i.transfer")).attrs["haar_length"])
+        count, index = art.read(f"{prefix}_count"), art.read(f"{prefix}_index")
+        row = np.repeat(np.arange(len(count)), count)
+        far = np.bincount(row, weights=index < haar, minlength=len(count))
+        return count, far, {n: art.read(n) for n in art.names if n.startswith(prefix)}
+
+    d_count, d_far, _ = rows("d2i.truncate", "d")
+    t_count, t_far, t_before = rows("d2i.truncate", "t")
+    ms_count, ms_far, _ = rows("d2i.truncate_ms", "ms")
+    assert d_far.max() == 40 and t_far.max() == 40 and ms_far.max() == 40
+    job.bake(scene.with_settings({"truncate.d_coefficients": 12}), workdir, quiet=True)
+    d_count_small, d_far_small, _ = rows("d2i.truncate", "d")
+    _, _, t_after = rows("d2i.truncate", "t")
+    assert d_far_small.max() == 12 and np.all(d_far_small == np.minimum(d_far, 12))
+    assert np.array_equal(d_count_small - d_far_small, d_count - d_far)  # near entries
+    assert all(np.array_equal(t_before[n], t_after[n]) for n in t_before)

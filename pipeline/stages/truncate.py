@@ -23,8 +23,9 @@ the mean: the pixel's D L fell from 1.27 to 0.006 (a black pixel; Tableau, 128²
     ``truncate.tolerance``² of the row's full energy: no row keeps more than its own
     accuracy needs (a dark or smooth row keeps few), and a pixel on a diffuse material
     has no T rows at all.
-``proportional`` (the paper's rule; the default): row 0 (b0) of T, every D row and
-    every Ms row keep ``truncate.coefficients``; T row j ≥ 1 keeps
+``proportional`` (the paper's rule; the default): row 0 (b0) of T and every Ms row
+    keep ``truncate.coefficients``, every D row ``truncate.d_coefficients``; T row j ≥ 1
+    keeps
     ``truncate.coefficients`` × σ_j/σ_1 (the PCA singular values of the pixel's
     material), at least a quarter of it. Paper 000 used (250, 150, 150, 100, 100, 100,
     100) for its Cornell floor. At equal storage this rule erred about half as much as
@@ -120,7 +121,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     transfer = ctx.inputs["d2i.transfer"]
     arrays = {n: transfer.read_piece(n, ctx.chunk.id) for n in transfer.names}
     haar = int(transfer.attrs["haar_length"])
-    out = cut_to_budget(ctx.params, "d", arrays, haar)
+    d_budget = np.full(len(arrays["d_count"]), int(ctx.params["truncate.d_coefficients"]))
+    out = cut_to_budget(ctx.params, "d", arrays, haar, d_budget)
     out.update(cut_to_budget(ctx.params, "t", arrays, haar, _proportional_t(ctx, arrays)))
     out.update(d_pixel=arrays["d_pixel"], t_pixel=arrays["t_pixel"])
     return out
@@ -155,4 +157,5 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
         "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
         "budget": ctx.params["truncate.budget"],
         "tolerance": float(ctx.params["truncate.tolerance"]),
-        "coefficients": int(ctx.params["truncate.coefficients"])})
+        "coefficients": int(ctx.params["truncate.coefficients"]),
+        "d_coefficients": int(ctx.params["truncate.d_coefficients"])})
