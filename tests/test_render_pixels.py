@@ -39,3 +39,5 @@ def test_device_image_scatter_equals_numpy_twin():
     got = image.read()
     np.testing.assert_array_equal(got[pixel[:40]], expected[pixel[:40]])
     np.testing.assert_allclose(got[pixel[40:]], expected[pixel[40:]], rtol=1.2e-7)
+    image.clear()  # a frame that leaves pixels unwritten starts from black
+    assert not image.read().any()

@@ -60,7 +60,7 @@ from pipeline.math.envmap import rotation_y
 from pipeline.math.geodesic import icosahedron
 from pipeline.math.sg_transport import view_directions
 from pipeline.raytrace import RayTracer
-from pipeline.render import Frame, camera_key, scatter_pixels
+from pipeline.render import DeviceImage, Frame, camera_key
 from pipeline.render.triple_gbuffer import WORK_GROUP
 from pipeline.scene import Scene
 from pipeline.stages.env_prefilter import read_stack
@@ -307,20 +307,21 @@ class SgDevice:
         return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
 
     def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
-              scale: float) -> tuple[np.ndarray, float]:
+              scale: float, out_buffer: Any | None = None) -> tuple[np.ndarray | None, float]:
         """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
         ``pixels`` (corner, bary, view, view_weight), with the vertices' diffuse
         radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), and the kernel's
-        milliseconds."""
+        milliseconds. With ``out_buffer`` (≥ n · 12 bytes on the device) the radiance
+        stays there and None is returned in its place."""
         b, levels, a = self.buffers, self.tables.levels, np.radians(degrees)
-        out = np.empty((n, 3), np.float32)
+        out = None if out_buffer is not None else np.empty((n, 3), np.float32)
         ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
                     pixels["view"], pixels["view_weight"], b["stack"], b["info"],
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),
                     np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
                     np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
-                    local=WORK_GROUP)
+                    out_buffer=out_buffer, local=WORK_GROUP)
         return out, ms
 
 
@@ -372,6 +373,8 @@ class SgGBuffer:
         if not self.device:
             self.device = {name: cl.read_only_buffer(getattr(self, name)) for name in
                            ("corner", "bary", "view", "view_weight", "miss_direction")}
+            self.device.update({name: cl.read_only_buffer(getattr(self, name).astype(np.int32))
+                                for name in ("pixel", "miss_pixel")})
         return self.device
 
 
@@ -425,6 +428,7 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
         map_sh = np.zeros_like(map_sh)
     static: dict[str, Any] = {}
     cached: dict[tuple, SgGBuffer] = {}
+    images: dict[int, DeviceImage] = {}  # the last image size's device image
 
     def frame(scene: Scene) -> Frame:
         t0 = time.perf_counter()
@@ -441,30 +445,42 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
         degrees, scale = float(light.get("rotation", 0.0)), float(light.get("scale", 1.0))
         vertex_diffuse = device.vertex_diffuse(sh.rotate_y(map_sh, degrees))
         t2 = time.perf_counter()
-        rgb = np.zeros((cam.width * cam.height, 3), np.float32)
-        shade_ms = background_ms = 0.0
+        # shading, background and their scatter stay on the device (render.DeviceImage)
+        count = cam.width * cam.height
+        if count not in images:  # a new image size: the previous buffers are dropped
+            images.clear()
+            images[count] = DeviceImage(count)
+        image = images[count]
+        shade_ms = background_ms = scatter_ms = 0.0
+        background = len(gbuffer.miss_pixel) and component == "all"
+        if not background:  # the pixels that miss stay black
+            image.clear()
         if len(gbuffer.pixel):
-            shaded, shade_ms = device.shade(pixels, len(gbuffer.pixel), vertex_diffuse,
-                                            degrees, scale)
-            scatter_pixels(rgb, gbuffer.pixel, shaded)
-        if len(gbuffer.miss_pixel) and component == "all":
+            shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * len(gbuffer.pixel))
+            _, shade_ms = device.shade(pixels, len(gbuffer.pixel), vertex_diffuse, degrees,
+                                       scale, out_buffer=shaded)
+            scatter_ms += image.scatter(shaded, pixels["pixel"], len(gbuffer.pixel))
+        if background:
             if "map" not in static:
                 static["map"] = cl.read_only_buffer(env_map)
-            miss = np.empty((len(gbuffer.miss_pixel), 3), np.float32)
+            miss = cl.scratch_buffer(image.buffers, "miss", 12 * len(gbuffer.miss_pixel))
             a = np.radians(degrees)
-            background_ms = cl.run(cl.kernel("sg_render.cl", "sg_background"), len(miss),
-                                   static["map"], np.int32(env_map.shape[1]),
-                                   np.int32(env_map.shape[0]), pixels["miss_direction"],
-                                   np.float32(np.cos(a)), np.float32(np.sin(a)),
-                                   np.float32(scale), np.int32(len(miss)), out=miss,
-                                   local=WORK_GROUP)
-            scatter_pixels(rgb, gbuffer.miss_pixel, miss)
+            background_ms = cl.run(cl.kernel("sg_render.cl", "sg_background"),
+                                   len(gbuffer.miss_pixel), static["map"],
+                                   np.int32(env_map.shape[1]), np.int32(env_map.shape[0]),
+                                   pixels["miss_direction"], np.float32(np.cos(a)),
+                                   np.float32(np.sin(a)), np.float32(scale),
+                                   np.int32(len(gbuffer.miss_pixel)), out=None,
+                                   out_buffer=miss, local=WORK_GROUP)
+            scatter_ms += image.scatter(miss, pixels["miss_pixel"], len(gbuffer.miss_pixel))
+        rgb = image.read()
         t3 = time.perf_counter()
         timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
                    "trace_ms": 0.0 if was_cached else gbuffer.trace_ms,
                    "view_lookup_ms": 0.0 if was_cached else gbuffer.view_lookup_ms,
                    "sh_ms": (t2 - t1) * 1e3, "shade_ms": shade_ms,
-                   "background_ms": background_ms, "kernel_ms": shade_ms + background_ms,
+                   "background_ms": background_ms, "scatter_ms": scatter_ms,
+                   "kernel_ms": shade_ms + background_ms + scatter_ms,
                    "counted_kernel_ms": shade_ms, "setup_ms": (t2 - t0) * 1e3,
                    "total_ms": (t3 - t0) * 1e3}
         return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, [],
