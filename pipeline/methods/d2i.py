@@ -11,7 +11,12 @@ Run-time options (``prt render --option NAME=VALUE``):
 
 * ``max_bounces`` (int, 32): diffuse bounces between gather samples at most;
 * ``bounce_tolerance`` (float, 1e-3): stop bouncing when a bounce adds less than this
-  fraction (relative L2) of the gather radiance.
+  fraction (relative L2) of the gather radiance;
+* ``shadows`` (``auto``): the frames' shadow rays — ``device`` (a BVH kernel on the
+  OpenCL device), ``embree`` (on the host), ``auto`` (the device's on a GPU);
+* ``layout`` (``auto``): the products' layout — ``gpu`` (float16 values, a work-group
+  per row), ``cpu`` (float32 values, a work-item per row), ``auto`` (by the device).
+  Both choices change speed only (the same frames to float16 rounding).
 
 Sequences (``--frames``): ``light[:LIGHT]:N`` moves light LIGHT (an index into
 ``lights`` or a quad light's ``object``; default the first point, spot or quad light)
@@ -51,6 +56,10 @@ METHOD = Method(
         Option("max_bounces", int, 32, "diffuse bounces between gather samples at most"),
         Option("bounce_tolerance", float, 1e-3,
                "stop bouncing when a bounce adds less than this fraction (L2)"),
+        Option("shadows", str, "auto",
+               "shadow rays: device (BVH kernel), embree (host) or auto (device on a GPU)"),
+        Option("layout", str, "auto",
+               "products: gpu (float16, a work-group per row), cpu or auto (by device)"),
     ),
     sequences="pipeline.methods.d2i:sequence",
     main_sequences=("light:8", "gamma:8"),

@@ -527,9 +527,10 @@ def _check_lights(packed: np.ndarray) -> None:
 
 
 def d2i_renderer(scene: Scene, artifacts: Mapping[str, Artifact], max_bounces: int = 32,
-                 bounce_tolerance: float = 1e-3) -> D2iRenderer:
+                 bounce_tolerance: float = 1e-3, shadows: str = "auto",
+                 layout: str = "auto") -> D2iRenderer:
     """Full d2i frames (any lights and materials, nothing cached between them) from
     artifacts loaded once (call it with a scene); their timings leave out the loading.
     ``edit_mode(kind, scene)`` gives the faster frames of a light or γ sequence."""
-    return D2iRenderer(scene, artifacts, max_bounces, bounce_tolerance)
+    return D2iRenderer(scene, artifacts, max_bounces, bounce_tolerance, shadows, layout)
 
