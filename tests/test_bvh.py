@@ -84,15 +84,8 @@ def test_device_occlusion_equals_embree_away_from_edges(kind):
         d = rng.uniform(lo, hi, (n, 3)) - o
         t = np.ones(n)
     else:  # points on the surface, offset along their face normal, to a light
-        face = rng.integers(0, len(faces), n)
-        tri = vertices[faces[face]].astype(np.float64)
-        a, b = rng.random((2, n, 1))
-        flip = a + b > 1
-        a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
-        p = tri[:, 0] + a * (tri[:, 1] - tri[:, 0]) + b * (tri[:, 2] - tri[:, 0])
-        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-30
-        o = p + 1e-4 * 2 * normal
+        p, normal = surface_points(vertices, faces, n, 11)
+        o = p.astype(np.float64) + 2e-4 * normal
         d = np.array([0.7, 1.9, 0.5]) - o
         t = np.full(n, 1.0 - 1e-4)
     o, d = o.astype(np.float32), d.astype(np.float32)

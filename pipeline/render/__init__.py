@@ -63,6 +63,15 @@ class DeviceImage:
     Keeps the host out of the frame's per-pixel work (a 1024×768 frame's two host
     scatters and read-backs cost more than its shading kernel on a GPU)."""
 
+    @classmethod
+    def of_size(cls, cache: dict[int, DeviceImage], pixels: int) -> DeviceImage:
+        """The image of ``pixels`` kept in a renderer's ``cache``: the last size's only
+        (a new size drops the previous buffers)."""
+        if pixels not in cache:
+            cache.clear()
+            cache[pixels] = cls(pixels)
+        return cache[pixels]
+
     def __init__(self, pixels: int) -> None:
         self.pixels = pixels
         self.buffers: dict[str, Any] = {}

@@ -446,13 +446,9 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
         vertex_diffuse = device.vertex_diffuse(sh.rotate_y(map_sh, degrees))
         t2 = time.perf_counter()
         # shading, background and their scatter stay on the device (render.DeviceImage)
-        count = cam.width * cam.height
-        if count not in images:  # a new image size: the previous buffers are dropped
-            images.clear()
-            images[count] = DeviceImage(count)
-        image = images[count]
+        image = DeviceImage.of_size(images, cam.width * cam.height)
         shade_ms = background_ms = scatter_ms = 0.0
-        background = len(gbuffer.miss_pixel) and component == "all"
+        background = len(gbuffer.miss_pixel) > 0 and component == "all"
         if not background:  # the pixels that miss stay black
             image.clear()
         if len(gbuffer.pixel):

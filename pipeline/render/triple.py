@@ -585,11 +585,7 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                                  np.array([b.specular for b in brdfs]))
         # shading, background and their scatter into the image stay on the device; the
         # frame comes back in one copy
-        pixels = cam.width * cam.height
-        if pixels not in images:  # a new image size: the previous buffers are dropped
-            images.clear()
-            images[pixels] = DeviceImage(pixels)
-        image = images[pixels]
+        image = DeviceImage.of_size(images, cam.width * cam.height)
         shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * gbuffer.count)
         _, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
                                                lookup, turn, static, out_buffer=shaded)
