@@ -44,6 +44,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -55,17 +56,25 @@ from pipeline.scene import default_scene_path  # noqa: E402
 from pipeline.store import Workdir, read_record  # noqa: E402
 
 
-def scene_file(folder: Path, size: int) -> Path:
-    """The default scene at ``size``² as a file in ``folder`` (mesh paths made absolute)."""
-    source = default_scene_path()
+def scene_copy(source: Path, path: Path, size: int | None = None,
+               settings: dict[str, Any] | None = None) -> Path:
+    """``source`` rewritten to ``path``: mesh paths made absolute, the image ``size``²
+    if given, ``settings`` (stage parameters) over the file's own."""
     doc = yaml.safe_load(source.read_text())
-    doc["camera"]["width"] = doc["camera"]["height"] = size
+    if size is not None:
+        doc["camera"]["width"] = doc["camera"]["height"] = size
     for obj in doc["objects"].values():
-        if "mesh" in obj:
+        if "mesh" in obj and "$" not in obj["mesh"]:
             obj["mesh"] = str((source.parent / obj["mesh"]).resolve())
-    path = folder / f"cornell_box_{size}.yaml"
+    if settings:
+        doc["settings"] = {**(doc.get("settings") or {}), **settings}
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+def scene_file(folder: Path, size: int) -> Path:
+    """The default scene at ``size``² as a file in ``folder`` (mesh paths made absolute)."""
+    return scene_copy(default_scene_path(), folder / f"cornell_box_{size}.yaml", size)
 
 
 def cores_args(config: str) -> list[str]:
@@ -115,12 +124,13 @@ def wait_quiet(max_wait_s: float = 1800.0, window_s: float = 5.0) -> float:
             return waited
 
 
-def quiet_prt(args: list[str], fresh: Path | None = None) -> dict:
+def quiet_prt(args: list[str], fresh: Path | None = None,
+              max_wait_s: float = 1800.0) -> dict:
     """``prt`` started on a quiet machine, repeated (up to RETRIES times) when the rest
     of the machine used more than NOISY_CORES cores meanwhile; ``fresh``: a work
-    directory deleted before each attempt."""
+    directory deleted before each attempt; ``max_wait_s``: the longest wait for quiet."""
     for attempt in range(RETRIES + 1):
-        waited = wait_quiet()
+        waited = wait_quiet(max_wait_s)
         if fresh is not None:
             shutil.rmtree(fresh, ignore_errors=True)
         r = prt(args)

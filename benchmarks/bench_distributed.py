@@ -37,7 +37,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_cores import ROOT, prt, quiet_prt, scene_file, stage_seconds
+import yaml
+from bench_cores import ROOT, prt, quiet_prt, scene_copy, scene_file, stage_seconds
 
 from pipeline.store import read_record
 
@@ -52,29 +53,42 @@ def config_args(config: str) -> list[str]:
     return ["--jobs", jobs, "--threads", threads]
 
 
-def cases(folder: Path) -> list[dict[str, Any]]:
-    """The method, scene arguments and heaviest stage of each case."""
+def cases(folder: Path, settings: dict[str, Any]) -> list[dict[str, Any]]:
+    """The method, scene arguments and heaviest stage of each case; ``settings``: stage
+    parameters over the scenes' own (smaller chunks for many workers, say)."""
+    scenes = ROOT / "scenes"
+    cornell = scene_copy(scene_file(folder, 128), folder / "cornell_box_128.yaml",
+                         settings=settings)
+    grace = scene_copy(scenes / "bunny_grace.yaml", folder / "bunny_grace.yaml",
+                       settings=settings)
+    sg = scene_copy(scenes / "bunny_sg_coarse.yaml", folder / "bunny_sg_coarse.yaml",
+                    settings=settings)
     return [
-        {"method": "d2i", "scene": [str(scene_file(folder, 128))], "stage": "d2i.transfer"},
-        {"method": "triple", "scene": [str(ROOT / "scenes" / "bunny_grace.yaml"),
-                                       "--size", "64x64"], "stage": "triple.visibility"},
-        {"method": "sg", "scene": [str(ROOT / "scenes" / "bunny_sg_coarse.yaml")],
-         "stage": "sg.fit"},
+        {"method": "d2i", "scene": [str(cornell)], "stage": "d2i.transfer"},
+        {"method": "triple", "scene": [str(grace), "--size", "64x64"],
+         "stage": "triple.visibility"},
+        {"method": "sg", "scene": [str(sg)], "stage": "sg.fit"},
     ]
+
+
+def parse_setting(text: str) -> tuple[str, Any]:
+    """``NAME=VALUE`` -> (NAME, VALUE read as YAML: 16 -> int)."""
+    name, _, value = text.partition("=")
+    return name, yaml.safe_load(value)
 
 
 def noop(x: int) -> int:
     return x
 
 
-def scheduler_overhead(tasks: int) -> dict[str, float]:
-    """Milliseconds per task of ``tasks`` no-op tasks on a 2-worker LocalCluster
+def scheduler_overhead(tasks: int, workers: int) -> dict[str, float]:
+    """Milliseconds per task of ``tasks`` no-op tasks on a LocalCluster of ``workers``
     (submitted at once, gathered as they complete), median of 5 batches."""
     import logging
 
     from distributed import Client, LocalCluster, as_completed
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                       dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
         client.gather(client.map(noop, range(4), pure=False))  # warm-up
@@ -84,7 +98,7 @@ def scheduler_overhead(tasks: int) -> dict[str, float]:
             for future in as_completed(client.map(noop, range(tasks), pure=False)):
                 future.result()
             per_task.append((time.perf_counter() - start) / tasks * 1e3)
-    return {"tasks": tasks, "ms_per_task_median": statistics.median(per_task),
+    return {"tasks": tasks, "workers": workers, "ms_per_task_median": statistics.median(per_task),
             "ms_per_task": per_task}
 
 
@@ -98,17 +112,25 @@ def main() -> None:
     parser.add_argument("--tasks", type=int, default=400, help="no-op tasks per batch")
     parser.add_argument("--configs", default=",".join(CONFIGS),
                         help=f"comma-separated configurations [default: {','.join(CONFIGS)}]")
+    parser.add_argument("--set", dest="settings", action="append", default=[],
+                        metavar="NAME=VALUE", help="stage parameter over the scenes' own "
+                        "(repeatable), e.g. transfer.tile=16 for more chunks than workers")
+    parser.add_argument("--max-wait", type=float, default=1800.0,
+                        help="longest wait for a quiet machine before a run, seconds")
     parser.add_argument("--out", type=Path,
                         default=ROOT / "benchmarks" / "results" / "distributed.json")
     args = parser.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
 
     configs = args.configs.split(",")
+    settings = dict(parse_setting(t) for t in args.settings)
     result: dict[str, Any] = {"cpus": os.cpu_count(), "configs": configs, "cases": {},
+                              "settings": settings,
                               "load_average_start": os.getloadavg()[0]}
-    result["overhead"] = scheduler_overhead(args.tasks)
+    workers = max([int(c.split(":")[1]) for c in configs if c.startswith("local:")] or [2])
+    result["overhead"] = scheduler_overhead(args.tasks, workers)
     print("overhead", json.dumps(result["overhead"]), flush=True)
-    for case in cases(args.workdir):
+    for case in cases(args.workdir, settings):
         if args.only and case["method"] not in args.only:
             continue
         workdir = args.workdir / case["method"]
@@ -117,7 +139,8 @@ def main() -> None:
         runs: dict[str, list[dict[str, Any]]] = {c: [] for c in configs}
         for round_ in range(args.rounds):
             for config in configs:
-                r = quiet_prt([*base, "--force", case["stage"], *config_args(config)])
+                r = quiet_prt([*base, "--force", case["stage"], *config_args(config)],
+                              max_wait_s=args.max_wait)
                 record = read_record(next(workdir.rglob(f"{case['stage']}.zarr")))
                 runs[config].append({
                     "round": round_, "stage_s": stage_seconds(r["report"], case["stage"]),
@@ -136,9 +159,9 @@ def main() -> None:
             **ratios, "identical_digests": len(digests) == 1, "runs": runs}
         print(case["method"], json.dumps({k: v for k, v in result["cases"][case["method"]]
                                           .items() if k != "runs"}), flush=True)
-    result["load_average_end"] = os.getloadavg()[0]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1))
+        result["load_average_end"] = os.getloadavg()[0]
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=1))  # after each case: a cut run keeps it
     print(f"wrote {args.out}", file=sys.stderr)
 
 

@@ -5,11 +5,13 @@
 # Steps: tests (the newest kernels' tests on the GPU), alltests (every kernel test file),
 # tables (triple's rotation grid and one BRDF table), triple (bench_triple at 1024x768,
 # 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device),
-# d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio). Results go to
-# OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
+# d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio), distributed
+# (bench_distributed: each method's heaviest stage on 1 worker × 1 thread against local:16,
+# chunks made 4× smaller so that each of 16 workers gets several). Results go to OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
 # travel in .whl/ (cp312 manylinux, `pip download --no-deps`: pyopencl, pytools,
 # platformdirs, siphash24, trimesh, embreex, zarr, numcodecs, donfig, google-crc32c,
-# OpenEXR, xatlas, pydantic, pydantic-core, annotated-types, typing-inspection; ≈ 30 MB),
+# OpenEXR, xatlas, pydantic, pydantic-core, annotated-types, typing-inspection, and for
+# the step distributed dask, distributed, tornado, tblib, zict, partd, locket; ≈ 33 MB),
 # the shared data in .devdata/ (PRT_DATA: copy all of ../shared/data, 16 MB — the tests
 # read meshes the scenes do not name). Both folders listed in .git/info/exclude and named
 # in the run's carry. PoCL is not needed there.
@@ -42,6 +44,10 @@ render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
     d2i_cpu_layout) timeout 90 python3 benchmarks/bench_d2i.py --size 400 \
              --workdir /tmp/bench_d2i --skip-breakdown --layout cpu \
              --out "$out/d2i_bench_400_gpu_cpu_layout.json" 2>&1 | grep -v "chunk/s" ;;
+    distributed) timeout 380 python3 benchmarks/bench_distributed.py --workdir /tmp/bd \
+             --configs 1x1,local:16 --rounds 1 --max-wait 10 --set transfer.tile=16 \
+             --set triple.texel_tile=16 --set sg.fit_batch=64 \
+             --out "$out/distributed_16.json" ;;
     *) echo "unknown step $step" ;;
     esac
 done
