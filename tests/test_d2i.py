@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import job, metrics
+from pipeline import cl, job, metrics
 from pipeline.errors import PrtError
+from pipeline.math import haar
 from pipeline.method import get_method
 from pipeline.reference import ReferenceSettings
 from pipeline.render.d2i import D2iRenderer
@@ -78,6 +79,21 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
             np.testing.assert_array_equal(a.read(array), b.read(array))
     np.testing.assert_array_equal(renderer.render(edited).rgb,
                                   D2iRenderer(edited, d2i_artifacts(fresh_dir)).render(edited).rgb)
+
+
+def test_unblock_kernel_matches_numpy(baked):
+    """kernels/d2i.cl unblock against pipeline.math.haar.unblock: per pixel the inverse 2D
+    Haar of its block's products (24² pixels in blocks of 4 × 4, as baked). 1e-5 of the
+    largest value: float32 sums of 16 terms against float64."""
+    import pyopencl
+
+    scene, _, renderer = baked
+    assert renderer.d_block == 4 and renderer.d.count == 36 * 16
+    blocks = np.random.default_rng(5).normal(size=(renderer.d.count, 4)).astype(np.float32)
+    out, _ = renderer.unblock(cl.read_only_buffer(blocks))
+    got = np.empty((SIZE * SIZE, 4), np.float32)
+    pyopencl.enqueue_copy(renderer.queue, got, out)
+    _close(got, haar.unblock(blocks.astype(np.float64), SIZE, SIZE, 4))
 
 
 def test_sparse_product_and_combination_kernels_match_numpy(baked):
@@ -218,11 +234,11 @@ def test_kernel_bytes_and_counted_time_cover_the_same_kernels(baked):
     assert t["counted_kernel_ms"] == pytest.approx(
         t["bounce_product_ms"] + t["product_kernel_ms"], rel=1e-9)
     assert 0 < t["counted_kernel_ms"] < t["kernel_ms"]
-    # the bounce loop's other kernels (Haar levels, bounce steps) and any device shadow
-    # rays are in kernel_ms, not counted
+    # the bounce loop's other kernels (Haar levels, bounce steps), D's unblocking and any
+    # device shadow rays are in kernel_ms, not counted
     assert t["kernel_ms"] == pytest.approx(
-        t["bounce_kernel_ms"] + t["product_kernel_ms"] + t["direct_kernel_ms"]
-        + t["combine_kernel_ms"] + t["shadow_kernel_ms"], rel=1e-9)
+        t["bounce_kernel_ms"] + t["product_kernel_ms"] + t["unblock_kernel_ms"]
+        + t["direct_kernel_ms"] + t["combine_kernel_ms"] + t["shadow_kernel_ms"], rel=1e-9)
     brdf = renderer.brdf_edits(scene)(with_material_edits(scene, ["glossy_floor.gamma=80"]))
     assert brdf.kernel_bytes == 0 and brdf.timings["counted_kernel_ms"] == 0
     frozen = renderer.freeze(renderer.coefficients(scene))
@@ -349,14 +365,18 @@ def test_device_shadow_rays_give_embree_s_frame(baked):
 
 
 def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
-    """The truncate stage's proportional rule: every D row keeps its near entries and at
-    most ``truncate.d_coefficients`` Haar coefficients, T row b0 and every Ms row at most
-    ``truncate.coefficients``, T rows b_j (j ≥ 1) no more than b0's budget; and a D
-    budget of its own changes D only (T's stored rows are byte-identical)."""
+    """The truncate stage's proportional rule: every block of D's rows (4 × 4 pixels)
+    keeps its near entries and at most ``truncate.d_coefficients`` Haar coefficients per
+    pixel with a row, T row b0 at most ``truncate.coefficients``, every Ms row at most
+    ``truncate.ms_coefficients``, T rows
+    b_j (j ≥ 1) no more than b0's budget; and a D budget of its own changes D only (T's
+    stored rows are byte-identical)."""
+    from pipeline.math.haar import pixel_blocks
     from pipeline.store import open_artifact
 
     scene = _scene(16).with_settings({"gather.count": 512, "truncate.coefficients": 40,
-                                      "truncate.d_coefficients": 40})
+                                      "truncate.d_coefficients": 40,
+                                      "truncate.ms_coefficients": 40})
     workdir = job.workdir_for(scene, tmp_path / "w")
     job.bake(scene, workdir, quiet=True)
 
@@ -368,13 +388,22 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
         far = np.bincount(row, weights=index < haar, minlength=len(count))
         return count, far, {n: art.read(n) for n in art.names if n.startswith(prefix)}
 
-    d_count, d_far, _ = rows("d2i.truncate", "d")
+    def per_block(stage):  # D's entries summed over each block's 16 rows, by block id
+        count, far, stored = rows(stage, "d")
+        block = stored["d_row"] // 16
+        return (np.bincount(block, weights=count), np.bincount(block, weights=far))
+
+    transfer = open_artifact(workdir.artifact("d2i.transfer"))
+    block, _ = pixel_blocks(transfer.read("d_pixel"), 16, 4)
+    pixels_with_rows = np.bincount(block, weights=transfer.read("d_count") > 0)
+    d_count, d_far = per_block("d2i.truncate")
     t_count, t_far, t_before = rows("d2i.truncate", "t")
     ms_count, ms_far, _ = rows("d2i.truncate_ms", "ms")
-    assert d_far.max() == 40 and t_far.max() == 40 and ms_far.max() == 40
+    assert np.all(d_far <= 40 * pixels_with_rows) and np.any(d_far == 40 * pixels_with_rows)
+    assert t_far.max() == 40 and ms_far.max() == 40
     job.bake(scene.with_settings({"truncate.d_coefficients": 12}), workdir, quiet=True)
-    d_count_small, d_far_small, _ = rows("d2i.truncate", "d")
+    d_count_small, d_far_small = per_block("d2i.truncate")
     _, _, t_after = rows("d2i.truncate", "t")
-    assert d_far_small.max() == 12 and np.all(d_far_small == np.minimum(d_far, 12))
+    assert np.array_equal(d_far_small, np.minimum(d_far, 12 * pixels_with_rows))
     assert np.array_equal(d_count_small - d_far_small, d_count - d_far)  # near entries
     assert all(np.array_equal(t_before[n], t_after[n]) for n in t_before)

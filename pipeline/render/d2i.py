@@ -20,7 +20,9 @@ samples and the G-buffer:
    product, the bounce step); the host reads back only the stopping rule's sums;
 4. per pixel: D L and T_j L as sparse products (kernels/sparse_rows.cl; on a GPU with
    values float16 over a per-row scale, as stored) with W (|A| ⊙ L) (and, for a row's near entries,
-   with |A| ⊙ L itself), then (kernels/d2i.cl) I = direct + kd ⊙ D L + ρs ⊙ max(0,
+   with |A| ⊙ L itself) — D's rows are stored over blocks of pixels (pipeline/math/haar.py,
+   "Haar over pixel blocks"), so their products are unblocked per pixel (kernel
+   ``unblock``) —, then (kernels/d2i.cl) I = direct + kd ⊙ D L + ρs ⊙ max(0,
    Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0); every term stays in device buffers
    and the frame is read back once.
 
@@ -71,11 +73,11 @@ SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU
 LAYOUTS = ("auto", "gpu", "cpu")  # the products' value type and work shape (D2iRenderer)
 
 
-def _raster_rows(stored: dict[str, np.ndarray], prefix: str, size: int) -> Rows:
+def _ordered_rows(stored: dict[str, np.ndarray], prefix: str, key: str, size: int) -> Rows:
     """The ``prefix`` (d or t) rows of the compressed_transport artifact, stored tile by
-    tile, in raster order of their pixels (a pixel's rows keep their order); values kept
-    as stored, float16 over a per-row scale."""
-    rows = sort_rows(stored[f"{prefix}_pixel"], {
+    tile, ordered by ``key`` (T: their pixel, a pixel's rows keeping their order; D: the
+    block row); values kept as stored, float16 over a per-row scale."""
+    rows = sort_rows(stored[key], {
         "count": stored[f"{prefix}_count"], "index": stored[f"{prefix}_index"],
         "value": stored[f"{prefix}_value"], "scale": stored[f"{prefix}_scale"]})
     return Rows.from_counts(rows["count"], rows["index"], rows["value"], size, rows["scale"])
@@ -129,7 +131,16 @@ class D2iRenderer:
         # D and T rows are stored tile by tile: put them in raster order of their pixels
         # (a pixel's T rows b0..bk stay in order)
         stored = transport.read_all()
-        self.d, self.t = (_raster_rows(stored, m, self.size) for m in ("d", "t"))
+        self.d = _ordered_rows(stored, "d", "d_row", self.size)
+        self.t = _ordered_rows(stored, "t", "t_pixel", self.size)
+        # D's rows are over pixel blocks: the products are unblocked per pixel (unblock)
+        self.d_block = int(transport.attrs["d_block"])
+        blocks = (-(-self.direct.width // self.d_block)
+                  * -(-self.direct.height // self.d_block))
+        if self.d.count != blocks * self.d_block ** 2:
+            raise PrtError(transport.path, f"holds {self.d.count} D rows, expected "
+                           f"{blocks * self.d_block ** 2} ({blocks} blocks of "
+                           f"{self.d_block}² pixels): re-bake d2i.truncate")
         # float16 values halve the products' value bytes; a GPU converts them for free,
         # PoCL's CPU device element by element (the 400² light edit took 2.1× longer)
         self.half_values = gpu_layout
@@ -335,13 +346,31 @@ class D2iRenderer:
             out[self.haar_length:, :3] = weighted
         return out
 
-    def products(self, frozen: Rows | None = None) -> tuple[Any, Any, float]:
+    def products(self, frozen: Rows | None = None) -> tuple[Any, Any, float, float]:
         """D L (pixels, float4) and T L (T rows, or the frozen rows, float4) of the
-        radiance vector on the device, as device buffers; kernel ms."""
+        radiance vector on the device, as device buffers; the sparse products' kernel ms
+        and the unblocking's."""
         _, ms_d = self._sparse("d", self.d, read=False)
         name, rows = ("t", self.t) if frozen is None else ("frozen", frozen)
         _, ms_t = self._sparse(name, rows, read=False)
-        return self.buffers["d"]["out"], self.buffers[name]["out"], ms_d + ms_t
+        dl, ms_unblock = self.unblock(self.buffers["d"]["out"])
+        return dl, self.buffers[name]["out"], ms_d + ms_t, ms_unblock
+
+    def unblock(self, block_products: Any) -> tuple[Any, float]:
+        """Per pixel D L (device buffer, pixels × float4) from the products of D's block
+        rows (kernel ``unblock``, twin pipeline.math.haar.unblock); kernel ms. Blocks of
+        one pixel are the pixels' own rows: returned as they are."""
+        if self.d_block == 1:
+            return block_products, 0.0
+        if "block_transform" not in self.static:
+            self.static["block_transform"] = cl.read_only_buffer(
+                haar.block_transform(self.d_block).astype(np.float32))
+        npix = len(self.direct.material_id)
+        out = cl.scratch_buffer(self.work, "dl", 16 * npix)
+        ms = cl.run(cl.kernel("d2i.cl", "unblock"), npix, block_products,
+                    self.static["block_transform"], np.int32(self.d_block),
+                    np.int32(self.direct.width), np.int32(npix), out=None, out_buffer=out)
+        return out, ms
 
     def coefficients(self, scene: Scene) -> np.ndarray:
         """c(γ) per material (materials, rmax): [1, c_1(γ), ..., c_k(γ)], 0 for Lambert."""
@@ -423,10 +452,10 @@ class D2iRenderer:
         timings = self.trace_lights(scene)
         timings.update(self.gather_radiance(_albedo(scene_brdfs(scene, self.material_names))))
         t1 = time.perf_counter()
-        dl, tl, product_ms = self.products()
+        dl, tl, product_ms, unblock_ms = self.products()
         frame = self._finish(scene, dl, tl, frozen=False, t0=t0, t1=t1, timings=timings)
-        frame.timings["kernel_ms"] += product_ms
-        frame.timings["product_kernel_ms"] = product_ms
+        frame.timings["kernel_ms"] += product_ms + unblock_ms
+        frame.timings.update(product_kernel_ms=product_ms, unblock_kernel_ms=unblock_ms)
         return frame
 
     def brdf_edits(self, scene: Scene) -> Callable[[Scene], Frame]:
@@ -436,7 +465,7 @@ class D2iRenderer:
         self.trace_lights(scene)
         albedo = _albedo(scene_brdfs(scene, self.material_names))
         self.gather_radiance(albedo)
-        dl, tl, _ = self.products()
+        dl, tl, _, _ = self.products()
         cache = {"albedo": albedo, "dl": dl, "tl": tl}
 
         def frame(edited: Scene) -> Frame:
@@ -446,7 +475,7 @@ class D2iRenderer:
             new_albedo = _albedo(scene_brdfs(edited, self.material_names))
             if not np.array_equal(new_albedo, cache["albedo"]):
                 timings.update(self.gather_radiance(new_albedo))
-                cache["dl"], cache["tl"], _ = self.products()
+                cache["dl"], cache["tl"], _, _ = self.products()
                 cache["albedo"] = new_albedo
             return self._finish(edited, cache["dl"], cache["tl"], frozen=False, t0=t0,
                                 t1=time.perf_counter(), timings=timings)
@@ -470,10 +499,10 @@ class D2iRenderer:
             timings.update(self.gather_radiance(_albedo(scene_brdfs(edited,
                                                                    self.material_names))))
             t1 = time.perf_counter()
-            dl, tl, product_ms = self.products(frozen)
+            dl, tl, product_ms, unblock_ms = self.products(frozen)
             out = self._finish(edited, dl, tl, frozen=True, t0=t0, t1=t1, timings=timings)
-            out.timings["kernel_ms"] += product_ms
-            out.timings["product_kernel_ms"] = product_ms
+            out.timings["kernel_ms"] += product_ms + unblock_ms
+            out.timings.update(product_kernel_ms=product_ms, unblock_kernel_ms=unblock_ms)
             return out
 
         return frame

@@ -23,14 +23,25 @@ the mean: the pixel's D L fell from 1.27 to 0.006 (a black pixel; Tableau, 128²
     ``truncate.tolerance``² of the row's full energy: no row keeps more than its own
     accuracy needs (a dark or smooth row keeps few), and a pixel on a diffuse material
     has no T rows at all.
-``proportional`` (the paper's rule; the default): row 0 (b0) of T and every Ms row
-    keep ``truncate.coefficients``, every D row ``truncate.d_coefficients``; T row j ≥ 1
+``proportional`` (the paper's rule; the default): row 0 (b0) of T keeps
+    ``truncate.coefficients``, D ``truncate.d_coefficients`` per pixel, every Ms row
+    ``truncate.ms_coefficients`` (d2i.truncate_ms); T row j ≥ 1
     keeps
     ``truncate.coefficients`` × σ_j/σ_1 (the PCA singular values of the pixel's
     material), at least a quarter of it. Paper 000 used (250, 150, 150, 100, 100, 100,
     100) for its Cornell floor. At equal storage this rule erred about half as much as
     the tolerance on the Cornell box, and at 500 beat the tolerance 0.02 in error and
     storage on the Cornell box, the Tableau and the Still-life (NOTES.md, issue 19).
+
+D is cut per block of ``truncate.d_block``² pixels rather than per row
+(:func:`cut_blocks`): the block's rows are first transformed across its pixels (2D
+Haar, pipeline/math/haar.py) into a mean row and difference rows, and the rules above
+apply to all the block's entries together (budget: per pixel × the pixels that have a
+row). Neighbouring pixels' rows are nearly equal, so the difference rows are small and
+the shared budget buys the mean row many more coefficients than a pixel's row alone
+keeps: on the Cornell box at 128² the block rule at 125 coefficients per pixel erred
+(D L against the transfer stage's rows) 1.4 % with the mean kept to 0.03 %, the per-row
+rule 4.9 % and 3.3 % dark (at 250: 1.7 %, 1.1 % dark; NOTES.md, issue 19, tenth session).
 """
 
 from __future__ import annotations
@@ -38,8 +49,10 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from pipeline.errors import PrtError
+from pipeline.math import haar
 from pipeline.rows import ROW_CHUNKS, cut_rows, quantise_values
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
@@ -78,6 +91,14 @@ def kept_counts(count: np.ndarray, residual: np.ndarray, value: np.ndarray,
     return np.minimum(needed + 1, count)
 
 
+def budget_rule(params: dict[str, Any]) -> str:
+    """``truncate.budget``, checked."""
+    if params["truncate.budget"] not in BUDGETS:
+        raise PrtError(None, f"truncate.budget = {params['truncate.budget']!r}: "
+                       f"expected one of {', '.join(BUDGETS)}")
+    return params["truncate.budget"]
+
+
 def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndarray],
                   haar_length: int, proportional: np.ndarray | None = None
                   ) -> dict[str, np.ndarray]:
@@ -85,14 +106,12 @@ def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndar
     ``truncate.budget``: to ``truncate.tolerance``, or to ``proportional`` (else
     ``truncate.coefficients``) entries besides their near ones (index ≥ haar_length);
     values stored as float16 over a float32 scale per row (pipeline.rows.quantise_values)."""
-    if params["truncate.budget"] not in BUDGETS:
-        raise PrtError(None, f"truncate.budget = {params['truncate.budget']!r}: "
-                       f"expected one of {', '.join(BUDGETS)}")
+    rule = budget_rule(params)
     count = arrays[f"{prefix}_count"]
     index, value = coarse_first(count, arrays[f"{prefix}_index"], arrays[f"{prefix}_value"],
                                 haar_length)
     near = index >= haar_length
-    if params["truncate.budget"] == "tolerance":
+    if rule == "tolerance":
         keep = kept_counts(count, arrays[f"{prefix}_residual"], value,
                            float(params["truncate.tolerance"]), near, index < COARSE_KEPT)
     else:
@@ -117,15 +136,97 @@ def coarse_first(count: np.ndarray, index: np.ndarray, value: np.ndarray, haar_l
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    """The tile's D and T rows, cut (in the transfer tile's row order)."""
+    """The tile's D rows over pixel blocks and its T rows, cut (T in the transfer tile's
+    row order)."""
     transfer = ctx.inputs["d2i.transfer"]
     arrays = {n: transfer.read_piece(n, ctx.chunk.id) for n in transfer.names}
-    haar = int(transfer.attrs["haar_length"])
-    d_budget = np.full(len(arrays["d_count"]), int(ctx.params["truncate.d_coefficients"]))
-    out = cut_to_budget(ctx.params, "d", arrays, haar, d_budget)
-    out.update(cut_to_budget(ctx.params, "t", arrays, haar, _proportional_t(ctx, arrays)))
-    out.update(d_pixel=arrays["d_pixel"], t_pixel=arrays["t_pixel"])
+    haar_length = int(transfer.attrs["haar_length"])
+    block = int(ctx.params["truncate.d_block"])
+    tile = int(ctx.params["transfer.tile"])
+    if block < 1 or block & (block - 1) or tile % block:
+        raise PrtError(None, f"truncate.d_block = {block}: expected a power of two that "
+                       f"divides transfer.tile = {tile}")
+    out = cut_blocks(ctx.params, arrays, haar_length,
+                     haar_length + int(transfer.attrs["gather_count"]),
+                     int(ctx.scene["camera"]["width"]), block)
+    out.update(cut_to_budget(ctx.params, "t", arrays, haar_length, _proportional_t(ctx, arrays)))
+    out["t_pixel"] = arrays["t_pixel"]
     return out
+
+
+def cut_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar_length: int,
+               columns: int, width: int, block: int) -> dict[str, np.ndarray]:
+    """The D rows ``d_pixel/_count/_index/_value/_residual`` (one per pixel; ``columns``:
+    the radiance vector's length) transformed over ``block`` × ``block`` pixel blocks
+    (pipeline/math/haar.py: each block's b² rows become its mean row and difference
+    rows) and cut per block, by the rules of :func:`cut_to_budget` applied to all the
+    block's entries at once: its near entries (index ≥ haar_length), then its mean row's
+    ``COARSE_KEPT`` coarsest coefficients, then the rest largest first, to the tolerance
+    (of the block's energy) or to ``truncate.d_coefficients`` per pixel of the block that
+    has a row. Returns rows ``d_row`` (block id · b² + row, every row of the tile's
+    blocks, ascending), ``d_count``, ``d_index``, ``d_value`` (float16) and ``d_scale``.
+    A block of one pixel cuts exactly as :func:`cut_to_budget` cuts a row."""
+    pixel = arrays["d_pixel"].astype(np.int64)
+    count = arrays["d_count"].astype(np.int64)
+    b2 = block * block
+    ids, slot = haar.pixel_blocks(pixel, width, block)
+    blocks, local = np.unique(ids, return_inverse=True)
+    offsets = np.concatenate([[0], np.cumsum(count)])
+    rows = sp.csr_matrix((arrays["d_value"].astype(np.float64), arrays["d_index"], offsets),
+                         shape=(len(pixel), columns))
+    weight = haar.block_transform(block)[:, slot]  # (b², pixels)
+    q, i = np.nonzero(weight)
+    transform = sp.csr_matrix((weight[q, i], (local[i] * b2 + q, i)),
+                              shape=(len(blocks) * b2, len(pixel)))
+    product = (transform @ rows).tocoo()
+    nonzero = product.data != 0
+    row, index = product.row[nonzero].astype(np.int64), product.col[nonzero].astype(np.int64)
+    value = product.data[nonzero]
+    owner = row // b2
+    group = np.where(index >= haar_length, 0,
+                     np.where((index < COARSE_KEPT) & (row % b2 == 0), 1, 2))
+    # one sort by (block, group, largest first): magnitudes as float32 bit patterns,
+    # which order as the magnitudes do
+    magnitude = np.abs(value).astype(np.float32).view(np.int32).astype(np.int64)
+    order = np.argsort((owner << 34) | (group << 31) | (0x7FFFFFFF - magnitude),
+                       kind="stable")
+    row, index, value, group = row[order], index[order], value[order], group[order]
+    per_block = np.bincount(owner[order], minlength=len(blocks))
+    near = group == 0
+    if budget_rule(params) == "tolerance":
+        keep = kept_counts(per_block, _block_residual(arrays, local, len(blocks)), value,
+                           float(params["truncate.tolerance"]), near, group == 1)
+    else:
+        pixels_with_rows = np.bincount(local, weights=count > 0, minlength=len(blocks))
+        near_count = np.bincount(row // b2, weights=near, minlength=len(blocks))
+        keep = (near_count + int(params["truncate.d_coefficients"]) * pixels_with_rows
+                ).astype(np.int64)
+    start = np.concatenate([[0], np.cumsum(per_block)[:-1]])
+    kept = np.arange(len(row)) - np.repeat(start, per_block) < np.repeat(keep, per_block)
+    row, index, value = row[kept], index[kept], value[kept]
+    within = np.argsort(row, kind="stable")  # each row's entries in the block's order
+    row, index, value = row[within], index[within], value[within]
+    counts = np.bincount(row, minlength=len(blocks) * b2).astype(np.int32)
+    scale, half = quantise_values(counts, value)
+    all_rows = np.arange(len(blocks) * b2)
+    return {"d_row": (blocks[all_rows // b2] * b2 + all_rows % b2).astype(np.int32),
+            "d_count": counts, "d_index": index.astype(np.int32), "d_value": half,
+            "d_scale": scale}
+
+
+def _block_residual(arrays: dict[str, np.ndarray], local: np.ndarray, blocks: int
+                    ) -> np.ndarray:
+    """Per block, the energy the transfer stage dropped from its pixels' rows over their
+    full energy, rooted (as each row's ``residual``; the block transform keeps energy)."""
+    count = arrays["d_count"].astype(np.int64)
+    row = np.repeat(np.arange(len(count)), count)
+    kept = np.bincount(row, weights=np.square(arrays["d_value"].astype(np.float64)),
+                       minlength=len(count))
+    residual2 = np.square(arrays["d_residual"].astype(np.float64))
+    full = kept / np.maximum(1.0 - residual2, 1e-12)
+    dropped = np.bincount(local, weights=full * residual2, minlength=blocks)
+    total = np.bincount(local, weights=full, minlength=blocks)
+    return np.sqrt(dropped / np.maximum(total, 1e-300)).astype(np.float32)
 
 
 def _proportional_t(ctx: ChunkContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
@@ -158,4 +259,5 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
         "budget": ctx.params["truncate.budget"],
         "tolerance": float(ctx.params["truncate.tolerance"]),
         "coefficients": int(ctx.params["truncate.coefficients"]),
-        "d_coefficients": int(ctx.params["truncate.d_coefficients"])})
+        "d_coefficients": int(ctx.params["truncate.d_coefficients"]),
+        "d_block": int(ctx.params["truncate.d_block"])})

@@ -1,8 +1,8 @@
 """Stage ``d2i.truncate_ms``: cut the stored Haar rows of the bounce matrix Ms down to the
 renderer's budgets, by the rules of ``d2i.truncate`` (pipeline/stages/truncate.py:
-``truncate.budget``, ``truncate.tolerance``, ``truncate.coefficients``; near entries
-always kept). One chunk per block of gather rows of the bounce stage, each reading only
-its twin block. Schema ``compressed_bounce``.
+``truncate.budget``, ``truncate.tolerance``, and ``truncate.ms_coefficients`` per row
+for the proportional rule; near entries always kept). One chunk per block of gather
+rows of the bounce stage, each reading only its twin block. Schema ``compressed_bounce``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     """The block's Ms rows, cut."""
     bounce = ctx.inputs["d2i.bounce"]
     arrays = {n: bounce.read_piece(n, ctx.chunk.id) for n in bounce.names}
-    return cut_to_budget(ctx.params, "ms", arrays, _haar_length(ctx))
+    budget = np.full(len(arrays["ms_count"]), int(ctx.params["truncate.ms_coefficients"]))
+    return cut_to_budget(ctx.params, "ms", arrays, _haar_length(ctx), budget)
 
 
 def layout(ctx: AssembleContext) -> Layout:
@@ -38,4 +39,4 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
         "haar_length": _haar_length(ctx),
         "budget": ctx.params["truncate.budget"],
         "tolerance": float(ctx.params["truncate.tolerance"]),
-        "coefficients": int(ctx.params["truncate.coefficients"])})
+        "coefficients": int(ctx.params["truncate.ms_coefficients"])})
