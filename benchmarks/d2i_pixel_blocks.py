@@ -1,5 +1,5 @@
 """Study: D's truncation per pixel row (paper 000) against per block of b × b pixels
-(pipeline/stages/truncate.py cut_blocks, the rows transformed across the block first),
+(pipeline/stages/truncate.py cut_pixel_blocks, the rows transformed across the block first),
 at equal budgets per pixel. From a baked scene's transfer rows (the near-lossless rows
 before the cut) and the radiance vector of its full frame (direct light and every
 bounce, as the renderer's products read it), per budget and block size: entries kept,
@@ -30,7 +30,7 @@ from pipeline.method import get_method  # noqa: E402
 from pipeline.render.d2i import D2iRenderer  # noqa: E402
 from pipeline.rows import expand_values  # noqa: E402
 from pipeline.scene import default_scene_path, load_scene  # noqa: E402
-from pipeline.stages.truncate import cut_blocks  # noqa: E402
+from pipeline.stages.truncate import cut_pixel_blocks  # noqa: E402
 from pipeline.store import open_artifact  # noqa: E402
 
 
@@ -84,12 +84,13 @@ def main() -> None:
             stored = np.zeros((blocks * block * block, 3))
             entries = 0
             for tile in tiles:
-                cut = cut_blocks(params, tile, haar_length, columns, width, block)
+                cut = cut_pixel_blocks(params, tile, haar_length, columns, width, block)
                 value = expand_values(cut["d_count"], cut["d_value"], cut["d_scale"])
                 stored[cut["d_row"]] = products(cut["d_count"], cut["d_index"], value,
                                                 radiance)
                 entries += int(cut["d_count"].sum())
-            got = haar.unblock(stored, width, height, block)
+            ids, slot = haar.pixel_blocks(np.arange(width * height), width, block)
+            got = haar.unblock(stored, ids, slot, haar.block_transform(block))
             error = np.sqrt(np.mean((got[seen] - exact[seen]) ** 2) / np.mean(exact[seen] ** 2))
             row = {"budget": budget, "block": block, "entries": entries,
                    "entries_per_pixel": entries / seen.sum(), "rel_rmse": float(error),

@@ -31,24 +31,22 @@ __kernel void combine(__global const float* direct, __global const float4* dl,
     vstore3(rgb, p, out);
 }
 
-/* D L per pixel from the products of D's rows over pixel blocks (pipeline/math/haar.py,
- * unblock is the NumPy twin): pixel (x, y) is slot s = (y % b) * b + x % b of block
- * (y / b) * ceil(width / b) + x / b, and its value is sum_q B[q][s] * blocks[block * b^2 + q]
- * with B (b^2 x b^2, row-major) the orthonormal 2D Haar transform of a block. */
+/* Per item (a pixel's D L, a gather sample's Ms product) its own row's product, from the
+ * products of rows transformed across blocks of n items (pipeline/math/haar.py, unblock is
+ * the NumPy twin): out[i] = sum_q transform[q][slot[i]] * blocks[block_of[i] * n + q],
+ * transform (n x n, row-major) orthonormal. */
 __kernel void unblock(__global const float4* blocks, __global const float* transform,
-                      const int block, const int width, const int npix, __global float4* dl)
+                      const int n, __global const int* block_of, __global const int* slot,
+                      const int count, __global float4* out)
 {
-    int p = get_global_id(0);
-    if (p >= npix) return;
-    int y = p / width, x = p - y * width;
-    int b2 = block * block;
-    int slot = (y % block) * block + x % block;
-    __global const float4* rows = blocks + ((y / block) * ((width + block - 1) / block)
-                                            + x / block) * b2;
+    int i = get_global_id(0);
+    if (i >= count) return;
+    __global const float4* rows = blocks + block_of[i] * n;
+    __global const float* column = transform + slot[i];
     float4 sum = (float4)(0.0f);
-    for (int q = 0; q < b2; ++q)
-        sum += transform[q * b2 + slot] * rows[q];
-    dl[p] = sum;
+    for (int q = 0; q < n; ++q)
+        sum += column[q * n] * rows[q];
+    out[i] = sum;
 }
 
 /* ---- The bounce loop on the device (pipeline/render/d2i.py, gather_radiance) ----

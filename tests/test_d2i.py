@@ -82,18 +82,23 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
 
 
 def test_unblock_kernel_matches_numpy(baked):
-    """kernels/d2i.cl unblock against pipeline.math.haar.unblock: per pixel the inverse 2D
-    Haar of its block's products (24² pixels in blocks of 4 × 4, as baked). 1e-5 of the
-    largest value: float32 sums of 16 terms against float64."""
+    """kernels/d2i.cl unblock against pipeline.math.haar.unblock: per item the inverse Haar
+    transform of its block's products — D (24² pixels in blocks of 4 × 4, as baked) and
+    Ms (gather samples in blocks of 16 consecutive ones). 1e-5 of the largest value:
+    float32 sums of 16 terms against float64."""
     import pyopencl
 
     scene, _, renderer = baked
-    assert renderer.d_block == 4 and renderer.d.count == 36 * 16
-    blocks = np.random.default_rng(5).normal(size=(renderer.d.count, 4)).astype(np.float32)
-    out, _ = renderer.unblock(cl.read_only_buffer(blocks))
-    got = np.empty((SIZE * SIZE, 4), np.float32)
-    pyopencl.enqueue_copy(renderer.queue, got, out)
-    _close(got, haar.unblock(blocks.astype(np.float64), SIZE, SIZE, 4))
+    rng = np.random.default_rng(5)
+    for name, rows, items in (("d", renderer.d, SIZE * SIZE),
+                              ("ms", renderer.ms, GATHERS)):
+        block_of, slot, transform = renderer.blocks[name]
+        assert len(transform) == 16 and len(block_of) == items
+        blocks = rng.normal(size=(rows.count, 4)).astype(np.float32)
+        out, _ = renderer.unblock(name, cl.read_only_buffer(blocks))
+        got = np.empty((items, 4), np.float32)
+        pyopencl.enqueue_copy(renderer.queue, got, out)
+        _close(got, haar.unblock(blocks.astype(np.float64), block_of, slot, transform))
 
 
 def test_sparse_product_and_combination_kernels_match_numpy(baked):
@@ -319,7 +324,7 @@ def test_device_bounce_loop_equals_its_numpy_twin(baked, monkeypatch):
         vec = three.to_haar(bounce).astype(np.float64)
         product = np.zeros((three.ms.count, 3))
         np.add.at(product, row, three.ms.values()[:, None] * vec[three.ms.index, :3])
-        bounce = kd * product
+        bounce = kd * haar.unblock(product, *three.blocks["ms"])
         total += bounce
     _close(got, three.to_haar(total))
 
@@ -367,8 +372,8 @@ def test_device_shadow_rays_give_embree_s_frame(baked):
 def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     """The truncate stage's proportional rule: every block of D's rows (4 × 4 pixels)
     keeps its near entries and at most ``truncate.d_coefficients`` Haar coefficients per
-    pixel with a row, T row b0 at most ``truncate.coefficients``, every Ms row at most
-    ``truncate.ms_coefficients``, T rows
+    pixel with a row, T row b0 at most ``truncate.coefficients``, every block of Ms's
+    rows (16 gather samples) at most ``truncate.ms_coefficients`` per row, T rows
     b_j (j ≥ 1) no more than b0's budget; and a D budget of its own changes D only (T's
     stored rows are byte-identical)."""
     from pipeline.math.haar import pixel_blocks
@@ -398,9 +403,10 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     pixels_with_rows = np.bincount(block, weights=transfer.read("d_count") > 0)
     d_count, d_far = per_block("d2i.truncate")
     t_count, t_far, t_before = rows("d2i.truncate", "t")
-    ms_count, ms_far, _ = rows("d2i.truncate_ms", "ms")
+    ms_count, ms_far, ms_stored = rows("d2i.truncate_ms", "ms")
+    ms_far_per_block = np.bincount(ms_stored["ms_row"] // 16, weights=ms_far)
     assert np.all(d_far <= 40 * pixels_with_rows) and np.any(d_far == 40 * pixels_with_rows)
-    assert t_far.max() == 40 and ms_far.max() == 40
+    assert t_far.max() == 40 and ms_far_per_block.max() == 40 * 16
     job.bake(scene.with_settings({"truncate.d_coefficients": 12}), workdir, quiet=True)
     d_count_small, d_far_small = per_block("d2i.truncate")
     _, _, t_after = rows("d2i.truncate", "t")

@@ -214,6 +214,12 @@ def _stored(cut, columns):
     return _dense({"count": cut["d_count"], "index": cut["d_index"], "value": value}, columns)
 
 
+def _unblock_pixels(products, width, height, block=4):
+    """Each pixel's product from the products of its block's rows."""
+    ids, slot = haar.pixel_blocks(np.arange(width * height), width, block)
+    return haar.unblock(products, ids, slot, haar.block_transform(block))
+
+
 def _exact(rows, columns):
     return _dense({k: rows[f"d_{k}"] for k in ("count", "index", "value")}, columns)
 
@@ -233,23 +239,22 @@ def test_block_transform_is_orthonormal_and_unblock_inverts_it(block):
     grouped = np.zeros((blocks, block * block, 3))
     grouped[ids, slot] = products
     transformed = np.einsum("qs,bsc->bqc", b, grouped).reshape(-1, 3)
-    np.testing.assert_allclose(haar.unblock(transformed, width, height, block), products,
-                               atol=1e-13)
+    np.testing.assert_allclose(haar.unblock(transformed, ids, slot, b), products, atol=1e-13)
 
 
-def test_cut_blocks_of_one_pixel_cut_as_rows_do_and_wide_budgets_keep_everything():
-    """pipeline/stages/truncate.py cut_blocks: with blocks of one pixel it keeps exactly
+def test_cut_pixel_blocks_of_one_pixel_cut_as_rows_do_and_wide_budgets_keep_everything():
+    """pipeline/stages/truncate.py cut_pixel_blocks: with blocks of one pixel it keeps exactly
     what cut_to_budget keeps per row (same counts, same entries); with blocks of 4 × 4
     and a budget above every block's entry count, the stored block rows unblock to the
     pixels' rows within float16 rounding (2^-11 of the largest value)."""
-    from pipeline.stages.truncate import cut_blocks, cut_to_budget
+    from pipeline.stages.truncate import cut_pixel_blocks, cut_to_budget
 
     width, height, length = 12, 8, 64
     rows = _pixel_rows(np.random.default_rng(7), width, height, length, 60)
     columns = length + 60
     params = {"truncate.budget": "proportional", "truncate.d_coefficients": 20,
               "truncate.tolerance": 0.0}
-    single = cut_blocks(params, rows, length, columns, width, 1)
+    single = cut_pixel_blocks(params, rows, length, columns, width, 1)
     per_row = cut_to_budget(params, "d", rows, length,
                             np.full(len(rows["d_count"]), 20))
     np.testing.assert_array_equal(single["d_row"], rows["d_pixel"])
@@ -257,18 +262,18 @@ def test_cut_blocks_of_one_pixel_cut_as_rows_do_and_wide_budgets_keep_everything
     np.testing.assert_array_equal(_stored(single, columns), _stored(per_row, columns))
 
     params["truncate.d_coefficients"] = 10 ** 6
-    wide = cut_blocks(params, rows, length, columns, width, 4)
+    wide = cut_pixel_blocks(params, rows, length, columns, width, 4)
     exact = _exact(rows, columns)
-    back = haar.unblock(_stored(wide, columns), width, height, 4)
+    back = _unblock_pixels(_stored(wide, columns), width, height)
     np.testing.assert_allclose(back, exact, rtol=0, atol=2.0 ** -11 * np.abs(exact).max())
 
 
-def test_cut_blocks_keeps_near_entries_and_the_block_budget():
+def test_cut_pixel_blocks_keeps_near_entries_and_the_block_budget():
     """Blocks of 4 × 4: every near entry of the block's pixels is kept (its transform
     spreads it over the block's rows; all of them stay), and the far coefficients kept
     per block are min(available, budget × pixels with a row); the tolerance rule keeps
     a block's dropped energy within tolerance² of its energy."""
-    from pipeline.stages.truncate import cut_blocks
+    from pipeline.stages.truncate import cut_pixel_blocks
 
     width, height, length = 8, 8, 64
     rows = _pixel_rows(np.random.default_rng(3), width, height, length, 60)
@@ -277,7 +282,7 @@ def test_cut_blocks_keeps_near_entries_and_the_block_budget():
     with_rows = np.bincount(ids, weights=rows["d_count"] > 0)
     params = {"truncate.budget": "proportional", "truncate.d_coefficients": 6,
               "truncate.tolerance": 0.0}
-    cut = cut_blocks(params, rows, length, columns, width, 4)
+    cut = cut_pixel_blocks(params, rows, length, columns, width, 4)
     row_block = np.repeat(cut["d_row"] // 16, cut["d_count"])
     far = np.bincount(row_block, weights=cut["d_index"] < length, minlength=4)
     np.testing.assert_array_equal(far, 6 * with_rows)
@@ -286,8 +291,8 @@ def test_cut_blocks_keeps_near_entries_and_the_block_budget():
     assert near_columns == set(cut["d_index"][cut["d_index"] >= length].tolist())
 
     params.update({"truncate.budget": "tolerance", "truncate.tolerance": 0.1})
-    cut = cut_blocks(params, rows, length, columns, width, 4)
-    back = haar.unblock(_stored(cut, columns), width, height, 4)
+    cut = cut_pixel_blocks(params, rows, length, columns, width, 4)
+    back = _unblock_pixels(_stored(cut, columns), width, height)
     for block in range(4):
         mine = ids == block
         dropped = np.sum((back[mine] - exact[mine])[:, :length] ** 2)

@@ -170,13 +170,13 @@ def pixel_blocks(pixel: np.ndarray, width: int, block: int) -> tuple[np.ndarray,
     return (y // block) * (-(-width // block)) + x // block, (y % block) * block + x % block
 
 
-def unblock(products: np.ndarray, width: int, height: int, block: int) -> np.ndarray:
-    """Per pixel (height·width, ...) the products of its own rows, from the products of
-    the block rows (blocks·b², ...) in block-row order (block id · b² + row): each
-    pixel's value is Σ_q B[q, slot] · products[block · b² + q] (the NumPy twin of
-    kernels/d2i.cl ``unblock``)."""
-    ids, slot = pixel_blocks(np.arange(width * height), width, block)
-    b2 = block * block
-    grouped = products.reshape(-1, b2, *products.shape[1:])[ids]  # (pixels, b², ...)
-    weights = block_transform(block)[:, slot].T  # (pixels, b²)
-    return np.einsum("pq,pq...->p...", weights, grouped)
+def unblock(products: np.ndarray, block_of: np.ndarray, slot: np.ndarray,
+            transform: np.ndarray) -> np.ndarray:
+    """Per item i (pixel or gather sample) the product of its own row, from the products
+    of the block rows (blocks · n, ...) in block-row order (block · n + transformed row):
+    Σ_q transform[q, slot[i]] · products[block_of[i] · n + q], transform (n × n)
+    orthonormal (:func:`block_transform`, :func:`matrix`). The NumPy twin of
+    kernels/d2i.cl ``unblock``."""
+    n = len(transform)
+    grouped = products.reshape(-1, n, *products.shape[1:])[block_of]  # (items, n, ...)
+    return np.einsum("iq,iq...->i...", transform[:, slot].T, grouped)

@@ -125,22 +125,29 @@ class D2iRenderer:
         self.gather_area = gather.read("area").astype(np.float64)
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
-        ms = artifacts["d2i.truncate_ms"].read_all()
-        self.ms = Rows.from_counts(ms["ms_count"], ms["ms_index"], ms["ms_value"], self.size,
-                                   ms["ms_scale"])
-        # D and T rows are stored tile by tile: put them in raster order of their pixels
-        # (a pixel's T rows b0..bk stay in order)
+        # Ms and D are stored as rows across blocks of gather samples and of pixels
+        # (pipeline/math/haar.py): their products are unblocked per item (kernel unblock)
+        bounce = artifacts["d2i.truncate_ms"]
+        self.ms = _ordered_rows(bounce.read_all(), "ms", "ms_row", self.size)
+        ms_block = int(bounce.attrs["block"])
+        gathers = np.arange(len(self.gather_area))
+        self.blocks = {"ms": (gathers // ms_block, gathers % ms_block, haar.matrix(ms_block))}
+        # D and T rows are stored tile by tile: D in block-row order, T in raster order of
+        # their pixels (a pixel's T rows b0..bk stay in order)
         stored = transport.read_all()
         self.d = _ordered_rows(stored, "d", "d_row", self.size)
         self.t = _ordered_rows(stored, "t", "t_pixel", self.size)
-        # D's rows are over pixel blocks: the products are unblocked per pixel (unblock)
-        self.d_block = int(transport.attrs["d_block"])
-        blocks = (-(-self.direct.width // self.d_block)
-                  * -(-self.direct.height // self.d_block))
-        if self.d.count != blocks * self.d_block ** 2:
-            raise PrtError(transport.path, f"holds {self.d.count} D rows, expected "
-                           f"{blocks * self.d_block ** 2} ({blocks} blocks of "
-                           f"{self.d_block}² pixels): re-bake d2i.truncate")
+        d_block = int(transport.attrs["d_block"])
+        pixel_block, pixel_slot = haar.pixel_blocks(np.arange(self.direct.width
+                                                              * self.direct.height),
+                                                    self.direct.width, d_block)
+        self.blocks["d"] = (pixel_block, pixel_slot, haar.block_transform(d_block))
+        for name, rows, source in (("ms", self.ms, bounce), ("d", self.d, transport)):
+            block_of, _, transform = self.blocks[name]
+            expected = (int(block_of.max(initial=-1)) + 1) * len(transform)
+            if rows.count != expected:
+                raise PrtError(source.path, f"holds {rows.count} {name} rows, expected "
+                               f"{expected} (blocks of {len(transform)}): re-bake it")
         # float16 values halve the products' value bytes; a GPU converts them for free,
         # PoCL's CPU device element by element (the 400² light edit took 2.1× longer)
         self.half_values = gpu_layout
@@ -288,7 +295,9 @@ class D2iRenderer:
             kernel_ms += self.radiance_vector(bounce)
             _, ms = self._sparse("ms", self.ms, read=False)
             kernel_ms, product_ms = kernel_ms + ms, product_ms + ms
-            kernel_ms += cl.run(step, g, self.buffers["ms"]["out"], self.gather_buffers["material"],
+            per_gather, ms = self.unblock("ms", self.buffers["ms"]["out"])
+            kernel_ms += ms
+            kernel_ms += cl.run(step, g, per_gather, self.gather_buffers["material"],
                                 albedo_buffer, self.gather_buffers["area"], np.int32(g), bounce,
                                 total, out=partial, out_buffer=partial_buffer,
                                 local=BOUNCE_GROUP)
@@ -353,23 +362,27 @@ class D2iRenderer:
         _, ms_d = self._sparse("d", self.d, read=False)
         name, rows = ("t", self.t) if frozen is None else ("frozen", frozen)
         _, ms_t = self._sparse(name, rows, read=False)
-        dl, ms_unblock = self.unblock(self.buffers["d"]["out"])
+        dl, ms_unblock = self.unblock("d", self.buffers["d"]["out"])
         return dl, self.buffers[name]["out"], ms_d + ms_t, ms_unblock
 
-    def unblock(self, block_products: Any) -> tuple[Any, float]:
-        """Per pixel D L (device buffer, pixels × float4) from the products of D's block
-        rows (kernel ``unblock``, twin pipeline.math.haar.unblock); kernel ms. Blocks of
-        one pixel are the pixels' own rows: returned as they are."""
-        if self.d_block == 1:
+    def unblock(self, name: str, block_products: Any) -> tuple[Any, float]:
+        """Per item (pixel for ``d``, gather sample for ``ms``) its own row's product
+        (device buffer, items × float4) from the products of the block rows (kernel
+        ``unblock``, twin pipeline.math.haar.unblock); kernel ms. Blocks of one item are
+        the items' own rows: returned as they are."""
+        block_of, slot, transform = self.blocks[name]
+        if len(transform) == 1:
             return block_products, 0.0
-        if "block_transform" not in self.static:
-            self.static["block_transform"] = cl.read_only_buffer(
-                haar.block_transform(self.d_block).astype(np.float32))
-        npix = len(self.direct.material_id)
-        out = cl.scratch_buffer(self.work, "dl", 16 * npix)
-        ms = cl.run(cl.kernel("d2i.cl", "unblock"), npix, block_products,
-                    self.static["block_transform"], np.int32(self.d_block),
-                    np.int32(self.direct.width), np.int32(npix), out=None, out_buffer=out)
+        key = f"unblock_{name}"
+        if key not in self.static:
+            self.static[key] = tuple(cl.read_only_buffer(a) for a in (
+                transform.astype(np.float32), block_of.astype(np.int32),
+                slot.astype(np.int32)))
+        transform_buffer, block_buffer, slot_buffer = self.static[key]
+        out = cl.scratch_buffer(self.work, key, 16 * max(len(block_of), 1))
+        ms = cl.run(cl.kernel("d2i.cl", "unblock"), len(block_of), block_products,
+                    transform_buffer, np.int32(len(transform)), block_buffer, slot_buffer,
+                    np.int32(len(block_of)), out=None, out_buffer=out)
         return out, ms
 
     def coefficients(self, scene: Scene) -> np.ndarray:

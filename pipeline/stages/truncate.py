@@ -34,7 +34,7 @@ the mean: the pixel's D L fell from 1.27 to 0.006 (a black pixel; Tableau, 128²
     storage on the Cornell box, the Tableau and the Still-life (NOTES.md, issue 19).
 
 D is cut per block of ``truncate.d_block``² pixels rather than per row
-(:func:`cut_blocks`): the block's rows are first transformed across its pixels (2D
+(:func:`cut_pixel_blocks`): the block's rows are first transformed across its pixels (2D
 Haar, pipeline/math/haar.py) into a mean row and difference rows, and the rules above
 apply to all the block's entries together (budget: per pixel × the pixels that have a
 row). Neighbouring pixels' rows are nearly equal, so the difference rows are small and
@@ -146,45 +146,60 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     if block < 1 or block & (block - 1) or tile % block:
         raise PrtError(None, f"truncate.d_block = {block}: expected a power of two that "
                        f"divides transfer.tile = {tile}")
-    out = cut_blocks(ctx.params, arrays, haar_length,
-                     haar_length + int(transfer.attrs["gather_count"]),
-                     int(ctx.scene["camera"]["width"]), block)
+    out = cut_pixel_blocks(ctx.params, arrays, haar_length,
+                           haar_length + int(transfer.attrs["gather_count"]),
+                           int(ctx.scene["camera"]["width"]), block)
     out.update(cut_to_budget(ctx.params, "t", arrays, haar_length, _proportional_t(ctx, arrays)))
     out["t_pixel"] = arrays["t_pixel"]
     return out
 
 
-def cut_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar_length: int,
-               columns: int, width: int, block: int) -> dict[str, np.ndarray]:
-    """The D rows ``d_pixel/_count/_index/_value/_residual`` (one per pixel; ``columns``:
-    the radiance vector's length) transformed over ``block`` × ``block`` pixel blocks
-    (pipeline/math/haar.py: each block's b² rows become its mean row and difference
-    rows) and cut per block, by the rules of :func:`cut_to_budget` applied to all the
-    block's entries at once: its near entries (index ≥ haar_length), then its mean row's
-    ``COARSE_KEPT`` coarsest coefficients, then the rest largest first, to the tolerance
-    (of the block's energy) or to ``truncate.d_coefficients`` per pixel of the block that
-    has a row. Returns rows ``d_row`` (block id · b² + row, every row of the tile's
-    blocks, ascending), ``d_count``, ``d_index``, ``d_value`` (float16) and ``d_scale``.
-    A block of one pixel cuts exactly as :func:`cut_to_budget` cuts a row."""
-    pixel = arrays["d_pixel"].astype(np.int64)
-    count = arrays["d_count"].astype(np.int64)
-    b2 = block * block
-    ids, slot = haar.pixel_blocks(pixel, width, block)
-    blocks, local = np.unique(ids, return_inverse=True)
+def cut_pixel_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar_length: int,
+                     columns: int, width: int, block: int) -> dict[str, np.ndarray]:
+    """D's rows ``d_pixel/_count/_index/_value/_residual`` (one per pixel) transformed
+    over ``block`` × ``block`` pixel blocks (pipeline/math/haar.py block_transform) and
+    cut per block by :func:`cut_blocks` to ``truncate.d_coefficients`` per pixel. Returns
+    rows ``d_row`` (block id · b² + row), ``d_count``, ``d_index``, ``d_value`` (float16)
+    and ``d_scale``."""
+    ids, slot = haar.pixel_blocks(arrays["d_pixel"], width, block)
+    cut = cut_blocks(params, {k: arrays[f"d_{k}"] for k in ("count", "index", "value",
+                                                             "residual")},
+                     ids, slot, haar.block_transform(block), haar_length, columns,
+                     int(params["truncate.d_coefficients"]))
+    return {f"d_{k}": v for k, v in cut.items()}
+
+
+def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np.ndarray,
+               slot: np.ndarray, transform: np.ndarray, haar_length: int, columns: int,
+               budget: int) -> dict[str, np.ndarray]:
+    """CSR ``rows`` (``count``, ``index``, ``value``, ``residual``; ``columns``: the
+    radiance vector's length) grouped into blocks — row r is slot ``slot[r]`` of block
+    ``block_of[r]`` —, each block's rows replaced by ``transform`` (n × n, orthonormal:
+    pipeline/math/haar.py) applied across them, and cut per block by the rules of
+    :func:`cut_to_budget` applied to all the block's entries at once: its near entries
+    (index ≥ haar_length), then its row 0's ``COARSE_KEPT`` coarsest coefficients (row 0
+    is the block's mean), then the rest largest first, to the tolerance (of the block's
+    energy) or to ``budget`` per row of the block that has entries. Returns ``row``
+    (block · n + transformed row: every row of the blocks present, ascending),
+    ``count``, ``index``, ``value`` (float16 over ``scale``, per row) and ``scale``. A
+    block of one row cuts exactly as :func:`cut_to_budget` cuts it."""
+    count = rows["count"].astype(np.int64)
+    n = len(transform)
+    blocks, local = np.unique(block_of, return_inverse=True)
     offsets = np.concatenate([[0], np.cumsum(count)])
-    rows = sp.csr_matrix((arrays["d_value"].astype(np.float64), arrays["d_index"], offsets),
-                         shape=(len(pixel), columns))
-    weight = haar.block_transform(block)[:, slot]  # (b², pixels)
+    matrix = sp.csr_matrix((rows["value"].astype(np.float64), rows["index"], offsets),
+                           shape=(len(count), columns))
+    weight = transform[:, slot]  # (n, rows)
     q, i = np.nonzero(weight)
-    transform = sp.csr_matrix((weight[q, i], (local[i] * b2 + q, i)),
-                              shape=(len(blocks) * b2, len(pixel)))
-    product = (transform @ rows).tocoo()
+    across = sp.csr_matrix((weight[q, i], (local[i] * n + q, i)),
+                           shape=(len(blocks) * n, len(count)))
+    product = (across @ matrix).tocoo()
     nonzero = product.data != 0
     row, index = product.row[nonzero].astype(np.int64), product.col[nonzero].astype(np.int64)
     value = product.data[nonzero]
-    owner = row // b2
+    owner = row // n
     group = np.where(index >= haar_length, 0,
-                     np.where((index < COARSE_KEPT) & (row % b2 == 0), 1, 2))
+                     np.where((index < COARSE_KEPT) & (row % n == 0), 1, 2))
     # one sort by (block, group, largest first): magnitudes as float32 bit patterns,
     # which order as the magnitudes do
     magnitude = np.abs(value).astype(np.float32).view(np.int32).astype(np.int64)
@@ -194,35 +209,34 @@ def cut_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar_lengt
     per_block = np.bincount(owner[order], minlength=len(blocks))
     near = group == 0
     if budget_rule(params) == "tolerance":
-        keep = kept_counts(per_block, _block_residual(arrays, local, len(blocks)), value,
+        keep = kept_counts(per_block, _block_residual(rows, local, len(blocks)), value,
                            float(params["truncate.tolerance"]), near, group == 1)
     else:
-        pixels_with_rows = np.bincount(local, weights=count > 0, minlength=len(blocks))
-        near_count = np.bincount(row // b2, weights=near, minlength=len(blocks))
-        keep = (near_count + int(params["truncate.d_coefficients"]) * pixels_with_rows
-                ).astype(np.int64)
+        rows_with_entries = np.bincount(local, weights=count > 0, minlength=len(blocks))
+        near_count = np.bincount(row // n, weights=near, minlength=len(blocks))
+        keep = (near_count + budget * rows_with_entries).astype(np.int64)
     start = np.concatenate([[0], np.cumsum(per_block)[:-1]])
     kept = np.arange(len(row)) - np.repeat(start, per_block) < np.repeat(keep, per_block)
     row, index, value = row[kept], index[kept], value[kept]
     within = np.argsort(row, kind="stable")  # each row's entries in the block's order
     row, index, value = row[within], index[within], value[within]
-    counts = np.bincount(row, minlength=len(blocks) * b2).astype(np.int32)
+    counts = np.bincount(row, minlength=len(blocks) * n).astype(np.int32)
     scale, half = quantise_values(counts, value)
-    all_rows = np.arange(len(blocks) * b2)
-    return {"d_row": (blocks[all_rows // b2] * b2 + all_rows % b2).astype(np.int32),
-            "d_count": counts, "d_index": index.astype(np.int32), "d_value": half,
-            "d_scale": scale}
+    all_rows = np.arange(len(blocks) * n)
+    return {"row": (blocks[all_rows // n] * n + all_rows % n).astype(np.int32),
+            "count": counts, "index": index.astype(np.int32), "value": half, "scale": scale}
 
 
-def _block_residual(arrays: dict[str, np.ndarray], local: np.ndarray, blocks: int
+def _block_residual(rows: dict[str, np.ndarray], local: np.ndarray, blocks: int
                     ) -> np.ndarray:
-    """Per block, the energy the transfer stage dropped from its pixels' rows over their
-    full energy, rooted (as each row's ``residual``; the block transform keeps energy)."""
-    count = arrays["d_count"].astype(np.int64)
+    """Per block, the energy the transfer stage dropped from its rows over their full
+    energy, rooted (as each row's ``residual``; the transform across a block keeps
+    energy)."""
+    count = rows["count"].astype(np.int64)
     row = np.repeat(np.arange(len(count)), count)
-    kept = np.bincount(row, weights=np.square(arrays["d_value"].astype(np.float64)),
+    kept = np.bincount(row, weights=np.square(rows["value"].astype(np.float64)),
                        minlength=len(count))
-    residual2 = np.square(arrays["d_residual"].astype(np.float64))
+    residual2 = np.square(rows["residual"].astype(np.float64))
     full = kept / np.maximum(1.0 - residual2, 1e-12)
     dropped = np.bincount(local, weights=full * residual2, minlength=blocks)
     total = np.bincount(local, weights=full, minlength=blocks)
