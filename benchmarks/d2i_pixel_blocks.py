@@ -49,9 +49,13 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--budgets", default="500,250,125,64")
     parser.add_argument("--blocks", default="1,2,4,8")
+    parser.add_argument("--scene", type=Path, help="scene file [default: the Cornell box]")
+    parser.add_argument("--pooled", action="store_true",
+                        help="also cut with the budget pooled over each transfer tile "
+                        "(truncate.shared_budget chunk; otherwise per block)")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
-    scene = load_scene(default_scene_path()).with_image_size(args.size, args.size)
+    scene = load_scene(args.scene or default_scene_path()).with_image_size(args.size, args.size)
     workdir = job.workdir_for(scene, args.workdir)
     job.bake(scene, workdir, quiet=True)
     renderer = D2iRenderer(scene, job.method_artifacts(get_method("d2i"), workdir),
@@ -79,11 +83,14 @@ def main() -> None:
     for budget in (int(b) for b in args.budgets.split(",")):
         params = {"truncate.budget": "proportional", "truncate.d_coefficients": budget,
                   "truncate.tolerance": 0.0}
-        for block in (int(b) for b in args.blocks.split(",")):
+        variants = [(int(b), False) for b in args.blocks.split(",")]
+        variants += [(b, True) for b, _ in variants if args.pooled]
+        for block, pooled in variants:
             blocks = -(-width // block) * -(-height // block)
             stored = np.zeros((blocks * block * block, 3))
             entries = 0
             for tile in tiles:
+                params["truncate.shared_budget"] = "chunk" if pooled else "block"
                 cut = cut_pixel_blocks(params, tile, haar_length, columns, width, block)
                 value = expand_values(cut["d_count"], cut["d_value"], cut["d_scale"])
                 stored[cut["d_row"]] = products(cut["d_count"], cut["d_index"], value,
@@ -92,7 +99,7 @@ def main() -> None:
             ids, slot = haar.pixel_blocks(np.arange(width * height), width, block)
             got = haar.unblock(stored, ids, slot, haar.block_transform(block))
             error = np.sqrt(np.mean((got[seen] - exact[seen]) ** 2) / np.mean(exact[seen] ** 2))
-            row = {"budget": budget, "block": block, "entries": entries,
+            row = {"budget": budget, "block": block, "pooled": pooled, "entries": entries,
                    "entries_per_pixel": entries / seen.sum(), "rel_rmse": float(error),
                    "mean_ratio": float(got[seen].sum() / exact[seen].sum())}
             result["cuts"].append(row)

@@ -370,10 +370,10 @@ def test_device_shadow_rays_give_embree_s_frame(baked):
 
 
 def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
-    """The truncate stage's proportional rule: every block of D's rows (4 × 4 pixels)
-    keeps its near entries and at most ``truncate.d_coefficients`` Haar coefficients per
-    pixel with a row, T row b0 at most ``truncate.coefficients``, every block of Ms's
-    rows (16 gather samples) at most ``truncate.ms_coefficients`` per row, T rows
+    """The truncate stage's proportional rule: D's rows (in blocks of 4 × 4 pixels) keep
+    their near entries and ``truncate.d_coefficients`` Haar coefficients per pixel with a
+    row, shared by the tile, T row b0 at most ``truncate.coefficients``, Ms's rows (in
+    blocks of 16 gather samples) ``truncate.ms_coefficients`` per row, T rows
     b_j (j ≥ 1) no more than b0's budget; and a D budget of its own changes D only (T's
     stored rows are byte-identical)."""
     from pipeline.math.haar import pixel_blocks
@@ -404,12 +404,13 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     d_count, d_far = per_block("d2i.truncate")
     t_count, t_far, t_before = rows("d2i.truncate", "t")
     ms_count, ms_far, ms_stored = rows("d2i.truncate_ms", "ms")
-    ms_far_per_block = np.bincount(ms_stored["ms_row"] // 16, weights=ms_far)
-    assert np.all(d_far <= 40 * pixels_with_rows) and np.any(d_far == 40 * pixels_with_rows)
-    assert t_far.max() == 40 and ms_far_per_block.max() == 40 * 16
+    # one transfer tile, one bounce block: their blocks share one budget (the default
+    # truncate.shared_budget), which edge blocks take more of
+    assert d_far.sum() == 40 * pixels_with_rows.sum() and d_far.max() > 40 * 16
+    assert t_far.max() == 40 and ms_far.sum() == 40 * 512
     job.bake(scene.with_settings({"truncate.d_coefficients": 12}), workdir, quiet=True)
     d_count_small, d_far_small = per_block("d2i.truncate")
     _, _, t_after = rows("d2i.truncate", "t")
-    assert np.array_equal(d_far_small, np.minimum(d_far, 12 * pixels_with_rows))
+    assert d_far_small.sum() == 12 * pixels_with_rows.sum()
     assert np.array_equal(d_count_small - d_far_small, d_count - d_far)  # near entries
     assert all(np.array_equal(t_before[n], t_after[n]) for n in t_before)

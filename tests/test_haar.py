@@ -253,7 +253,7 @@ def test_cut_pixel_blocks_of_one_pixel_cut_as_rows_do_and_wide_budgets_keep_ever
     rows = _pixel_rows(np.random.default_rng(7), width, height, length, 60)
     columns = length + 60
     params = {"truncate.budget": "proportional", "truncate.d_coefficients": 20,
-              "truncate.tolerance": 0.0}
+              "truncate.tolerance": 0.0, "truncate.shared_budget": "block"}
     single = cut_pixel_blocks(params, rows, length, columns, width, 1)
     per_row = cut_to_budget(params, "d", rows, length,
                             np.full(len(rows["d_count"]), 20))
@@ -268,11 +268,13 @@ def test_cut_pixel_blocks_of_one_pixel_cut_as_rows_do_and_wide_budgets_keep_ever
     np.testing.assert_allclose(back, exact, rtol=0, atol=2.0 ** -11 * np.abs(exact).max())
 
 
-def test_cut_pixel_blocks_keeps_near_entries_and_the_block_budget():
+@pytest.mark.parametrize("shared", ["block", "chunk"])
+def test_cut_pixel_blocks_keeps_near_entries_and_the_budget(shared):
     """Blocks of 4 × 4: every near entry of the block's pixels is kept (its transform
-    spreads it over the block's rows; all of them stay), and the far coefficients kept
-    per block are min(available, budget × pixels with a row); the tolerance rule keeps
-    a block's dropped energy within tolerance² of its energy."""
+    spreads it over the block's rows; all of them stay); the far coefficients kept are
+    min(available, budget × pixels with a row) per block (``block``) or over all the
+    blocks (``chunk``: then not per block); the tolerance rule keeps the dropped energy
+    within tolerance² of the energy, per block or over the blocks."""
     from pipeline.stages.truncate import cut_pixel_blocks
 
     width, height, length = 8, 8, 64
@@ -281,11 +283,14 @@ def test_cut_pixel_blocks_keeps_near_entries_and_the_block_budget():
     ids, _ = haar.pixel_blocks(rows["d_pixel"], width, 4)
     with_rows = np.bincount(ids, weights=rows["d_count"] > 0)
     params = {"truncate.budget": "proportional", "truncate.d_coefficients": 6,
-              "truncate.tolerance": 0.0}
+              "truncate.tolerance": 0.0, "truncate.shared_budget": shared}
     cut = cut_pixel_blocks(params, rows, length, columns, width, 4)
     row_block = np.repeat(cut["d_row"] // 16, cut["d_count"])
     far = np.bincount(row_block, weights=cut["d_index"] < length, minlength=4)
-    np.testing.assert_array_equal(far, 6 * with_rows)
+    if shared == "block":
+        np.testing.assert_array_equal(far, 6 * with_rows)
+    else:
+        assert far.sum() == 6 * with_rows.sum() and not np.array_equal(far, 6 * with_rows)
     exact = _exact(rows, columns)
     near_columns = set(np.flatnonzero(np.abs(exact[:, length:]).sum(0)) + length)
     assert near_columns == set(cut["d_index"][cut["d_index"] >= length].tolist())
@@ -293,8 +298,8 @@ def test_cut_pixel_blocks_keeps_near_entries_and_the_block_budget():
     params.update({"truncate.budget": "tolerance", "truncate.tolerance": 0.1})
     cut = cut_pixel_blocks(params, rows, length, columns, width, 4)
     back = _unblock_pixels(_stored(cut, columns), width, height)
-    for block in range(4):
-        mine = ids == block
+    groups = [ids == block for block in range(4)] if shared == "block" else [ids >= 0]
+    for mine in groups:
         dropped = np.sum((back[mine] - exact[mine])[:, :length] ** 2)
-        # 0.1² of the block's far energy, plus float16 rounding of what is kept
+        # 0.1² of the far energy, plus float16 rounding of what is kept
         assert dropped <= (0.1 ** 2 + 1e-5) * np.sum(exact[mine][:, :length] ** 2)

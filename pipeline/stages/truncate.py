@@ -39,9 +39,11 @@ Haar, pipeline/math/haar.py) into a mean row and difference rows, and the rules 
 apply to all the block's entries together (budget: per pixel × the pixels that have a
 row). Neighbouring pixels' rows are nearly equal, so the difference rows are small and
 the shared budget buys the mean row many more coefficients than a pixel's row alone
-keeps: on the Cornell box at 128² the block rule at 125 coefficients per pixel erred
-(D L against the transfer stage's rows) 1.4 % with the mean kept to 0.03 %, the per-row
-rule 4.9 % and 3.3 % dark (at 250: 1.7 %, 1.1 % dark; NOTES.md, issue 19, tenth session).
+keeps. ``truncate.shared_budget``: ``chunk`` (the default) pools the budget of all the
+blocks of the tile — the tile keeps its largest entries —, ``block`` gives each block
+its own. On the Cornell box at 128², 125 coefficients per pixel, D L against the
+transfer stage's rows: per row 4.9 % (3.3 % dark), per block 1.4 %, pooled over the
+tile 0.85 % (the mean kept to 0.02 %) (NOTES.md, issue 19, tenth session).
 """
 
 from __future__ import annotations
@@ -97,6 +99,18 @@ def budget_rule(params: dict[str, Any]) -> str:
         raise PrtError(None, f"truncate.budget = {params['truncate.budget']!r}: "
                        f"expected one of {', '.join(BUDGETS)}")
     return params["truncate.budget"]
+
+
+SHARED_BUDGETS = ("chunk", "block")
+
+
+def pooled_budget(params: dict[str, Any]) -> bool:
+    """Whether ``truncate.shared_budget`` pools a chunk's blocks (``chunk``) rather than
+    giving each block its own budget (``block``), checked."""
+    if params["truncate.shared_budget"] not in SHARED_BUDGETS:
+        raise PrtError(None, f"truncate.shared_budget = {params['truncate.shared_budget']!r}"
+                       f": expected one of {', '.join(SHARED_BUDGETS)}")
+    return params["truncate.shared_budget"] == "chunk"
 
 
 def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndarray],
@@ -158,20 +172,20 @@ def cut_pixel_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar
                      columns: int, width: int, block: int) -> dict[str, np.ndarray]:
     """D's rows ``d_pixel/_count/_index/_value/_residual`` (one per pixel) transformed
     over ``block`` × ``block`` pixel blocks (pipeline/math/haar.py block_transform) and
-    cut per block by :func:`cut_blocks` to ``truncate.d_coefficients`` per pixel. Returns
-    rows ``d_row`` (block id · b² + row), ``d_count``, ``d_index``, ``d_value`` (float16)
-    and ``d_scale``."""
+    cut by :func:`cut_blocks` to ``truncate.d_coefficients`` per pixel, the budget shared
+    as ``truncate.shared_budget`` says. Returns rows ``d_row`` (block id · b² + row),
+    ``d_count``, ``d_index``, ``d_value`` (float16) and ``d_scale``."""
     ids, slot = haar.pixel_blocks(arrays["d_pixel"], width, block)
     cut = cut_blocks(params, {k: arrays[f"d_{k}"] for k in ("count", "index", "value",
                                                              "residual")},
                      ids, slot, haar.block_transform(block), haar_length, columns,
-                     int(params["truncate.d_coefficients"]))
+                     int(params["truncate.d_coefficients"]), pooled_budget(params))
     return {f"d_{k}": v for k, v in cut.items()}
 
 
 def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np.ndarray,
                slot: np.ndarray, transform: np.ndarray, haar_length: int, columns: int,
-               budget: int) -> dict[str, np.ndarray]:
+               budget: int, pooled: bool = False) -> dict[str, np.ndarray]:
     """CSR ``rows`` (``count``, ``index``, ``value``, ``residual``; ``columns``: the
     radiance vector's length) grouped into blocks — row r is slot ``slot[r]`` of block
     ``block_of[r]`` —, each block's rows replaced by ``transform`` (n × n, orthonormal:
@@ -179,7 +193,10 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
     :func:`cut_to_budget` applied to all the block's entries at once: its near entries
     (index ≥ haar_length), then its row 0's ``COARSE_KEPT`` coarsest coefficients (row 0
     is the block's mean), then the rest largest first, to the tolerance (of the block's
-    energy) or to ``budget`` per row of the block that has entries. Returns ``row``
+    energy) or to ``budget`` per row of the block that has entries; with ``pooled``, the
+    same over all the blocks at once (the largest entries of all of them, to the budget
+    of all their rows: a block that straddles an edge takes what smooth blocks do not
+    need). Returns ``row``
     (block · n + transformed row: every row of the blocks present, ascending),
     ``count``, ``index``, ``value`` (float16 over ``scale``, per row) and ``scale``. A
     block of one row cuts exactly as :func:`cut_to_budget` cuts it."""
@@ -197,7 +214,7 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
     nonzero = product.data != 0
     row, index = product.row[nonzero].astype(np.int64), product.col[nonzero].astype(np.int64)
     value = product.data[nonzero]
-    owner = row // n
+    owner = np.zeros_like(row) if pooled else row // n
     group = np.where(index >= haar_length, 0,
                      np.where((index < COARSE_KEPT) & (row % n == 0), 1, 2))
     # one sort by (block, group, largest first): magnitudes as float32 bit patterns,
@@ -206,14 +223,16 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
     order = np.argsort((owner << 34) | (group << 31) | (0x7FFFFFFF - magnitude),
                        kind="stable")
     row, index, value, group = row[order], index[order], value[order], group[order]
-    per_block = np.bincount(owner[order], minlength=len(blocks))
+    owners = 1 if pooled else len(blocks)
+    per_block = np.bincount(owner[order], minlength=owners)
     near = group == 0
+    owner_of_row = np.zeros_like(local) if pooled else local
     if budget_rule(params) == "tolerance":
-        keep = kept_counts(per_block, _block_residual(rows, local, len(blocks)), value,
+        keep = kept_counts(per_block, _block_residual(rows, owner_of_row, owners), value,
                            float(params["truncate.tolerance"]), near, group == 1)
     else:
-        rows_with_entries = np.bincount(local, weights=count > 0, minlength=len(blocks))
-        near_count = np.bincount(row // n, weights=near, minlength=len(blocks))
+        rows_with_entries = np.bincount(owner_of_row, weights=count > 0, minlength=owners)
+        near_count = np.bincount(owner[order], weights=near, minlength=owners)
         keep = (near_count + budget * rows_with_entries).astype(np.int64)
     start = np.concatenate([[0], np.cumsum(per_block)[:-1]])
     kept = np.arange(len(row)) - np.repeat(start, per_block) < np.repeat(keep, per_block)

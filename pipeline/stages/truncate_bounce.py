@@ -17,7 +17,7 @@ from pipeline.errors import PrtError
 from pipeline.math import haar
 from pipeline.rows import ROW_CHUNKS
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
-from pipeline.stages.truncate import cut_blocks
+from pipeline.stages.truncate import cut_blocks, pooled_budget
 
 
 def _haar_length(ctx: ChunkContext | AssembleContext) -> int:
@@ -42,7 +42,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     haar_length = _haar_length(ctx)
     columns = haar_length + int(bounce.attrs["gather_count"])
     cut = cut_blocks(ctx.params, rows, gather // size, gather % size, haar.matrix(size),
-                     haar_length, columns, int(ctx.params["truncate.ms_coefficients"]))
+                     haar_length, columns, int(ctx.params["truncate.ms_coefficients"]),
+                     pooled_budget(ctx.params))
     return {f"ms_{k}": v for k, v in cut.items()}
 
 
