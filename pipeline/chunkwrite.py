@@ -112,6 +112,11 @@ def write_chunk(path: Path, schema: Schema, chunk_id: str,
         data = value.data if isinstance(value, Block) else np.ascontiguousarray(value)
         schema.check_array(name, data, f"{path} (chunk {chunk_id})")
         spec = schema.arrays[name]
+        if spec.write != "whole" and name not in group:
+            raise PrtError(path, f"has no array {name!r} of schema {schema.kind} "
+                           f"v{schema.version}: it was begun by a prt whose schema had the "
+                           "same version but other arrays; re-bake the stage with "
+                           "`prt run --force STAGE`")
         if spec.write == "region":
             if not isinstance(value, Block):
                 raise PrtError(path, f"array {name} is written by region: chunk {chunk_id} "

@@ -216,3 +216,26 @@ def test_rebake_command_of_a_view_names_its_size(tmp_path):
     assert rebake_command(view, tmp_path) == "prt run --size 32x16 --force gbuffer"
     own = Problem(tmp_path / "gbuffer.zarr", "depth", "0,0", "bad", "gbuffer")
     assert rebake_command(own, tmp_path) == "prt run --force gbuffer"
+
+
+def test_a_chunk_for_an_array_the_begun_artifact_lacks_is_refused_by_name(tmp_path):
+    """An artifact begun under a schema whose version is the same but whose arrays are
+    not (a schema edited without a version bump) is refused when a chunk writes an array
+    it lacks: a one-line error naming the array and the fix, not zarr's KeyError."""
+    import dataclasses
+
+    from pipeline import chunkwrite
+    from pipeline.schema import load_schema
+
+    schema = load_schema("compressed_bounce")
+    older = dataclasses.replace(schema, arrays={k: v for k, v in schema.arrays.items()
+                                                if k != "ms_row"})
+    workdir = Workdir(tmp_path / "w")
+    path = workdir.artifact("d2i.truncate_ms")
+    chunkwrite.begin(workdir, path, older, {"key": "k", "chunks": ["b0"]}, {}, {})
+    rows = {"ms_row": np.zeros(1, np.int32), "ms_count": np.zeros(1, np.int32),
+            "ms_index": np.zeros(0, np.int32), "ms_value": np.zeros(0, np.float16),
+            "ms_scale": np.ones(1, np.float32)}
+    with pytest.raises(PrtError, match="has no array 'ms_row' of schema compressed_bounce"):
+        chunkwrite.write_chunk(path, schema, "b0", rows, {"row_chunk": 64,
+                                                           "coefficient_chunk": 64})
