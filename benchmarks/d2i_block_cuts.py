@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipeline import job  # noqa: E402
-from pipeline.math import haar  # noqa: E402
+from pipeline.math import blocks, haar  # noqa: E402
 from pipeline.method import get_method  # noqa: E402
 from pipeline.render.d2i import D2iRenderer  # noqa: E402
 from pipeline.rows import expand_values  # noqa: E402
@@ -88,7 +88,7 @@ def study(chunks: list[dict[str, np.ndarray]], items: int, radiance: np.ndarray,
                     stored[cut["row"]] = products(cut["count"], cut["index"], value,
                                                   radiance)
                     entries += int(cut["count"].sum())
-                got = haar.unblock(stored, all_block, all_slot, transform)
+                got = blocks.unblock(stored, all_block, all_slot, transform)
                 error = np.sqrt(np.mean((got[seen] - exact[seen]) ** 2)
                                 / np.mean(exact[seen] ** 2))
                 row = {"budget": budget, "block": size, "pooled": pooled, "entries": entries,
@@ -123,7 +123,7 @@ def main() -> None:
     width = height = args.size
 
     def pixel_grouping(b: int):
-        return lambda pixel: (*haar.pixel_blocks(pixel, width, b), haar.block_transform(b))
+        return lambda pixel: (*blocks.pixel_blocks(pixel, width, b), blocks.block_transform(b))
 
     def gather_grouping(n: int):
         return lambda gather: (gather // n, gather % n, haar.matrix(n))

@@ -32,7 +32,7 @@ __kernel void combine(__global const float* direct, __global const float4* dl,
 }
 
 /* Per item (a pixel's D L, a gather sample's Ms product) its own row's product, from the
- * products of rows transformed across blocks of n items (pipeline/math/haar.py, unblock is
+ * products of rows transformed across blocks of n items (pipeline/math/blocks.py, unblock is
  * the NumPy twin): out[i] = sum_q transform[q][slot[i]] * blocks[block_of[i] * n + q],
  * transform (n x n, row-major) orthonormal. */
 __kernel void unblock(__global const float4* blocks, __global const float* transform,

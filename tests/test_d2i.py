@@ -9,7 +9,7 @@ import pytest
 
 from pipeline import cl, job, metrics
 from pipeline.errors import PrtError
-from pipeline.math import haar
+from pipeline.math.blocks import unblock
 from pipeline.method import get_method
 from pipeline.reference import ReferenceSettings
 from pipeline.render.d2i import D2iRenderer
@@ -82,7 +82,7 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
 
 
 def test_unblock_kernel_matches_numpy(baked):
-    """kernels/d2i.cl unblock against pipeline.math.haar.unblock: per item the inverse Haar
+    """kernels/d2i.cl unblock against pipeline.math.blocks.unblock: per item the inverse Haar
     transform of its block's products — D (24² pixels in blocks of 4 × 4, as baked) and
     Ms (gather samples in blocks of 16 consecutive ones). 1e-5 of the largest value:
     float32 sums of 16 terms against float64."""
@@ -98,7 +98,7 @@ def test_unblock_kernel_matches_numpy(baked):
         out, _ = renderer.unblock(name, cl.read_only_buffer(blocks))
         got = np.empty((items, 4), np.float32)
         pyopencl.enqueue_copy(renderer.queue, got, out)
-        _close(got, haar.unblock(blocks.astype(np.float64), block_of, slot, transform))
+        _close(got, unblock(blocks.astype(np.float64), block_of, slot, transform))
 
 
 def test_sparse_product_and_combination_kernels_match_numpy(baked):
@@ -324,7 +324,7 @@ def test_device_bounce_loop_equals_its_numpy_twin(baked, monkeypatch):
         vec = three.to_haar(bounce).astype(np.float64)
         product = np.zeros((three.ms.count, 3))
         np.add.at(product, row, three.ms.values()[:, None] * vec[three.ms.index, :3])
-        bounce = kd * haar.unblock(product, *three.blocks["ms"])
+        bounce = kd * unblock(product, *three.blocks["ms"])
         total += bounce
     _close(got, three.to_haar(total))
 
@@ -376,7 +376,7 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     blocks of 16 gather samples) ``truncate.ms_coefficients`` per row, T rows
     b_j (j ≥ 1) no more than b0's budget; and a D budget of its own changes D only (T's
     stored rows are byte-identical)."""
-    from pipeline.math.haar import pixel_blocks
+    from pipeline.math.blocks import pixel_blocks
     from pipeline.store import open_artifact
 
     scene = _scene(16).with_settings({"gather.count": 512, "truncate.coefficients": 40,

@@ -128,55 +128,9 @@ def truncate(coefficients: np.ndarray, tolerance: float, cap: int) -> dict[str, 
             "value": values[keep].astype(np.float32), "residual": residual.astype(np.float32)}
 
 
-# ------------------------------------------------------------ Haar over pixel blocks
-#
-# Neighbouring pixels have nearly the same transport rows: a pixel's D row is the smooth
-# geometry term to every gather sample, cut by visibility, and the pixel beside it sees
-# nearly the same. So D is also transformed across pixels (paper 000 cuts each pixel's
-# row alone): the rows of a b × b block of pixels (b a power of two) are replaced by
-# their 2D Haar combinations — the block's mean row and b² − 1 difference rows. In a
-# smooth region the difference rows are small, and a budget of coefficients shared by
-# the block goes to the mean row, which then keeps many more coefficients than one
-# pixel's row could. With the block transform B (orthonormal, b² × b²) and the rows R
-# (b², N): (B R) l = B (R l), so the renderer multiplies the stored rows with the
-# radiance vector as before and applies Bᵀ to each block's b² products — a small
-# per-pixel sum — to get each pixel's R l. Dropped coefficients still err by their
-# energy alone (B is orthonormal), now counted over the block.
-#
-# Slots: pixel (x, y) of the image is slot s = (y mod b)·b + (x mod b) of block
-# (⌊y/b⌋)·⌈width/b⌉ + ⌊x/b⌋; a block on the image's right or bottom edge has slots for
-# pixels outside the image, whose rows are zero.
-
-
 @cache
 def matrix(n: int) -> np.ndarray:
     """The orthonormal Haar transform of length n (a power of two) as an (n, n) float64
-    matrix W in the standard layout: W @ x == forward(x)."""
+    matrix W in the standard layout: W @ x == forward(x) (pipeline/math/blocks.py applies
+    it across blocks of neighbouring rows)."""
     return forward(np.eye(n)).T
-
-
-@cache
-def block_transform(block: int) -> np.ndarray:
-    """B (b², b²) float64, the orthonormal 2D Haar transform of a b × b pixel block:
-    B[i·b + j, y·b + x] = W[i, y] W[j, x] (the tensor product W ⊗ W); row 0 is the
-    block's mean (times b), the rest its differences at every scale."""
-    w = matrix(block)
-    return np.kron(w, w)
-
-
-def pixel_blocks(pixel: np.ndarray, width: int, block: int) -> tuple[np.ndarray, np.ndarray]:
-    """(block id, slot) of each pixel id y·width + x (int64 arrays)."""
-    y, x = np.divmod(np.asarray(pixel, np.int64), width)
-    return (y // block) * (-(-width // block)) + x // block, (y % block) * block + x % block
-
-
-def unblock(products: np.ndarray, block_of: np.ndarray, slot: np.ndarray,
-            transform: np.ndarray) -> np.ndarray:
-    """Per item i (pixel or gather sample) the product of its own row, from the products
-    of the block rows (blocks · n, ...) in block-row order (block · n + transformed row):
-    Σ_q transform[q, slot[i]] · products[block_of[i] · n + q], transform (n × n)
-    orthonormal (:func:`block_transform`, :func:`matrix`). The NumPy twin of
-    kernels/d2i.cl ``unblock``."""
-    n = len(transform)
-    grouped = products.reshape(-1, n, *products.shape[1:])[block_of]  # (items, n, ...)
-    return np.einsum("iq,iq...->i...", transform[:, slot].T, grouped)

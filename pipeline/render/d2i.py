@@ -19,10 +19,10 @@ samples and the G-buffer:
    loop runs on the device (kernels/d2i.cl: the Haar transform level by level, the
    product, the bounce step); the host reads back only the stopping rule's sums;
 4. per pixel: D L and T_j L as sparse products (kernels/sparse_rows.cl; on a GPU with
-   values float16 over a per-row scale, as stored) with W (|A| ⊙ L) (and, for a row's near entries,
-   with |A| ⊙ L itself) — D's rows are stored over blocks of pixels (pipeline/math/haar.py,
-   "Haar over pixel blocks"), so their products are unblocked per pixel (kernel
-   ``unblock``) —, then (kernels/d2i.cl) I = direct + kd ⊙ D L + ρs ⊙ max(0,
+   values float16 over a per-row scale, as stored) with W (|A| ⊙ L) (and, for a row's
+   near entries, with |A| ⊙ L itself) — D's rows (and in step 3 Ms's) are stored across
+   blocks of neighbours (pipeline/math/blocks.py), so their products are unblocked per
+   item (kernel ``unblock``) —, then (kernels/d2i.cl) I = direct + kd ⊙ D L + ρs ⊙ max(0,
    Σ_j c_j(γ) T_j L), with c_0 = 1 (the mean b0); every term stays in device buffers
    and the frame is read back once.
 
@@ -54,6 +54,7 @@ import numpy as np
 from pipeline import cl
 from pipeline.errors import PrtError
 from pipeline.math import haar
+from pipeline.math.blocks import block_transform, pixel_blocks
 from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
 from pipeline.math.brdf_pca import read_basis
 from pipeline.math.lights import LIGHT_FLOATS, light_defines, total_samples
@@ -126,7 +127,7 @@ class D2iRenderer:
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
         # Ms and D are stored as rows across blocks of gather samples and of pixels
-        # (pipeline/math/haar.py): their products are unblocked per item (kernel unblock)
+        # (pipeline/math/blocks.py): their products are unblocked per item (kernel unblock)
         bounce = artifacts["d2i.truncate_ms"]
         self.ms = _ordered_rows(bounce.read_all(), "ms", "ms_row", self.size)
         ms_block = int(bounce.attrs["block"])
@@ -138,10 +139,10 @@ class D2iRenderer:
         self.d = _ordered_rows(stored, "d", "d_row", self.size)
         self.t = _ordered_rows(stored, "t", "t_pixel", self.size)
         d_block = int(transport.attrs["d_block"])
-        pixel_block, pixel_slot = haar.pixel_blocks(np.arange(self.direct.width
+        pixel_block, pixel_slot = pixel_blocks(np.arange(self.direct.width
                                                               * self.direct.height),
                                                     self.direct.width, d_block)
-        self.blocks["d"] = (pixel_block, pixel_slot, haar.block_transform(d_block))
+        self.blocks["d"] = (pixel_block, pixel_slot, block_transform(d_block))
         for name, rows, source in (("ms", self.ms, bounce), ("d", self.d, transport)):
             block_of, _, transform = self.blocks[name]
             expected = (int(block_of.max(initial=-1)) + 1) * len(transform)
@@ -368,7 +369,7 @@ class D2iRenderer:
     def unblock(self, name: str, block_products: Any) -> tuple[Any, float]:
         """Per item (pixel for ``d``, gather sample for ``ms``) its own row's product
         (device buffer, items × float4) from the products of the block rows (kernel
-        ``unblock``, twin pipeline.math.haar.unblock); kernel ms. Blocks of one item are
+        ``unblock``, twin pipeline.math.blocks.unblock); kernel ms. Blocks of one item are
         the items' own rows: returned as they are."""
         block_of, slot, transform = self.blocks[name]
         if len(transform) == 1:

@@ -35,7 +35,7 @@ the mean: the pixel's D L fell from 1.27 to 0.006 (a black pixel; Tableau, 128²
 
 D is cut per block of ``truncate.d_block``² pixels rather than per row
 (:func:`cut_pixel_blocks`): the block's rows are first transformed across its pixels (2D
-Haar, pipeline/math/haar.py) into a mean row and difference rows, and the rules above
+Haar, pipeline/math/blocks.py) into a mean row and difference rows, and the rules above
 apply to all the block's entries together (budget: per pixel × the pixels that have a
 row). Neighbouring pixels' rows are nearly equal, so the difference rows are small and
 the shared budget buys the mean row many more coefficients than a pixel's row alone
@@ -54,7 +54,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pipeline.errors import PrtError
-from pipeline.math import haar
+from pipeline.math.blocks import block_transform, pixel_blocks
 from pipeline.rows import ROW_CHUNKS, cut_rows, quantise_values
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
@@ -171,14 +171,14 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
 def cut_pixel_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar_length: int,
                      columns: int, width: int, block: int) -> dict[str, np.ndarray]:
     """D's rows ``d_pixel/_count/_index/_value/_residual`` (one per pixel) transformed
-    over ``block`` × ``block`` pixel blocks (pipeline/math/haar.py block_transform) and
+    over ``block`` × ``block`` pixel blocks (pipeline/math/blocks.py block_transform) and
     cut by :func:`cut_blocks` to ``truncate.d_coefficients`` per pixel, the budget shared
     as ``truncate.shared_budget`` says. Returns rows ``d_row`` (block id · b² + row),
     ``d_count``, ``d_index``, ``d_value`` (float16) and ``d_scale``."""
-    ids, slot = haar.pixel_blocks(arrays["d_pixel"], width, block)
+    ids, slot = pixel_blocks(arrays["d_pixel"], width, block)
     cut = cut_blocks(params, {k: arrays[f"d_{k}"] for k in ("count", "index", "value",
                                                              "residual")},
-                     ids, slot, haar.block_transform(block), haar_length, columns,
+                     ids, slot, block_transform(block), haar_length, columns,
                      int(params["truncate.d_coefficients"]), pooled_budget(params))
     return {f"d_{k}": v for k, v in cut.items()}
 
@@ -189,7 +189,7 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
     """CSR ``rows`` (``count``, ``index``, ``value``, ``residual``; ``columns``: the
     radiance vector's length) grouped into blocks — row r is slot ``slot[r]`` of block
     ``block_of[r]`` —, each block's rows replaced by ``transform`` (n × n, orthonormal:
-    pipeline/math/haar.py) applied across them, and cut per block by the rules of
+    pipeline/math/blocks.py) applied across them, and cut per block by the rules of
     :func:`cut_to_budget` applied to all the block's entries at once: its near entries
     (index ≥ haar_length), then its row 0's ``COARSE_KEPT`` coarsest coefficients (row 0
     is the block's mean), then the rest largest first, to the tolerance (of the block's
