@@ -38,8 +38,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from bench_cores import ROOT, prt, quiet_prt, scene_copy, scene_file, stage_seconds
+from bench_cores import ROOT, prt, quiet_prt, scene_copy, stage_seconds
 
+from pipeline.scene import default_scene_path
 from pipeline.store import read_record
 
 CONFIGS = ["1x1", "1x2", "local:2", "2x1"]
@@ -57,8 +58,8 @@ def cases(folder: Path, settings: dict[str, Any]) -> list[dict[str, Any]]:
     """The method, scene arguments and heaviest stage of each case; ``settings``: stage
     parameters over the scenes' own (smaller chunks for many workers, say)."""
     scenes = ROOT / "scenes"
-    cornell = scene_copy(scene_file(folder, 128), folder / "cornell_box_128.yaml",
-                         settings=settings)
+    cornell = scene_copy(default_scene_path(), folder / "cornell_box_128.yaml", 128,
+                         settings)
     grace = scene_copy(scenes / "bunny_grace.yaml", folder / "bunny_grace.yaml",
                        settings=settings)
     sg = scene_copy(scenes / "bunny_sg_coarse.yaml", folder / "bunny_sg_coarse.yaml",

@@ -1,5 +1,6 @@
 """Chart: d2i's indirect error against D's storage, D cut per pixel row (paper 000's
-proportional budget) and across 4 × 4 pixel blocks (truncate.d_block 4), from the
+proportional budget) and across 4 × 4 pixel blocks (truncate.d_block 4, a budget per
+block: truncate.shared_budget block), from the
 summaries of two d2i_accuracy.py sweeps over truncate.d_coefficients (Cornell box 128²,
 16k gathers, references at 1024 spp; noise-corrected errors).
 
@@ -19,7 +20,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "d2i_accuracy" / "issue19"
-CURVES = {"d_budget": "per pixel row (paper 000)", "d_blocks": "across 4 × 4 pixel blocks"}
+CURVES = {"d_budget": "per pixel row (paper 000)",
+          "d_blocks": "across 4 × 4 pixel blocks (a budget per block)"}
 
 
 def main() -> None:

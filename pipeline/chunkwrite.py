@@ -112,25 +112,32 @@ def write_chunk(path: Path, schema: Schema, chunk_id: str,
         data = value.data if isinstance(value, Block) else np.ascontiguousarray(value)
         schema.check_array(name, data, f"{path} (chunk {chunk_id})")
         spec = schema.arrays[name]
-        if spec.write != "whole" and name not in group:
-            raise PrtError(path, f"has no array {name!r} of schema {schema.kind} "
-                           f"v{schema.version}: it was begun by a prt whose schema had the "
-                           "same version but other arrays; re-bake the stage with "
-                           "`prt run --force STAGE`")
         if spec.write == "region":
             if not isinstance(value, Block):
                 raise PrtError(path, f"array {name} is written by region: chunk {chunk_id} "
                                "must return a Block")
-            target = group[name]
+            target = _begun(group, name, path, schema)
             index = tuple(slice(s, s + n) for s, n in
                           zip(value.start, data.shape[:len(value.start)], strict=True))
             target[index] = data
         elif spec.write == "segments":
-            _write_whole(group[name], segment_name(chunk_id), data, spec.dims,
-                         _zarr_chunks(schema, name, data.shape, sizes))
+            _write_whole(_begun(group, name, path, schema), segment_name(chunk_id), data,
+                         spec.dims, _zarr_chunks(schema, name, data.shape, sizes))
         else:
             _write_whole(group, name, data, spec.dims,
                          _zarr_chunks(schema, name, data.shape, sizes))
+
+
+def _begun(group: Any, name: str, path: Path, schema: Schema) -> Any:
+    """Array or segment group ``name`` of the artifact begun by :func:`begin`; a one-line
+    refusal if it lacks it (begun under a schema of the same version with other arrays)."""
+    try:
+        return group[name]
+    except KeyError:
+        raise PrtError(path, f"has no array {name!r} of schema {schema.kind} "
+                       f"v{schema.version}: it was begun by a prt whose schema had the same "
+                       "version but other arrays; re-bake the stage with "
+                       "`prt run --force STAGE`") from None
 
 
 def _write_whole(group: Any, name: str, data: np.ndarray, dims: tuple[str, ...],

@@ -138,3 +138,17 @@ def test_cut_pixel_blocks_keeps_near_entries_and_the_budget(shared):
         dropped = np.sum((back[mine] - exact[mine])[:, :length] ** 2)
         # 0.1² of the far energy, plus float16 rounding of what is kept
         assert dropped <= (0.1 ** 2 + 1e-5) * np.sum(exact[mine][:, :length] ** 2)
+
+
+def test_block_sizes_must_be_powers_of_two_within_a_chunk():
+    """truncate.d_block and truncate.ms_block: a power of two dividing the chunk's edge or
+    length (no block may straddle two chunks), else a one-line refusal naming both."""
+    from pipeline.errors import PrtError
+    from pipeline.stages.truncate import block_size
+
+    params = {"truncate.d_block": 4, "transfer.tile": 32}
+    assert block_size(params, "truncate.d_block", "transfer.tile") == 4
+    for bad in (3, 64, 0):
+        params["truncate.d_block"] = bad
+        with pytest.raises(PrtError, match=r"truncate.d_block = .*transfer.tile = 32"):
+            block_size(params, "truncate.d_block", "transfer.tile")

@@ -101,6 +101,16 @@ def budget_rule(params: dict[str, Any]) -> str:
     return params["truncate.budget"]
 
 
+def block_size(params: dict[str, Any], name: str, chunk: str) -> int:
+    """Parameter ``name``, the edge or length of a block of neighbours, checked: a power
+    of two that divides parameter ``chunk`` (so that no block straddles two chunks)."""
+    size, of = int(params[name]), int(params[chunk])
+    if size < 1 or size & (size - 1) or of % size:
+        raise PrtError(None, f"{name} = {size}: expected a power of two that divides "
+                       f"{chunk} = {of}")
+    return size
+
+
 SHARED_BUDGETS = ("chunk", "block")
 
 
@@ -155,11 +165,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     transfer = ctx.inputs["d2i.transfer"]
     arrays = {n: transfer.read_piece(n, ctx.chunk.id) for n in transfer.names}
     haar_length = int(transfer.attrs["haar_length"])
-    block = int(ctx.params["truncate.d_block"])
-    tile = int(ctx.params["transfer.tile"])
-    if block < 1 or block & (block - 1) or tile % block:
-        raise PrtError(None, f"truncate.d_block = {block}: expected a power of two that "
-                       f"divides transfer.tile = {tile}")
+    block = block_size(ctx.params, "truncate.d_block", "transfer.tile")
     out = cut_pixel_blocks(ctx.params, arrays, haar_length,
                            haar_length + int(transfer.attrs["gather_count"]),
                            int(ctx.scene["camera"]["width"]), block)

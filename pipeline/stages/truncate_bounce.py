@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import PrtError
 from pipeline.math import haar
 from pipeline.rows import ROW_CHUNKS
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
-from pipeline.stages.truncate import cut_blocks, pooled_budget
+from pipeline.stages.truncate import block_size, cut_blocks, pooled_budget
 
 
 def _haar_length(ctx: ChunkContext | AssembleContext) -> int:
@@ -33,11 +32,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     bounce = ctx.inputs["d2i.bounce"]
     rows = {k: bounce.read_piece(f"ms_{k}", ctx.chunk.id)
             for k in ("count", "index", "value", "residual")}
-    size = int(ctx.params["truncate.ms_block"])
-    chunk = int(ctx.params["bounce.block"])
-    if size < 1 or size & (size - 1) or chunk % size:
-        raise PrtError(None, f"truncate.ms_block = {size}: expected a power of two that "
-                       f"divides bounce.block = {chunk}")
+    size = block_size(ctx.params, "truncate.ms_block", "bounce.block")
     gather = ctx.chunk.span[0] + np.arange(len(rows["count"]))
     haar_length = _haar_length(ctx)
     columns = haar_length + int(bounce.attrs["gather_count"])
