@@ -247,7 +247,7 @@ def full_runs(scene: Path, workdir: Path, configs: list[str], runs: int,
                 continue
             bake = workdir / f"full_{config}"
             r = quiet_prt(["run", str(scene), "--until", "d2i.truncate", "--until",
-                           "d2i.truncate_ms", "--workdir",
+                           "d2i.truncate_t", "--until", "d2i.truncate_ms", "--workdir",
                            str(bake), *cores_args(config)], fresh=bake)
             records.append({
                 "part": "full", "round": round_, "config": config,
@@ -332,7 +332,7 @@ def main() -> None:
         full = full_runs(scene_file(args.workdir, 256), args.workdir, full_configs, args.runs,
                          journal)
         result["full_bake"] = {
-            "what": "default scene at 256x256 from scratch: prt run --until d2i.truncate "
+            "what": "default scene at 256x256 from scratch: prt run --until d2i.truncate* "
                     "[--jobs J --threads T]; wall seconds of the command",
             **summary(full, full_configs, "wall_s"),
             "stages_s_median": {c: {name: round(statistics.median(

@@ -3,8 +3,10 @@
 Measures, in one run on this machine:
 
 * bake time per stage, and where the transfer stage's time goes (visibility rays,
-  the transfer kernel, Haar compression), timed on a sample of its tiles;
-* storage of T, D (d2i.truncate, pixel ids included) and Ms (d2i.truncate_ms)
+  the transfer kernel, Haar compression; D only: T is d2i.transfer_t's), timed on a
+  sample of its tiles;
+* storage of T (d2i.truncate_t), D (d2i.truncate; pixel ids included) and Ms
+  (d2i.truncate_ms)
   (bytes on disk and raw CSR bytes), beside
   paper 000 Table 5 (152, 60, 20 MB);
 * frame times, medians of ``REPEATS``: light-edit frames with a point light at the
@@ -102,7 +104,7 @@ def storage(workdir) -> dict[str, dict[str, float]]:
     from pipeline.store import open_artifact
 
     out = {}
-    for label, prefix, stage in (("T", "t_", "d2i.truncate"), ("D", "d_", "d2i.truncate"),
+    for label, prefix, stage in (("T", "t_", "d2i.truncate_t"), ("D", "d_", "d2i.truncate"),
                                  ("Ms", "ms_", "d2i.truncate_ms")):
         art, root = open_artifact(workdir.artifact(stage)), workdir.artifact(stage)
         names = [n for n in art.names if n.startswith(prefix)]

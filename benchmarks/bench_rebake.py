@@ -6,8 +6,8 @@ The scene is the default Cornell box with a second glossy material: the small bo
 Ward (α 0.2, range [0.1, 0.5]) beside the Blinn–Phong floor, at ``--size``² with
 transfer tiles of ``--tile`` pixels. One run:
 
-1. the full bake from scratch (``prt run --until d2i.truncate --until
-   d2i.truncate_ms``: every stage, no frames), wall seconds;
+1. the full bake from scratch (``prt run --until d2i.truncate --until d2i.truncate_t
+   --until d2i.truncate_ms``: every stage, no frames), wall seconds;
 2. the small box's ``gamma_range`` edited to [0.15, 0.5]: the forecast (``prt run
    --dry-run --json``), then the re-bake, its wall seconds and the stages and chunks
    that ran;
@@ -32,6 +32,9 @@ from typing import Any
 import yaml
 from bench_cores import ROOT, prt, quiet_prt, scene_file
 
+# every stage the d2i frames read, no frames
+UNTIL = ("--until", "d2i.truncate", "--until", "d2i.truncate_t", "--until", "d2i.truncate_ms")
+
 
 def two_glossy_scene(folder: Path, size: int, tile: int) -> dict[str, Any]:
     """The Cornell box with its small box in a glossy Ward material, as a dictionary."""
@@ -52,8 +55,7 @@ def write(folder: Path, doc: dict[str, Any], name: str) -> Path:
 
 def rebake(scene: Path, workdir: Path) -> dict[str, Any]:
     """The forecast, then the re-bake: seconds, stages and chunk counts."""
-    base = ["run", str(scene), "--until", "d2i.truncate", "--until", "d2i.truncate_ms",
-            "--workdir", str(workdir)]
+    base = ["run", str(scene), *UNTIL, "--workdir", str(workdir)]
     plan = prt([*base, "--dry-run"])["report"]["dry_run"]
     r = quiet_prt(base)
     stages = r["report"]["stages"]
@@ -81,8 +83,8 @@ def main() -> None:
     folder.mkdir(parents=True)
     doc = two_glossy_scene(folder, args.size, args.tile)
     work = folder / "work"
-    full = quiet_prt(["run", str(write(folder, doc, "scene.yaml")), "--until",
-                      "d2i.truncate", "--until", "d2i.truncate_ms", "--workdir", str(work)])
+    full = quiet_prt(["run", str(write(folder, doc, "scene.yaml")), *UNTIL, "--workdir",
+                      str(work)])
     result: dict[str, Any] = {"cpus": os.cpu_count(), "size": args.size,
                               "transfer_tile": args.tile,
                               "full_bake": {"wall_s": full["wall_s"], "cpu_s": full["cpu_s"],

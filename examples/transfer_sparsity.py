@@ -6,10 +6,12 @@ diffuse rows D beside them.
 
     python examples/transfer_sparsity.py WORKDIR [--stage d2i.transfer] [--out sparsity.png]
 
-WORKDIR a work directory holding ``d2i.transfer`` (``prt run --until d2i.transfer``
-bakes it for the default Cornell box); ``--stage d2i.truncate`` shows the rows cut to
-the renderer's budgets instead (no residuals there). A pixel's T rows are consecutive,
-b0 first (data_schema/transfer.yaml), so a row's basis is its place in its pixel's run.
+WORKDIR a work directory holding ``d2i.transfer_t`` (T) and ``d2i.transfer`` (D)
+(``prt run --until d2i.transfer_t`` bakes them for the default Cornell box); ``--stage
+d2i.truncate`` shows the rows cut to the renderer's budgets instead, from
+``d2i.truncate_t`` and ``d2i.truncate`` (no residuals there; D's rows there are rows of
+pixel blocks). A pixel's T rows are consecutive, b0 first
+(data_schema/glossy_transfer.yaml), so a row's basis is its place in its pixel's run.
 """
 
 from __future__ import annotations
@@ -41,8 +43,10 @@ def far_counts(count: np.ndarray, index: np.ndarray, haar_length: int) -> np.nda
 
 def sparsity(workdir: Path, stage: str = "d2i.transfer") -> dict:
     """Per basis b (and ``"D"``): each row's coefficient count, its Haar coefficients
-    alone (``far``) and, for d2i.transfer, its residual; the cap and the gather count."""
-    ds = inspect.open_workdir(workdir).dataset(stage)
+    alone (``far``) and, for d2i.transfer, its residual; the cap and the gather count.
+    T's rows are read from ``stage``'s glossy twin (``{stage}_t``), D's from ``stage``."""
+    work = inspect.open_workdir(workdir)
+    ds, d_rows = work.dataset(f"{stage}_t"), work.dataset(stage)
     haar = int(ds.attrs["haar_length"])
     basis = basis_of_rows(ds["t_pixel"].values)
     counts = ds["t_count"].values
@@ -53,9 +57,9 @@ def sparsity(workdir: Path, stage: str = "d2i.transfer") -> dict:
         pick = basis == b
         rows[f"b{b}"] = {"count": counts[pick], "far": far[pick],
                          "residual": None if residual is None else residual[pick]}
-    d_count = ds["d_count"].values
-    rows["D"] = {"count": d_count, "far": far_counts(d_count, ds["d_index"].values, haar),
-                 "residual": ds["d_residual"].values if "d_residual" in ds else None}
+    d_count = d_rows["d_count"].values
+    rows["D"] = {"count": d_count, "far": far_counts(d_count, d_rows["d_index"].values, haar),
+                 "residual": d_rows["d_residual"].values if "d_residual" in d_rows else None}
     cap = ds.attrs.get("max_coefficients") or ds.attrs.get("coefficients")
     return {"rows": rows, "cap": cap, "gathers": int(ds.attrs["gather_count"])}
 

@@ -19,6 +19,11 @@ tile            pixel tiles of ``size`` (a param)      ``region`` (y0, y1, x0, x
                                                        ``materials`` seen in it if
                                                        ``materials_from`` names a stage
                                                        with a ``material_id`` image
+tile_material   per pixel tile of ``size``, one per    ``region``, ``materials`` (the
+                material seen in it (from              one), ``tile`` (the id of the
+                ``materials_from``) whose model is     tile chunk it splits)
+                not in ``skip_models``; id
+                ``TILE/MATERIAL``
 block           [0, ``of``) in blocks of ``size``      ``span`` (start, end)
                 (``of``: a count, or a grid's shape
                 whose product is the count)
@@ -57,22 +62,35 @@ def _tiles(height: int, width: int, tile: int) -> list[tuple[int, int, int, int]
             for y in range(0, height, tile) for x in range(0, width, tile)]
 
 
-def _pixel_tiles(spec: StageSpec, scene: Scene, params: dict[str, Any],
-                 upstream: Mapping[str, Any]) -> list[Chunk]:
+def _tiles_seen(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                upstream: Mapping[str, Any]
+                ) -> list[tuple[str, tuple[int, int, int, int], tuple[str, ...] | None]]:
+    """(id, region, materials seen or None without ``materials_from``) per pixel tile."""
     tile = _positive(scene, spec.chunks.size, params[spec.chunks.size])
     regions = _tiles(scene.camera.height, scene.camera.width, tile)
     ids = [f"y{y0:05d}_x{x0:05d}" for y0, _, x0, _ in regions]
     if spec.chunks.materials_from is None:
-        return [make_chunk(i, "tile", region=r) for i, r in zip(ids, regions, strict=True)]
-    source = upstream[spec.chunks.materials_from]
-    material_id = source.read("material_id")
+        return [(i, r, None) for i, r in zip(ids, regions, strict=True)]
+    material_id = upstream[spec.chunks.materials_from].read("material_id")
     names = list(scene.materials)
-    chunks = []
-    for chunk_id, (y0, y1, x0, x1) in zip(ids, regions, strict=True):
-        seen = np.unique(material_id[y0:y1, x0:x1])
-        chunks.append(make_chunk(chunk_id, "tile", region=(y0, y1, x0, x1),
-                                 materials=tuple(names[m] for m in seen if m >= 0)))
-    return chunks
+    return [(i, (y0, y1, x0, x1),
+             tuple(names[m] for m in np.unique(material_id[y0:y1, x0:x1]) if m >= 0))
+            for i, (y0, y1, x0, x1) in zip(ids, regions, strict=True)]
+
+
+def _pixel_tiles(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                 upstream: Mapping[str, Any]) -> list[Chunk]:
+    return [make_chunk(i, "tile", region=r) if seen is None else
+            make_chunk(i, "tile", region=r, materials=seen)
+            for i, r, seen in _tiles_seen(spec, scene, params, upstream)]
+
+
+def _tile_materials(spec: StageSpec, scene: Scene, params: dict[str, Any],
+                    upstream: Mapping[str, Any]) -> list[Chunk]:
+    skip = set(spec.chunks.skip_models)
+    return [make_chunk(f"{i}/{m}", "tile_material", region=r, materials=(m,), tile=i)
+            for i, r, seen in _tiles_seen(spec, scene, params, upstream)
+            for m in seen or () if scene.materials[m].model not in skip]
 
 
 def _blocks(spec: StageSpec, scene: Scene, params: dict[str, Any],
@@ -127,6 +145,7 @@ CHUNKERS: dict[str, Chunker] = {
         make_chunk(name, "material", material=name, index=i)
         for i, name in enumerate(scene.materials)],
     "tile": _pixel_tiles,
+    "tile_material": _tile_materials,
     "block": _blocks,
     "texel_tile": _texel_tiles,
     "vertex_batch": _vertex_batches,

@@ -176,7 +176,8 @@ def _input_digests(spec: StageSpec, chunk: Chunk, records: dict[str, dict[str, A
                    stagefile: StageFile) -> dict[str, Any]:
     """What each input contributes to a chunk's key: its output digest, or for a
     ``chunk_inputs`` input the digests of the chunks of the chunk's object/materials, or
-    of its twin (the chunk with the same id) where the input is chunked alike."""
+    of its twin (the chunk with the same id) where the input is chunked alike, or of its
+    parent tile where the chunk splits the input's tiles by material."""
     out: dict[str, Any] = {}
     for dep in spec.inputs:
         record = records[dep]
@@ -186,6 +187,7 @@ def _input_digests(spec: StageSpec, chunk: Chunk, records: dict[str, dict[str, A
         chunking = stagefile.stages[dep].chunks
         by = chunking.by
         wanted = ((chunk.id,) if chunking == spec.chunks else  # chunked alike: its twin
+                  (chunk.get("tile"),) if chunking == spec.chunks.parent() else
                   chunk.materials if by == "material" else
                   (chunk.object,) if by == "object" and chunk.object else None)
         if wanted is None:

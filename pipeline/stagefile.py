@@ -13,13 +13,17 @@ Format ``prt-stages/2``::
         inputs: [geometry]       # stages whose artifacts it reads
         chunk_inputs: []         # inputs of which each chunk reads only the chunks of its
                                  # own object or materials, or (an input chunked as
-                                 # this stage is) its twin chunk: keyed on just those
+                                 # this stage is) its twin chunk, or (an input chunked
+                                 # by the tiles a tile_material stage splits) its
+                                 # parent tile: keyed on just those
         scene: [camera]          # scene sections it reads (dotted; ``*`` see below)
         params: [gbuffer.tile]   # parameter keys it reads
         kernels: []              # kernel files it builds beyond those its modules name
         output: gbuffer          # schema kind of the artifact it writes
         chunks: none | object | material
               | {by: tile, size: PARAM[, materials_from: STAGE]}   # pixel tiles
+              | {by: tile_material, size: PARAM, materials_from: STAGE[,
+                 skip_models: [MODEL, ...]]}      # a pixel tile's pixels of one material
               | {by: block, size: PARAM, of: PARAM}                # [0, count) in blocks
               | {by: texel_tile, size: PARAM, of: STAGE}           # tiles of UV atlases
               | {by: vertex_batch, size: PARAM, of: STAGE}         # per-object vertex runs
@@ -53,14 +57,23 @@ FIXED_CHUNKINGS = ("none", "object", "material")
 class ChunkSpec:
     """How a stage is chunked: ``by`` (a chunking of pipeline/chunking.py), ``size`` and
     ``count`` (parameter names), ``of`` (the upstream stage whose attributes lay the
-    chunks out) and ``materials_from`` (the stage whose ``material_id`` tells a pixel
-    tile which materials it sees)."""
+    chunks out), ``materials_from`` (the stage whose ``material_id`` tells a pixel
+    tile which materials it sees) and ``skip_models`` (material models a
+    ``tile_material`` stage makes no chunks for)."""
 
     by: str = "none"
     size: str | None = None
     count: str | None = None
     of: str | None = None
     materials_from: str | None = None
+    skip_models: tuple[str, ...] = ()
+
+    def parent(self) -> ChunkSpec | None:
+        """The chunking whose chunks this one's split (a ``tile_material`` chunk's
+        pixel tile, its coordinate ``tile``), None if it splits none."""
+        if self.by != "tile_material":
+            return None
+        return ChunkSpec("tile", size=self.size, materials_from=self.materials_from)
 
 
 @dataclass(frozen=True)
@@ -104,6 +117,14 @@ class _Tile(BaseModel):
     materials_from: str | None = None
 
 
+class _TileMaterial(BaseModel):
+    model_config = _STRICT
+    by: Literal["tile_material"]
+    size: str
+    materials_from: str
+    skip_models: list[str] = []
+
+
 class _Block(BaseModel):
     model_config = _STRICT
     by: Literal["block"]
@@ -119,7 +140,7 @@ class _FromUpstream(BaseModel):
 
 
 _Chunks = Literal["none", "object", "material"] | Annotated[
-    _Tile | _Block | _FromUpstream, Field(discriminator="by")]
+    _Tile | _TileMaterial | _Block | _FromUpstream, Field(discriminator="by")]
 
 
 class _Stage(BaseModel):
@@ -194,6 +215,10 @@ def _chunk_spec(chunks: Any) -> ChunkSpec:
         return ChunkSpec("block", size=chunks.size, count=chunks.of)
     if isinstance(chunks, _Tile):
         return ChunkSpec("tile", size=chunks.size, materials_from=chunks.materials_from)
+    if isinstance(chunks, _TileMaterial):
+        return ChunkSpec("tile_material", size=chunks.size,
+                         materials_from=chunks.materials_from,
+                         skip_models=tuple(chunks.skip_models))
     return ChunkSpec(chunks.by, size=chunks.size, of=chunks.of)
 
 
@@ -239,9 +264,9 @@ def _check(spec: StageSpec, params: dict[str, Any], stages: dict[str, StageSpec]
             raise PrtError(file, f"{where}.chunk_inputs: {dep!r} is not among the stage's "
                            "inputs")
         if stages[dep].chunks.by not in ("object", "material") \
-                and stages[dep].chunks != spec.chunks:
+                and stages[dep].chunks not in (spec.chunks, spec.chunks.parent()):
             raise PrtError(file, f"{where}.chunk_inputs: {dep!r} is not chunked by object "
-                           "or material, nor as this stage is")
+                           "or material, nor as this stage is, nor by the tiles it splits")
     c = spec.chunks
     for key, value in (("size", c.size), ("of", c.count)):
         if value is not None and value not in spec.params:
@@ -251,5 +276,5 @@ def _check(spec: StageSpec, params: dict[str, Any], stages: dict[str, StageSpec]
         if value is not None and value not in spec.inputs:
             raise PrtError(file, f"{where}.chunks.{key}: {value!r} is not among the stage's "
                            "inputs")
-    if c.by == "tile" and "camera" not in spec.scene:
+    if c.by in ("tile", "tile_material") and "camera" not in spec.scene:
         raise PrtError(file, f"{where}.chunks: tile chunking needs the camera scene section")

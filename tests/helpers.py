@@ -43,6 +43,11 @@ def small_scene_dict(size: int = 24) -> dict[str, Any]:
     }
 
 
+# every stage of method d2i's bake and their shared upstream, in run order
+D2I_STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer",
+              "d2i.transfer_t", "d2i.bounce", "d2i.truncate", "d2i.truncate_t",
+              "d2i.truncate_ms")
+
 TOY_STAGEFILE = TESTS / "toy" / "stages.yaml"
 TOY_STAGES = ("geometry", "gbuffer", "per_object", "total", "tiles")
 

@@ -10,7 +10,14 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import TOY_STAGEFILE, TOY_STAGES, artifact_bytes, small_scene_dict, write_scene
+from helpers import (
+    D2I_STAGES,
+    TOY_STAGEFILE,
+    TOY_STAGES,
+    artifact_bytes,
+    small_scene_dict,
+    write_scene,
+)
 
 from pipeline import job
 from pipeline.errors import PrtError
@@ -117,8 +124,6 @@ def test_workdir_holds_one_copy_of_each_artifact(tmp_path):
     assert sum(p.stat().st_size for p in others) < 64 * 1024
 
 
-D2I_STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer",
-              "d2i.bounce", "d2i.truncate", "d2i.truncate_ms")
 
 
 def test_d2i_bake_is_bit_identical_whatever_workers_and_threads(tmp_path):

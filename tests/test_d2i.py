@@ -71,8 +71,8 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
                                (50.0, 0.0, -30.0))
     fresh_dir = job.workdir_for(edited, tmp_path / "fresh")
     job.bake(edited, fresh_dir, quiet=True)
-    for name in ("d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
-                 "d2i.truncate_ms"):
+    for name in ("d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce",
+                 "d2i.truncate", "d2i.truncate_t", "d2i.truncate_ms"):
         a, b = (open_artifact(w.artifact(name)) for w in (workdir, fresh_dir))
         assert a.record["key"] == b.record["key"]
         for array in a.names:
@@ -402,7 +402,7 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     block, _ = pixel_blocks(transfer.read("d_pixel"), 16, 4)
     pixels_with_rows = np.bincount(block, weights=transfer.read("d_count") > 0)
     d_count, d_far = per_block("d2i.truncate")
-    t_count, t_far, t_before = rows("d2i.truncate", "t")
+    t_count, t_far, t_before = rows("d2i.truncate_t", "t")
     ms_count, ms_far, ms_stored = rows("d2i.truncate_ms", "ms")
     # one transfer tile, one bounce block: their blocks share one budget (the default
     # truncate.shared_budget), which edge blocks take more of
@@ -410,7 +410,7 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     assert t_far.max() == 40 and ms_far.sum() == 40 * 512
     job.bake(scene.with_settings({"truncate.d_coefficients": 12}), workdir, quiet=True)
     d_count_small, d_far_small = per_block("d2i.truncate")
-    _, _, t_after = rows("d2i.truncate", "t")
+    _, _, t_after = rows("d2i.truncate_t", "t")
     assert d_far_small.sum() == 12 * pixels_with_rows.sum()
     assert np.array_equal(d_count_small - d_far_small, d_count - d_far)  # near entries
     assert all(np.array_equal(t_before[n], t_after[n]) for n in t_before)

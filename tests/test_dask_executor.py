@@ -13,7 +13,7 @@ import threading
 import time
 
 import pytest
-from helpers import TOY_STAGEFILE, artifact_bytes, small_scene_dict, write_scene
+from helpers import D2I_STAGES, TOY_STAGEFILE, artifact_bytes, small_scene_dict, write_scene
 
 from pipeline import job
 from pipeline.dask_executor import DaskExecutor, parse_scheduler
@@ -22,9 +22,6 @@ from pipeline.runner import run
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, read_record
-
-D2I_STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer",
-              "d2i.bounce", "d2i.truncate", "d2i.truncate_ms")
 
 
 def test_default_scene_on_two_workers_is_bit_identical(tmp_path):

@@ -64,8 +64,9 @@ def test_camera_dependent_stages():
     the objects' size on screen, so it and the visibility read from it are kept per
     size too."""
     assert camera_dependent(load_stagefile()) == {
-        "gbuffer", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
-        "d2i.truncate_ms", "triple.atlas", "triple.visibility"}
+        "gbuffer", "d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce",
+        "d2i.truncate", "d2i.truncate_t", "d2i.truncate_ms", "triple.atlas",
+        "triple.visibility"}
 
 
 def test_workdir_places_a_resized_scenes_camera_artifacts_apart(tmp_path):

@@ -145,12 +145,13 @@ def test_until_runs_only_upstream(tmp_path):
     assert set(ran(report)) == {"geometry", "gbuffer"}
 
 
-def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_path):
+def test_gamma_range_edit_rebakes_exactly_the_material_chunks_of_its_tiles(tmp_path):
     """In a scene with two glossy materials (the ball's Blinn-Phong, the floor's Ward),
-    editing the ball's gamma_range re-runs its brdf_basis chunk, exactly the transfer
-    tiles whose pixels see the ball (the tile's key holds only the bases of the
-    materials it sees), and the truncate tiles twinned with them; the result is bit-identical
-    to a bake of the edited scene from scratch."""
+    editing the ball's gamma_range re-runs its brdf_basis chunk and, of the glossy
+    transfer and its cut (chunks by tile and material), exactly the ball's chunks of the
+    tiles whose pixels see it (a chunk's key holds only its own material's basis and its
+    tile's visibility); no D tile and no other material's chunk re-runs, and the result
+    is bit-identical to a bake of the edited scene from scratch."""
     from pipeline import job
 
     doc = small_scene_dict(size=24)
@@ -165,6 +166,9 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
     tiles = {f"y{y:05d}_x{x:05d}" for y in (0, 8, 16) for x in (0, 8, 16)
              if (material[y:y + 8, x:x + 8] == ball).any()}
     assert 0 < len(tiles) < 9  # the ball covers some tiles, not all
+    grey = list(doc["materials"]).index("grey")
+    assert (material == grey).any()  # the other glossy material is on screen too
+    chunks = {f"{tile}/shiny" for tile in tiles}
 
     edited = copy.deepcopy(doc)
     edited["materials"]["shiny"]["gamma_range"] = [5, 300]
@@ -174,7 +178,7 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
                 if f.state != "fresh"}
     report = job.bake(edited_scene, workdir, quiet=True)
     assert {name: set(chunks) for name, chunks in ran(report).items()} == forecast == {
-        "brdf_basis": {"shiny"}, "d2i.transfer": tiles, "d2i.truncate": tiles}
+        "brdf_basis": {"shiny"}, "d2i.transfer_t": chunks, "d2i.truncate_t": chunks}
 
     fresh = Workdir(tmp_path / "fresh")
     job.bake(load_scene(write_scene(tmp_path, edited, "edited.yaml")), fresh, quiet=True)
@@ -183,8 +187,8 @@ def test_gamma_range_edit_rebakes_exactly_the_tiles_that_see_the_material(tmp_pa
     others = [p for p in fresh.root.rglob("*") if p.is_file() and ".zarr" not in str(p)]
     assert all(p.suffix == ".json" or p.name == ".lock" for p in others)
     assert sum(p.stat().st_size for p in others) < 0.05 * artifacts
-    for name in ("brdf_basis", "d2i.gather", "d2i.transfer", "d2i.bounce", "d2i.truncate",
-                 "d2i.truncate_ms"):
+    for name in ("brdf_basis", "d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce",
+                 "d2i.truncate", "d2i.truncate_t", "d2i.truncate_ms"):
         a, b = (open_artifact(w.artifact(name)).read_all() for w in (workdir, fresh))
         assert a.keys() == b.keys()
         for array in a:
@@ -245,3 +249,56 @@ def test_status_blames_the_atlas_not_the_geometry_when_the_tiles_change(tmp_path
     assert states["geometry"] == ("fresh", "")
     assert states["atlas"] == ("fresh", "")
     assert states["texels"] == ("stale", "input atlas changed")
+
+
+MATERIAL_TILES = TESTS / "toy" / "material_tiles_stages.yaml"
+
+
+def test_tile_material_chunks_split_tiles_and_read_only_their_parent_tile(tmp_path):
+    """Chunking ``tile_material``: one chunk per pixel tile and glossy material seen in
+    it (``skip_models: [lambert]``), id TILE/MATERIAL, holding exactly that material's
+    pixels of the tile. A chunk's key holds its parent tile's digest and no other tile's
+    (a changed digest of one tile re-keys exactly that tile's chunks), and its own
+    material's sections only (an albedo edit of one material re-runs exactly its
+    chunks, and the result equals a bake from scratch)."""
+    from pipeline.runner import plan_stage, stage_params
+
+    doc = small_scene_dict(size=24)
+    doc["materials"]["grey"] = {"model": "ward", "albedo": [0.5, 0.5, 0.5],
+                                "specular": 0.1, "gamma": 0.2, "gamma_range": [0.1, 0.5]}
+    stagefile = load_stagefile(MATERIAL_TILES)
+    scene = load_scene(write_scene(tmp_path, doc))
+    workdir = Workdir(tmp_path / "w")
+    report = run(scene, stagefile, workdir, progress=False)
+    material = open_artifact(workdir.artifact("gbuffer")).read("material_id")
+    names = list(doc["materials"])
+    expected = [f"y{y:05d}_x{x:05d}/{m}" for y in (0, 8, 16) for x in (0, 8, 16)
+                for m in names if m != "red"
+                and (material[y:y + 8, x:x + 8] == names.index(m)).any()]
+    assert ran(report)["material_values"] == expected
+    assert any(c.endswith("/shiny") for c in expected) and any(c.endswith("/grey")
+                                                                for c in expected)
+    values = open_artifact(workdir.artifact("material_values"))
+    pixels = np.sort(values.read("pixel"))
+    glossy = np.isin(material.reshape(-1), [names.index("shiny"), names.index("grey")])
+    np.testing.assert_array_equal(pixels, np.flatnonzero(glossy))
+
+    spec = stagefile.stages["material_values"]
+    params = stage_params(stagefile, scene)
+    before = plan_stage(spec, scene, stagefile, workdir, params)
+    record = dict(open_artifact(workdir.artifact("tiles")).record)
+    record["chunk_digests"] = {**record["chunk_digests"], "y00008_x00008": "changed"}
+    after = plan_stage(spec, scene, stagefile, workdir, params,
+                       input_records={"tiles": record})
+    rekeyed = {c for c in before.chunk_keys if before.chunk_keys[c] != after.chunk_keys[c]}
+    assert rekeyed == {c for c in expected if c.startswith("y00008_x00008/")} != set()
+
+    edited = copy.deepcopy(doc)
+    edited["materials"]["shiny"]["albedo"] = [0.5, 0.4, 0.6]
+    edited_scene = load_scene(write_scene(tmp_path, edited, "edited.yaml"))
+    report = run(edited_scene, stagefile, workdir, progress=False)
+    assert ran(report) == {"material_values": [c for c in expected if c.endswith("/shiny")]}
+    fresh = Workdir(tmp_path / "fresh")
+    run(edited_scene, stagefile, fresh, progress=False)
+    a, b = (open_artifact(w.artifact("material_values")).read_all() for w in (workdir, fresh))
+    assert all(a[n].tobytes() == b[n].tobytes() for n in a)

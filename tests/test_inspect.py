@@ -172,20 +172,21 @@ def test_transfer_sparsity_example_splits_t_by_basis(tmp_path):
     """examples/transfer_sparsity.py on a tiny d2i bake (the ball glossy): from the
     command line it writes a PNG; its rows per basis partition T's rows, b0 has one row
     per glossy pixel, there are k + 1 bases for the ball's k, and each basis's counts are
-    those rows' t_count."""
+    those rows' t_count (T in d2i.transfer_t, D in d2i.transfer)."""
     from transfer_sparsity import basis_of_rows, sparsity
 
 
     doc = small_scene_dict(16)
     doc["methods"] = ["d2i"]
     doc["settings"] = {"gather.count": 256, "transfer.tile": 8}
-    workdir = bake_and_draw(tmp_path, doc, "d2i.transfer", "transfer_sparsity")
+    workdir = bake_and_draw(tmp_path, doc, "d2i.transfer_t", "transfer_sparsity")
 
     s = sparsity(tmp_path / "work")
     transfer = open_artifact(workdir.artifact("d2i.transfer"))
+    glossy = open_artifact(workdir.artifact("d2i.transfer_t"))
     basis = open_artifact(workdir.artifact("brdf_basis"))
     k = basis.read("k")[basis.attrs["material_names"].index("shiny")]
-    t_pixel, t_count = transfer.read("t_pixel"), transfer.read("t_count")
+    t_pixel, t_count = glossy.read("t_pixel"), glossy.read("t_count")
     assert [n for n in s["rows"]] == [f"b{b}" for b in range(k + 1)] + ["D"]
     assert len(s["rows"]["b0"]["count"]) == len(np.unique(t_pixel)) > 0
     assert sum(len(s["rows"][f"b{b}"]["count"]) for b in range(k + 1)) == len(t_pixel)

@@ -12,15 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import small_scene_dict, write_scene
+from helpers import D2I_STAGES, small_scene_dict, write_scene
 
 from pipeline import job
 from pipeline.errors import PrtError
 from pipeline.scene import load_scene
 from pipeline.store import Workdir, open_artifact, read_record
-
-STAGES = ("geometry", "brdf_basis", "gbuffer", "d2i.gather", "d2i.transfer", "d2i.bounce",
-          "d2i.truncate", "d2i.truncate_ms")
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +57,7 @@ def snapshot(root: Path) -> dict[Path, tuple[bytes, int]]:
     return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()}
 
 
-@pytest.mark.parametrize("stage", STAGES)
+@pytest.mark.parametrize("stage", D2I_STAGES)
 def test_a_flipped_byte_in_any_chunk_is_reported(baked, tmp_path, stage):
     """Flip one byte in the middle of the stage's largest chunk file: reading the
     artifact raises PrtError naming the artifact's chunk file and the re-bake command."""
@@ -71,7 +68,7 @@ def test_a_flipped_byte_in_any_chunk_is_reported(baked, tmp_path, stage):
     assert str(artifact) in error.value.one_line() and "prt run --force" in error.value.one_line()
 
 
-@pytest.mark.parametrize("stage", STAGES)
+@pytest.mark.parametrize("stage", D2I_STAGES)
 def test_verify_finds_a_flipped_byte_and_touches_nothing(baked, tmp_path, stage):
     """`prt verify` on the damaged copy exits 2 with one BAD line naming the artifact,
     its array and chunk index, and `prt run --force STAGE`; neither verifying nor reading
@@ -102,8 +99,8 @@ def test_verify_passes_a_clean_bake(baked):
     result = prt("verify", "--workdir", root, "--json", "-q")
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
-    assert report["ok"] and report["problems"] == [] and report["artifacts"] == len(STAGES)
-    records = {stage: read_record(root / f"{stage}.zarr") for stage in STAGES}
+    assert report["ok"] and report["problems"] == [] and report["artifacts"] == len(D2I_STAGES)
+    records = {stage: read_record(root / f"{stage}.zarr") for stage in D2I_STAGES}
     assert report["markers"] == sum(len(r["chunks"]) for r in records.values())
     assert report["stored_chunks"] > 0 and any("zarr.json" in n for n in report["unchecked"])
     assert snapshot(root) == before

@@ -113,9 +113,9 @@ def test_code_edits_rerun_exactly_what_they_touch(plugin):
 
 def test_editing_a_math_module_changes_exactly_the_stages_importing_it(tmp_path,
                                                                        monkeypatch):
-    """pipeline/math/transfer.py (the d2i estimators) is imported by the gather, transfer
-    and bounce stages (bounce through the transfer stage's helpers): an edit changes
-    their code versions and no other stage's."""
+    """pipeline/math/transfer.py (the d2i estimators) is imported by the gather,
+    transfer, glossy transfer and bounce stages (the last two through the transfer
+    stage's helpers): an edit changes their code versions and no other stage's."""
     graph = job.stages()
     before = {name: stage_code(spec) for name, spec in graph.stages.items()}
     original = codeversion.module_file("pipeline.math.transfer")
@@ -125,5 +125,5 @@ def test_editing_a_math_module_changes_exactly_the_stages_importing_it(tmp_path,
     monkeypatch.setattr(codeversion, "module_file",
                         lambda m: edited if m == "pipeline.math.transfer" else real(m))
     after = {name: stage_code(spec) for name, spec in graph.stages.items()}
-    assert {n for n in before if before[n] != after[n]} == {"d2i.gather", "d2i.transfer",
-                                                             "d2i.bounce"}
+    assert {n for n in before if before[n] != after[n]} == {
+        "d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce"}

@@ -239,8 +239,8 @@ EXPECTED = {
     ("sg", "map"): {"sg.env_prefilter": {"all"}},
     # the camera: the view-dependent stages only
     ("d2i", "camera"): {s: EVERY for s in ("gbuffer", "d2i.gather", "d2i.transfer",
-                                           "d2i.bounce", "d2i.truncate",
-                                           "d2i.truncate_ms")},
+                                           "d2i.transfer_t", "d2i.bounce", "d2i.truncate",
+                                           "d2i.truncate_t", "d2i.truncate_ms")},
     ("sg", "camera"): {},
 }
 
@@ -271,9 +271,10 @@ def test_method_edits_rebake_exactly_the_forecast(method_bakes, tmp_path, method
             assert actual[stage] == chunks, stage
 
 
-def test_chunk_inputs_must_be_scoped_by_object_material_or_twin(tmp_path):
-    """A stage may read only some chunks of an input chunked by object or material, or
-    its twin chunk of an input chunked exactly as it is; any other ``chunk_inputs`` is
+def test_chunk_inputs_must_be_scoped_by_object_material_twin_or_parent(tmp_path):
+    """A stage may read only some chunks of an input chunked by object or material, its
+    twin chunk of an input chunked exactly as it is, or (chunked by tile_material) its
+    parent tile of an input chunked by those tiles; any other ``chunk_inputs`` is
     refused in one line naming the stage file."""
     from pipeline.errors import PrtError
 
@@ -282,7 +283,16 @@ def test_chunk_inputs_must_be_scoped_by_object_material_or_twin(tmp_path):
     path = tmp_path / "stages.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     with pytest.raises(PrtError, match="stages.tiles.chunk_inputs: 'total' is not chunked "
-                                       "by object or material, nor as this stage is"):
+                                       "by object or material, nor as this stage is, nor "
+                                       "by the tiles it splits"):
+        load_stagefile(path)
+    split = TESTS / "toy" / "material_tiles_stages.yaml"
+    assert load_stagefile(split).stages["material_values"].chunk_inputs == ("tiles",)
+    doc = yaml.safe_load(split.read_text())
+    doc["stages"]["tiles"]["chunks"] = {"by": "tile", "size": "toy.tile"}  # other tiles
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(PrtError, match="stages.material_values.chunk_inputs: 'tiles' is not "
+                                       "chunked"):
         load_stagefile(path)
 
 

@@ -1,11 +1,12 @@
 """Method ``d2i``: direct-to-indirect transfer with PCA-linearized BRDF editing (paper 000).
 
 Stages (stages.yaml, ``d2i.*``): ``d2i.gather`` (gather samples by backward photon
-shooting), ``d2i.transfer`` (per-pixel T and D rows over the gather disks, Haar
-compressed, pixel tiles), ``d2i.bounce`` (Ms between gather samples, blocks),
-``d2i.truncate`` (T and D rows cut to the renderer's budgets, pixel tiles),
-``d2i.truncate_ms`` (Ms rows cut, blocks); shared: ``geometry``,
-``gbuffer``, ``brdf_basis``. Renderer: pipeline/render/d2i.py.
+shooting), ``d2i.transfer`` (per-pixel D rows over the gather disks, Haar compressed,
+and the glossy pixels' visibility; pixel tiles), ``d2i.transfer_t`` (T rows from that
+visibility; a tile's pixels of one glossy material), ``d2i.bounce`` (Ms between gather
+samples, blocks), ``d2i.truncate`` (D rows cut to the renderer's budget, pixel tiles),
+``d2i.truncate_t`` (T rows cut, as d2i.transfer_t), ``d2i.truncate_ms`` (Ms rows cut,
+blocks); shared: ``geometry``, ``gbuffer``, ``brdf_basis``. Renderer: pipeline/render/d2i.py.
 
 Run-time options (``prt render --option NAME=VALUE``):
 
@@ -48,7 +49,7 @@ METHOD = Method(
     description="paper 000: direct-to-indirect transfer, PCA-linearized BRDF editing",
     renderer="pipeline.render.d2i:d2i_renderer",
     reads=("geometry", "gbuffer", "brdf_basis", "d2i.gather", "d2i.truncate",
-           "d2i.truncate_ms"),
+           "d2i.truncate_t", "d2i.truncate_ms"),
     reference="first-glossy",
     headline="rel_rmse_surfaces",
     components={"indirect": Component(subtract="direct", transport="first-glossy-indirect")},

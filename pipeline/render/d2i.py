@@ -1,6 +1,6 @@
 """Method ``d2i``: direct-to-indirect transfer with PCA-linearized BRDF editing (paper 000).
 
-A frame, from the ``compressed_transport`` artifact (T, D, Ms as Haar rows), the gather
+A frame, from the truncate stages' artifacts (D, T and Ms as Haar rows), the gather
 samples and the G-buffer:
 
 1. shadow rays to every light sample from the pixels and the gather samples — Embree on
@@ -75,8 +75,8 @@ LAYOUTS = ("auto", "gpu", "cpu")  # the products' value type and work shape (D2i
 
 
 def _ordered_rows(stored: dict[str, np.ndarray], prefix: str, key: str, size: int) -> Rows:
-    """The ``prefix`` (d or t) rows of the compressed_transport artifact, stored tile by
-    tile, ordered by ``key`` (T: their pixel, a pixel's rows keeping their order; D: the
+    """The ``prefix`` (d, t or ms) rows of a truncate stage's artifact, stored chunk by
+    chunk, ordered by ``key`` (T: their pixel, a pixel's rows keeping their order; D: the
     block row); values kept as stored, float16 over a per-row scale."""
     rows = sort_rows(stored[key], {
         "count": stored[f"{prefix}_count"], "index": stored[f"{prefix}_index"],
@@ -133,10 +133,10 @@ class D2iRenderer:
         ms_block = int(bounce.attrs["block"])
         gathers = np.arange(len(self.gather_area))
         self.blocks = {"ms": (gathers // ms_block, gathers % ms_block, haar.matrix(ms_block))}
-        # D and T rows are stored tile by tile: D in block-row order, T in raster order of
-        # their pixels (a pixel's T rows b0..bk stay in order)
-        stored = transport.read_all()
-        self.d = _ordered_rows(stored, "d", "d_row", self.size)
+        # D rows are stored tile by tile, T rows by tile and material: D in block-row
+        # order, T in raster order of their pixels (a pixel's T rows b0..bk stay in order)
+        self.d = _ordered_rows(transport.read_all(), "d", "d_row", self.size)
+        stored = artifacts["d2i.truncate_t"].read_all()
         self.t = _ordered_rows(stored, "t", "t_pixel", self.size)
         d_block = int(transport.attrs["d_block"])
         pixel_block, pixel_slot = pixel_blocks(np.arange(self.direct.width

@@ -1,12 +1,15 @@
-"""Stage ``transfer``: per pixel, the glossy transfer basis matrix T and the diffuse
-transfer D of method d2i (paper 000 §3, §5.2), one chunk per pixel tile. Schema
-``transfer``.
+"""Stage ``transfer``: per pixel, the diffuse transfer D of method d2i (paper 000 §3,
+§5.2) and, for the pixels of glossy materials, the visibility the glossy transfer T is
+computed from; one chunk per pixel tile. Schema ``transfer``.
 
 For each view sample x (a G-buffer pixel) and gather disk g: the visibility V_g(x) of
 g's centre through Embree (only pairs that face each other at the centres are traced),
-then the sub-area estimators of pipeline/math/transfer.py on the OpenCL device
-(kernels/transfer.cl): D for every pixel that sees a surface, T (k + 1 rows: b0 and the
-k PCA bases of the pixel's material) for pixels of glossy materials only.
+then the sub-area estimator of pipeline/math/transfer.py on the OpenCL device
+(kernels/transfer.cl) for D. A glossy pixel's V_g(x) is stored too, a bit per gather
+sample: stage ``d2i.transfer_t`` (pipeline/stages/transfer_glossy.py) computes T (k + 1
+rows: b0 and the k PCA bases of the pixel's material) from it, one chunk per tile and
+material, so that an edit of one material's γ range re-runs that material's T and
+traces no ray.
 
 Rows are stored per unit area: entry g is divided by |A_g| (the renderer multiplies the
 gather radiance by |A_g| instead: D L = Σ_g (D_g/|A_g|)(|A_g| L_g)). Each entry is
@@ -22,9 +25,8 @@ the dropped ones hold at most ``transfer.keep_tolerance`` of the row's norm (rel
 and never more than ``transfer.max_coefficients``; ``*_residual`` records what each row
 lost. Rows are variable-length (CSR: per-row counts, flat indices and values, largest
 coefficient first within a row). Dense rows would not fit (400² pixels × 16k gathers ×
-4 bytes is 10 GB for D alone); the ``haar`` stage then cuts these rows down to the
-renderer's budgets without recomputing transport, so budget sweeps re-run only that
-stage.
+4 bytes is 10 GB for D alone); the ``truncate`` stages then cut these rows down to the
+renderer's budgets without recomputing transport, so budget sweeps re-run only them.
 """
 
 from __future__ import annotations
@@ -37,7 +39,6 @@ from pipeline import cl
 from pipeline.executors import map_slices
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials
-from pipeline.math.brdf_pca import read_basis
 from pipeline.math.transfer import (
     FIRST_CHECK,
     PLANE_MARGIN,
@@ -232,28 +233,6 @@ def _cached(kind: str, key: str, build) -> Any:
     return _CACHE[kind][1]
 
 
-def glossy_tables(ctx: AssembleContext) -> dict[int, GlossyTable]:
-    """Material index (geometry order) -> its table, for the glossy materials among
-    those whose sections the chunk sees (a tile: the materials of its pixels)."""
-    basis_artifact = ctx.inputs["brdf_basis"]
-    names = ctx.inputs["geometry"].attrs["material_names"]
-    tables = {}
-    for i, name in enumerate(names):
-        model = ctx.scene.get(f"materials.{name}.model")
-        if model in (None, "lambert"):
-            continue
-        get = lambda key, default, n=name: (  # noqa: E731
-            default if ctx.scene.get(f"materials.{n}.{key}") is None
-            else ctx.scene[f"materials.{n}.{key}"])
-        f0 = get("f0", 0.04)
-        if get("ior", None) is not None:
-            f0 = ((get("ior", 1.5) - 1.0) / (get("ior", 1.5) + 1.0)) ** 2
-        params = BrdfParams(model, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0,  # γ unused
-                            get("alpha_ratio", 1.0), get("cxy", -1.0), get("cz", 1.0), f0)
-        tables[i] = GlossyTable.from_basis(read_basis(basis_artifact, name, params))
-    return tables
-
-
 def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, Disks, TransferKernel, float]:
     """The Embree scene, the gather disks, the transfer kernel over them (each built once
     per process and input key) and the ray offset (scene units)."""
@@ -269,50 +248,64 @@ def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, Disks, TransferKernel,
     return tracer, disks, kernel, RAY_EPSILON * float(np.linalg.norm(bbox))
 
 
-def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+def tile_pixels(ctx: ChunkContext) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The chunk's pixel tile from the G-buffer: position, normal, tangent (P, 3)
+    float64, the unit direction to the eye ``wo`` and ``material`` (P,) per pixel in
+    raster order within the tile; and each pixel's global id (y · width + x)."""
     gbuf = ctx.inputs["gbuffer"]
     y0, y1, x0, x1 = ctx.chunk.region
-    width = ctx.scene["camera"]["width"]
     region = (slice(y0, y1), slice(x0, x1))
-    position = gbuf.read("position", region).reshape(-1, 3).astype(np.float64)
-    normal = gbuf.read("normal", region).reshape(-1, 3).astype(np.float64)
-    tangent = gbuf.read("tangent", region).reshape(-1, 3).astype(np.float64)
-    material = gbuf.read("material_id", region).reshape(-1)
-    rows_y, cols_x = np.divmod(np.arange(len(material)), x1 - x0)
-    pixel = (rows_y + y0) * width + cols_x + x0
+    out = {name: gbuf.read(name, region).reshape(-1, 3).astype(np.float64)
+           for name in ("position", "normal", "tangent")}
+    out["material"] = gbuf.read("material_id", region).reshape(-1)
+    rows_y, cols_x = np.divmod(np.arange(len(out["material"])), x1 - x0)
+    pixel = (rows_y + y0) * ctx.scene["camera"]["width"] + cols_x + x0
     eye = np.asarray(ctx.scene["camera"]["position"], np.float64)
-    wo = eye - position
-    wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-30)
+    wo = eye - out["position"]
+    out["wo"] = wo / np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-30)
+    return out, pixel
 
+
+def glossy_material_ids(ctx: AssembleContext) -> np.ndarray:
+    """Material indices (geometry order) of the glossy materials (model not lambert)
+    among those whose sections the chunk sees."""
+    names = ctx.inputs["geometry"].attrs["material_names"]
+    return np.array([i for i, name in enumerate(names)
+                     if ctx.scene.get(f"materials.{name}.model") not in (None, "lambert")],
+                    np.int64)
+
+
+def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
+    tile, pixel = tile_pixels(ctx)
     tracer, disks, kernel, epsilon = scene_tools(ctx)
-    tables = glossy_tables(ctx)
     keep = float(ctx.params["transfer.keep_tolerance"])
     cap = int(ctx.params["transfer.max_coefficients"])
+    glossy = np.isin(tile["material"], glossy_material_ids(ctx))
 
     d_parts: list[tuple[np.ndarray, dict, int]] = []
-    t_parts: list[tuple[np.ndarray, dict, int]] = []
-    seen = np.flatnonzero(material >= 0)
+    v_parts: list[tuple[np.ndarray, np.ndarray]] = []
+    seen = np.flatnonzero(tile["material"] >= 0)
     for start in range(0, len(seen), PIXEL_BATCH):
         batch = seen[start:start + PIXEL_BATCH]
-        vis = center_visibility(tracer, position[batch], normal[batch], disks, epsilon)
-        for mat in np.unique(material[batch]):
-            own = material[batch] == mat
-            sel = batch[own]
-            receivers = Receivers(position[sel], normal[sel], tangent[sel], wo[sel])
-            d, t = kernel(receivers, vis[own], tables.get(int(mat)))
-            d_parts.append((sel, compress_rows(d * disks.inverse_area, disks.area, keep,
-                                               cap), 1))
-            if t is not None:
-                rows = t.shape[1]
-                t = t.reshape(-1, t.shape[-1]) * disks.inverse_area
-                t_parts.append((sel, compress_rows(t, disks.area, keep, cap), rows))
-    unseen = np.flatnonzero(material < 0)
+        vis = center_visibility(tracer, tile["position"][batch], tile["normal"][batch],
+                                disks, epsilon)
+        receivers = Receivers(tile["position"][batch], tile["normal"][batch],
+                              tile["tangent"][batch], tile["wo"][batch])
+        d, _ = kernel(receivers, vis, None)
+        d_parts.append((batch, compress_rows(d * disks.inverse_area, disks.area, keep, cap), 1))
+        own = glossy[batch]
+        v_parts.append((batch[own], np.packbits(vis[own].astype(bool), axis=1)))
+    unseen = np.flatnonzero(tile["material"] < 0)
     d_parts.append((unseen, {"count": np.zeros(len(unseen), np.int32),
                              "residual": np.zeros(len(unseen), np.float32),
                              "index": np.zeros(0, np.int32), "value": np.zeros(0, np.float32)},
                     1))
     out = {f"d_{k}": v for k, v in _rows_by_pixel(pixel, d_parts).items()}
-    out.update({f"t_{k}": v for k, v in _rows_by_pixel(pixel, t_parts).items()})
+    local = join_arrays([sel for sel, _ in v_parts], np.int64)
+    order = np.argsort(local, kind="stable")
+    out["v_pixel"] = pixel[local[order]].astype(np.int32)
+    out["v_bits"] = (np.concatenate([bits for _, bits in v_parts])[order] if v_parts else
+                     np.zeros((0, (len(disks.area) + 7) // 8), np.uint8))
     return out  # the tile's rows: pieces of the artifact's segmented arrays
 
 
@@ -333,7 +326,7 @@ def layout(ctx: AssembleContext) -> Layout:
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
-    """The rows are the tiles' pieces in tile order; ``d_pixel`` and ``t_pixel`` name
+    """The rows are the tiles' pieces in tile order; ``d_pixel`` and ``v_pixel`` name
     each row's pixel (the truncate stage orders them by pixel)."""
     cam = ctx.scene["camera"]
     gather_count = int(ctx.inputs["d2i.gather"].attrs["count"])

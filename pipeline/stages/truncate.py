@@ -1,8 +1,8 @@
-"""Stage ``d2i.truncate``: cut the stored Haar rows of T and D down to the renderer's
-budgets (paper 000 §3.4, §7.2), one chunk per pixel tile of the transfer stage, each
-reading only its twin transfer tile and the bases of the materials it sees (so an edit
-of one material re-cuts only the tiles that see it). Schema ``compressed_transport``.
-Ms is cut by ``d2i.truncate_ms`` (pipeline/stages/truncate_bounce.py) by the same rules.
+"""Stage ``d2i.truncate``: cut the stored Haar rows of D down to the renderer's budgets
+(paper 000 §3.4, §7.2), one chunk per pixel tile of the transfer stage, each reading
+only its twin transfer tile. Schema ``compressed_transport``. T is cut by
+``d2i.truncate_t`` (pipeline/stages/truncate_glossy.py) and Ms by ``d2i.truncate_ms``
+(pipeline/stages/truncate_bounce.py), by the rules of this module.
 
 The ``transfer`` and ``bounce`` stages keep each row near-losslessly (its near entries
 in the gather domain, then Haar coefficients largest first, to
@@ -160,18 +160,15 @@ def coarse_first(count: np.ndarray, index: np.ndarray, value: np.ndarray, haar_l
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    """The tile's D rows over pixel blocks and its T rows, cut (T in the transfer tile's
-    row order)."""
+    """The tile's D rows over pixel blocks, cut."""
     transfer = ctx.inputs["d2i.transfer"]
-    arrays = {n: transfer.read_piece(n, ctx.chunk.id) for n in transfer.names}
+    arrays = {n: transfer.read_piece(n, ctx.chunk.id) for n in transfer.names
+              if n.startswith("d_")}
     haar_length = int(transfer.attrs["haar_length"])
     block = block_size(ctx.params, "truncate.d_block", "transfer.tile")
-    out = cut_pixel_blocks(ctx.params, arrays, haar_length,
-                           haar_length + int(transfer.attrs["gather_count"]),
-                           int(ctx.scene["camera"]["width"]), block)
-    out.update(cut_to_budget(ctx.params, "t", arrays, haar_length, _proportional_t(ctx, arrays)))
-    out["t_pixel"] = arrays["t_pixel"]
-    return out
+    return cut_pixel_blocks(ctx.params, arrays, haar_length,
+                            haar_length + int(transfer.attrs["gather_count"]),
+                            int(ctx.scene["camera"]["width"]), block)
 
 
 def cut_pixel_blocks(params: dict[str, Any], arrays: dict[str, np.ndarray], haar_length: int,
@@ -268,24 +265,6 @@ def _block_residual(rows: dict[str, np.ndarray], local: np.ndarray, blocks: int
     return np.sqrt(dropped / np.maximum(total, 1e-300)).astype(np.float32)
 
 
-def _proportional_t(ctx: ChunkContext, arrays: dict[str, np.ndarray]) -> np.ndarray:
-    """Per T row: truncate.coefficients × σ_j/σ_1 of the pixel's material (row 0: all)."""
-    coefficients = int(ctx.params["truncate.coefficients"])
-    pixel = arrays["t_pixel"]
-    if len(pixel) == 0:
-        return np.zeros(0, np.int64)
-    material = ctx.inputs["gbuffer"].read("material_id").reshape(-1)[pixel]
-    sv = ctx.inputs["brdf_basis"].read("singular_values")
-    first = np.r_[True, pixel[1:] != pixel[:-1]]
-    row = np.arange(len(pixel)) - np.maximum.accumulate(np.where(first, np.arange(len(pixel)),
-                                                                 0))
-    ratio = np.ones(len(pixel))
-    later = row > 0
-    s = sv[material[later], row[later] - 1] / np.maximum(sv[material[later], 0], 1e-300)
-    ratio[later] = np.maximum(s, 0.25)
-    return np.maximum(np.round(coefficients * ratio), 1).astype(np.int64)
-
-
 def layout(ctx: AssembleContext) -> Layout:
     return Layout(sizes=ROW_CHUNKS)
 
@@ -297,6 +276,5 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
         "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
         "budget": ctx.params["truncate.budget"],
         "tolerance": float(ctx.params["truncate.tolerance"]),
-        "coefficients": int(ctx.params["truncate.coefficients"]),
         "d_coefficients": int(ctx.params["truncate.d_coefficients"]),
         "d_block": int(ctx.params["truncate.d_block"])})
