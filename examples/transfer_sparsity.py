@@ -43,8 +43,9 @@ def far_counts(count: np.ndarray, index: np.ndarray, haar_length: int) -> np.nda
 
 def sparsity(workdir: Path, stage: str = "d2i.transfer") -> dict:
     """Per basis b (and ``"D"``): each row's coefficient count, its Haar coefficients
-    alone (``far``) and, for d2i.transfer, its residual; the cap and the gather count.
-    T's rows are read from ``stage``'s glossy twin (``{stage}_t``), D's from ``stage``."""
+    alone (``far``), for d2i.transfer its residual, and the cap of its stage (T's and
+    D's differ); the gather count. T's rows are read from ``stage``'s glossy twin
+    (``{stage}_t``), D's from ``stage``."""
     work = inspect.open_workdir(workdir)
     ds, d_rows = work.dataset(f"{stage}_t"), work.dataset(stage)
     haar = int(ds.attrs["haar_length"])
@@ -52,16 +53,17 @@ def sparsity(workdir: Path, stage: str = "d2i.transfer") -> dict:
     counts = ds["t_count"].values
     far = far_counts(counts, ds["t_index"].values, haar)
     residual = ds["t_residual"].values if "t_residual" in ds else None
+    t_cap = ds.attrs.get("max_coefficients") or ds.attrs.get("coefficients")
     rows = {}
     for b in range(int(basis.max()) + 1 if len(basis) else 0):
         pick = basis == b
-        rows[f"b{b}"] = {"count": counts[pick], "far": far[pick],
+        rows[f"b{b}"] = {"count": counts[pick], "far": far[pick], "cap": t_cap,
                          "residual": None if residual is None else residual[pick]}
     d_count = d_rows["d_count"].values
     rows["D"] = {"count": d_count, "far": far_counts(d_count, d_rows["d_index"].values, haar),
+                 "cap": d_rows.attrs.get("max_coefficients"),
                  "residual": d_rows["d_residual"].values if "d_residual" in d_rows else None}
-    cap = ds.attrs.get("max_coefficients") or ds.attrs.get("coefficients")
-    return {"rows": rows, "cap": cap, "gathers": int(ds.attrs["gather_count"])}
+    return {"rows": rows, "gathers": int(ds.attrs["gather_count"])}
 
 
 def main() -> None:
@@ -75,13 +77,18 @@ def main() -> None:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     axes[0].boxplot(counts, showfliers=False)
     axes[0].set_xticks(range(1, len(names) + 1), names)
-    if s["cap"]:
-        axes[0].axhline(s["cap"], ls=":", color="k", label=f"cap {s['cap']}")
+    caps = [s["rows"][n]["cap"] for n in names]
+    for i, cap in enumerate(caps, start=1):
+        if cap:
+            axes[0].hlines(cap, i - 0.4, i + 0.4, ls=":", color="k",
+                           label="cap" if i == 1 else None)
+    if any(caps):
         axes[0].legend(fontsize=8)
     axes[0].set_ylabel("coefficients per row")
     axes[0].set_title(f"kept of {s['gathers']} gathers (+ near entries)")
     fars = [s["rows"][n]["far"][s["rows"][n]["count"] > 0] for n in names]
-    capped = [float((f >= s["cap"]).mean()) if s["cap"] and len(f) else 0.0 for f in fars]
+    capped = [float((f >= cap).mean()) if cap and len(f) else 0.0
+              for f, cap in zip(fars, caps, strict=True)]
     axes[1].bar(names, capped)
     axes[1].set_ylim(0, 1)
     axes[1].set_title("rows whose Haar coefficients reach the cap")

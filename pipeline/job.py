@@ -437,13 +437,14 @@ def frame_states(scene: Scene, workdir: Workdir, frames: Path,
 
 
 def load_geometry(scene: Scene, workdir: Workdir, quiet: bool = True) -> tuple[dict, str]:
-    """Bake the geometry stage if stale; its arrays and names as a dict, and its key."""
+    """Bake the geometry stage if stale; its arrays and names as a dict, and its output
+    digest (the hash of its bytes: unchanged by a code edit that leaves them alone)."""
     bake(scene, workdir, until="geometry", quiet=quiet)
     artifact = open_artifact(workdir.artifact("geometry"), "geometry")
     arrays: dict[str, Any] = {n: artifact.read(n) for n in artifact.names}
     arrays["object_names"] = artifact.attrs["object_names"]
     arrays["material_names"] = artifact.attrs["material_names"]
-    return arrays, artifact.record["key"]
+    return arrays, artifact.record["digest"]
 
 
 @dataclass
@@ -458,17 +459,17 @@ class ReferenceResult:
 def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
               ) -> ReferenceResult:
     """The reference image for ``settings`` (a ReferenceSettings), rendered unless an
-    artifact with the same key (scene camera, lights and materials, geometry, renderer
-    code, settings) is stored under ``workdir/reference/``."""
+    artifact with the same key (scene camera, lights and materials, the geometry's
+    bytes, renderer code, settings) is stored under ``workdir/reference/``."""
     import dataclasses
 
     from pipeline import reference as ref
     from pipeline.schema import load_schema
     from pipeline.store import software_versions, write_artifact
 
-    geometry, geometry_key = load_geometry(scene, workdir, quiet)
+    geometry, geometry_digest = load_geometry(scene, workdir, quiet)
     parts = {"code": code_version(["pipeline.reference"]),
-             "geometry": geometry_key, "settings": dataclasses.asdict(settings),
+             "geometry": geometry_digest, "settings": dataclasses.asdict(settings),
              "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}}
     key = digest(parts)
     lobe = "" if settings.lobe == "all" else f"-{settings.lobe}"

@@ -375,13 +375,19 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     row, shared by the tile, T row b0 at most ``truncate.coefficients``, Ms's rows (in
     blocks of 16 gather samples) ``truncate.ms_coefficients`` per row, T rows
     b_j (j ≥ 1) no more than b0's budget; and a D budget of its own changes D only (T's
-    stored rows are byte-identical)."""
+    stored rows are byte-identical). Upstream, D's, T's and Ms's near-lossless rows are
+    capped by their own parameters (``transfer.d_max_coefficients``,
+    ``transfer.max_coefficients``, ``bounce.max_coefficients``)."""
     from pipeline.math.blocks import pixel_blocks
     from pipeline.store import open_artifact
 
+    caps = {"d2i.transfer": 300, "d2i.transfer_t": 100, "d2i.bounce": 200}
     scene = _scene(16).with_settings({"gather.count": 512, "truncate.coefficients": 40,
                                       "truncate.d_coefficients": 40,
-                                      "truncate.ms_coefficients": 40})
+                                      "truncate.ms_coefficients": 40,
+                                      "transfer.d_max_coefficients": 300,
+                                      "transfer.max_coefficients": 100,
+                                      "bounce.max_coefficients": 200})
     workdir = job.workdir_for(scene, tmp_path / "w")
     job.bake(scene, workdir, quiet=True)
 
@@ -398,6 +404,11 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
         block = stored["d_row"] // 16
         return (np.bincount(block, weights=count), np.bincount(block, weights=far))
 
+    # the near-lossless stages cap their rows each by its own parameter (the cap binds)
+    for stage, prefix in (("d2i.transfer", "d"), ("d2i.transfer_t", "t"), ("d2i.bounce", "ms")):
+        _, far, _ = rows(stage, prefix)
+        assert open_artifact(workdir.artifact(stage)).attrs["max_coefficients"] == caps[stage]
+        assert far.max() == caps[stage], stage
     transfer = open_artifact(workdir.artifact("d2i.transfer"))
     block, _ = pixel_blocks(transfer.read("d_pixel"), 16, 4)
     pixels_with_rows = np.bincount(block, weights=transfer.read("d_count") > 0)

@@ -31,7 +31,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     start, end = ctx.chunk.span
     end = min(end, len(disks.center))
     keep = float(ctx.params["transfer.keep_tolerance"])
-    cap = int(ctx.params["transfer.max_coefficients"])
+    cap = int(ctx.params["bounce.max_coefficients"])
     parts = []
     for s in range(start, end, PIXEL_BATCH):
         rows = slice(s, min(s + PIXEL_BATCH, end))
@@ -51,4 +51,4 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     return Output({
         "gather_count": int(ctx.inputs["d2i.gather"].attrs["count"]),
         "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
-        "max_coefficients": int(ctx.params["transfer.max_coefficients"])})
+        "max_coefficients": int(ctx.params["bounce.max_coefficients"])})

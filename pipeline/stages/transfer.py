@@ -22,9 +22,10 @@ visibility.
 Rows are stored in the Haar domain (pipeline/math/haar.py, gather index padded to a power
 of two), truncated losslessly in practice: each row keeps its largest coefficients until
 the dropped ones hold at most ``transfer.keep_tolerance`` of the row's norm (relative L2),
-and never more than ``transfer.max_coefficients``; ``*_residual`` records what each row
-lost. Rows are variable-length (CSR: per-row counts, flat indices and values, largest
-coefficient first within a row). Dense rows would not fit (400² pixels × 16k gathers ×
+and never more than ``transfer.d_max_coefficients`` (D; T's rows
+``transfer.max_coefficients``); ``*_residual`` records what each row lost. Rows are
+variable-length (CSR: per-row counts, flat indices and values, largest coefficient
+first within a row). Dense rows would not fit (400² pixels × 16k gathers ×
 4 bytes is 10 GB for D alone); the ``truncate`` stages then cut these rows down to the
 renderer's budgets without recomputing transport, so budget sweeps re-run only them.
 """
@@ -279,7 +280,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     tile, pixel = tile_pixels(ctx)
     tracer, disks, kernel, epsilon = scene_tools(ctx)
     keep = float(ctx.params["transfer.keep_tolerance"])
-    cap = int(ctx.params["transfer.max_coefficients"])
+    cap = int(ctx.params["transfer.d_max_coefficients"])
     glossy = np.isin(tile["material"], glossy_material_ids(ctx))
 
     d_parts: list[tuple[np.ndarray, dict, int]] = []
@@ -300,7 +301,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
                              "residual": np.zeros(len(unseen), np.float32),
                              "index": np.zeros(0, np.int32), "value": np.zeros(0, np.float32)},
                     1))
-    out = {f"d_{k}": v for k, v in _rows_by_pixel(pixel, d_parts).items()}
+    out = {f"d_{k}": v for k, v in rows_by_pixel(pixel, d_parts).items()}
     local = join_arrays([sel for sel, _ in v_parts], np.int64)
     order = np.argsort(local, kind="stable")
     out["v_pixel"] = pixel[local[order]].astype(np.int32)
@@ -309,7 +310,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     return out  # the tile's rows: pieces of the artifact's segmented arrays
 
 
-def _rows_by_pixel(pixel: np.ndarray, parts: list[tuple[np.ndarray, dict, int]]
+def rows_by_pixel(pixel: np.ndarray, parts: list[tuple[np.ndarray, dict, int]]
                    ) -> dict[str, np.ndarray]:
     """CSR rows of ``parts`` [(local pixels, their rows, rows per pixel)] ordered by
     pixel (a pixel's rows stay together, in order), with ``pixel`` the global id of
@@ -328,10 +329,15 @@ def layout(ctx: AssembleContext) -> Layout:
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     """The rows are the tiles' pieces in tile order; ``d_pixel`` and ``v_pixel`` name
     each row's pixel (the truncate stage orders them by pixel)."""
+    return Output(row_attrs(ctx, "transfer.d_max_coefficients"))
+
+
+def row_attrs(ctx: AssembleContext, cap: str) -> dict[str, Any]:
+    """The attributes of an artifact of per-pixel rows: the image and gather counts,
+    the Haar length and the near-lossless cut (``cap``: the parameter that capped it)."""
     cam = ctx.scene["camera"]
     gather_count = int(ctx.inputs["d2i.gather"].attrs["count"])
-    return Output({
-        "width": cam["width"], "height": cam["height"], "gather_count": gather_count,
-        "haar_length": haar.padded_length(gather_count),
-        "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
-        "max_coefficients": int(ctx.params["transfer.max_coefficients"])})
+    return {"width": cam["width"], "height": cam["height"], "gather_count": gather_count,
+            "haar_length": haar.padded_length(gather_count),
+            "keep_tolerance": float(ctx.params["transfer.keep_tolerance"]),
+            "max_coefficients": int(ctx.params[cap])}

@@ -27,12 +27,12 @@ from pipeline.math.transfer import GlossyTable, Receivers
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.stages.transfer import (
     PIXEL_BATCH,
-    _rows_by_pixel,
     compress_rows,
+    row_attrs,
+    rows_by_pixel,
     scene_tools,
     tile_pixels,
 )
-from pipeline.stages.transfer import finalize as transfer_finalize
 from pipeline.stages.transfer import layout as transfer_layout
 
 
@@ -85,7 +85,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         rows = t.shape[1]
         t = t.reshape(-1, t.shape[-1]) * disks.inverse_area
         parts.append((batch, compress_rows(t, disks.area, keep, cap), rows))
-    return {f"t_{k}": v for k, v in _rows_by_pixel(pixel, parts).items()}
+    return {f"t_{k}": v for k, v in rows_by_pixel(pixel, parts).items()}
 
 
 def layout(ctx: AssembleContext) -> Layout:
@@ -93,4 +93,4 @@ def layout(ctx: AssembleContext) -> Layout:
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
-    return transfer_finalize(ctx, metas)
+    return Output(row_attrs(ctx, "transfer.max_coefficients"))
