@@ -317,7 +317,12 @@ def plan_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: P
     key = digest({"frame": frame_key(scene, workdir, m, options), "spec": spec,
                   "edits": edits})
     return SequencePlan(spec, kind, scenes, edits, rest[0] if rest else "", exr,
-                        out.with_name(f"{out.stem}_{kind}.json"), key)
+                        sequence_record(out, kind), key)
+
+
+def sequence_record(out: Path, kind: str) -> Path:
+    """The record of the ``kind`` sequence (a sequence spec's head) beside frame ``out``."""
+    return out.with_name(f"{out.stem}_{kind}.json")
 
 
 def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
@@ -418,10 +423,11 @@ def frame_states(scene: Scene, workdir: Workdir, frames: Path,
     names = ["frame", *(f"sequence {spec}" for spec in method.main_sequences)]
     if waiting:
         # without the artifacts there is no key to compare with
-        present = [out.is_file(), *(None for _ in method.main_sequences)]
-        return [OutputState(n, out, "stale" if p else "missing",
+        paths = [out, *(sequence_record(out, spec.partition(":")[0])
+                        for spec in method.main_sequences)]
+        return [OutputState(n, path, "stale" if path.is_file() else "missing",
                             f"waits for {', '.join(waiting)}")
-                for n, p in zip(names, present, strict=True)]
+                for n, path in zip(names, paths, strict=True)]
     options = method.option_values({})
     key = frame_key(scene, workdir, method, options)
     states = [OutputState("frame", out, *output_state(out.with_suffix(".json"), key))]

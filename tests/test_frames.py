@@ -255,3 +255,17 @@ def test_emitter_overlay_draws_a_moved_quad_where_it_is():
     near = EmitterOverlay(camera, d * (-1.0 / d[:, 2:3]), np.zeros(size * size, np.int32),
                           bounds)
     assert not (near.draw(rgb, moved) == 5.0).any()  # behind a nearer surface: hidden
+
+
+def test_outputs_waiting_for_the_bake_name_their_own_files(tmp_path):
+    """Before a bake, `prt status` lists the frame and each sequence as missing, waiting
+    for the stages, each under its own file (a sequence under its record), not all
+    under the frame's."""
+    scene = load_scene(write_scene(tmp_path, _d2i_doc(8)))
+    wd, frames = job.workdir_for(scene, tmp_path / "w"), tmp_path / "f"
+    states = job.frame_states(scene, wd, frames, job.status(scene, wd))
+    assert [(o.name, o.state, o.path.name) for o in states] == [
+        ("frame", "missing", "tiny_d2i.exr"),
+        ("sequence light:8", "missing", "tiny_d2i_light.json"),
+        ("sequence gamma:8", "missing", "tiny_d2i_gamma.json")]
+    assert all(o.reason.startswith("waits for ") for o in states)
