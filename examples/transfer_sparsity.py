@@ -23,15 +23,12 @@ import numpy as np
 from _example import parser, write_figure
 
 from pipeline import inspect
+from pipeline.rows import place_in_runs
 
 
 def basis_of_rows(t_pixel: np.ndarray) -> np.ndarray:
     """The PCA basis (0 = b0) of each T row: its place in its pixel's run of rows."""
-    if len(t_pixel) == 0:
-        return np.zeros(0, np.int64)
-    first = np.flatnonzero(np.r_[True, t_pixel[1:] != t_pixel[:-1]])
-    run = np.repeat(first, np.diff(np.r_[first, len(t_pixel)]))
-    return np.arange(len(t_pixel)) - run
+    return place_in_runs(t_pixel)
 
 
 def far_counts(count: np.ndarray, index: np.ndarray, haar_length: int) -> np.ndarray:

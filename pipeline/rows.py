@@ -26,6 +26,16 @@ def join_arrays(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
     return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
 
 
+def place_in_runs(key: np.ndarray) -> np.ndarray:
+    """Each entry's place (0, 1, ...) in its run of equal consecutive ``key`` values: a
+    T row's basis index b_j from the pixel of each row (a pixel's rows consecutive)."""
+    if len(key) == 0:
+        return np.zeros(0, np.int64)
+    first = np.r_[True, key[1:] != key[:-1]]
+    index = np.arange(len(key))
+    return index - np.maximum.accumulate(np.where(first, index, 0))
+
+
 def sort_rows(key: np.ndarray, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """CSR rows (``count`` and, if present, ``residual`` and ``scale`` per row; flat
     ``index``, ``value``) reordered by ``key`` (one per row; stable, so rows with equal keys keep

@@ -179,3 +179,13 @@ def test_stored_values_round_trip_within_float16_over_the_row_rms():
     assert np.all(np.abs(back - value) <= bound * (1 + 1e-6))
     np.testing.assert_array_equal(back[503:510], 0.0)  # the zero row
     assert scale[1] == 1.0 and scale[2] == 1.0
+
+
+def test_place_in_runs_numbers_each_pixels_rows_from_zero():
+    """A T row's basis index is its place in its pixel's run of rows: 0, 1, ... within
+    each run of equal pixel ids (a repeated id after another run starts again at 0)."""
+    from pipeline.rows import place_in_runs
+
+    pixel = np.array([7, 7, 7, 3, 9, 9, 7, 7])
+    np.testing.assert_array_equal(place_in_runs(pixel), [0, 1, 2, 0, 0, 1, 0, 1])
+    assert place_in_runs(np.zeros(0, np.int32)).shape == (0,)

@@ -61,7 +61,7 @@ from pipeline.math.lights import LIGHT_FLOATS, light_defines, total_samples
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import DeviceShadows, light_visibility
-from pipeline.rows import Rows, quantise_values, sort_rows
+from pipeline.rows import Rows, place_in_runs, quantise_values, sort_rows
 from pipeline.scene import Scene
 from pipeline.store import Artifact
 
@@ -405,8 +405,7 @@ class D2iRenderer:
         material = self.direct.material_id[self.t_pixel]
         first = np.r_[True, self.t_pixel[1:] != self.t_pixel[:-1]] if len(self.t_pixel) \
             else np.zeros(0, bool)
-        row_in_pixel = np.arange(len(self.t_pixel)) - np.maximum.accumulate(
-            np.where(first, np.arange(len(self.t_pixel)), 0))
+        row_in_pixel = place_in_runs(self.t_pixel)
         scale = coefficients[material, row_in_pixel] if len(self.t_pixel) else np.zeros(0)
         counts = np.diff(self.t.offsets)
         row_of_entry = np.repeat(np.arange(self.t.count), counts)

@@ -16,8 +16,6 @@ one material's γ range (a new basis) re-runs only that material's chunks.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from pipeline.errors import PrtError
@@ -38,16 +36,13 @@ from pipeline.stages.transfer import layout as transfer_layout
 
 def glossy_table(ctx: AssembleContext, name: str) -> GlossyTable:
     """Material ``name``'s basis tabulated for the kernel, with its fixed parameters
-    (f0 from ior where given; γ is the basis's variable, not read)."""
-    def get(key: str, default: Any) -> Any:
-        value = ctx.scene.get(f"materials.{name}.{key}")
-        return default if value is None else value
-
-    f0 = get("f0", 0.04)
-    if get("ior", None) is not None:
-        f0 = ((get("ior", 1.5) - 1.0) / (get("ior", 1.5) + 1.0)) ** 2
-    params = BrdfParams(get("model", "lambert"), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0,
-                        get("alpha_ratio", 1.0), get("cxy", -1.0), get("cz", 1.0), f0)
+    (albedo 0, ρs 1; γ is the basis's variable, not read)."""
+    shape = {key: ctx.scene.get(f"materials.{name}.{key}")
+             for key in ("alpha_ratio", "cxy", "cz", "f0", "ior")}
+    params = BrdfParams.from_material(
+        ctx.scene[f"materials.{name}.model"], (0.0, 0.0, 0.0),
+        {**{k: v for k, v in shape.items() if v is not None}, "specular": (1.0, 1.0, 1.0),
+         "gamma": 1.0})
     return GlossyTable.from_basis(read_basis(ctx.inputs["brdf_basis"], name, params))
 
 

@@ -270,11 +270,16 @@ def layout(ctx: AssembleContext) -> Layout:
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
-    transfer = ctx.inputs["d2i.transfer"].attrs
-    return Output({
-        "width": transfer["width"], "height": transfer["height"],
-        "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
-        "budget": ctx.params["truncate.budget"],
-        "tolerance": float(ctx.params["truncate.tolerance"]),
-        "d_coefficients": int(ctx.params["truncate.d_coefficients"]),
-        "d_block": int(ctx.params["truncate.d_block"])})
+    return Output({**cut_attrs(ctx, "d2i.transfer"),
+                   "d_coefficients": int(ctx.params["truncate.d_coefficients"]),
+                   "d_block": int(ctx.params["truncate.d_block"])})
+
+
+def cut_attrs(ctx: AssembleContext, source: str) -> dict[str, Any]:
+    """The attributes every cut artifact carries: the image, gather count and Haar
+    length of the rows it cut (input ``source``) and the budget rule."""
+    rows = ctx.inputs[source].attrs
+    return {"width": rows["width"], "height": rows["height"],
+            "gather_count": rows["gather_count"], "haar_length": rows["haar_length"],
+            "budget": ctx.params["truncate.budget"],
+            "tolerance": float(ctx.params["truncate.tolerance"])}

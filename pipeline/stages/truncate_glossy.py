@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.rows import place_in_runs
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
-from pipeline.stages.truncate import cut_to_budget
+from pipeline.stages.truncate import cut_attrs, cut_to_budget
 from pipeline.stages.truncate import layout as truncate_layout
 
 MIN_RATIO = 0.25  # a basis row keeps at least this share of b0's budget
@@ -24,11 +25,7 @@ def proportional_budgets(pixel: np.ndarray, singular_values: np.ndarray, coeffic
     """Per T row (``pixel``: each row's pixel, a pixel's rows b0..bk consecutive): the
     proportional rule's coefficient budget, ``coefficients`` × σ_j/σ_1 for row j ≥ 1 of
     its pixel (``singular_values``: the material's σ_1..σ_k), ``coefficients`` for b0."""
-    if len(pixel) == 0:
-        return np.zeros(0, np.int64)
-    first = np.r_[True, pixel[1:] != pixel[:-1]]
-    row = np.arange(len(pixel)) - np.maximum.accumulate(np.where(first, np.arange(len(pixel)),
-                                                                 0))
+    row = place_in_runs(pixel)
     ratio = np.ones(len(pixel))
     later = row > 0
     s = singular_values[row[later] - 1] / max(float(singular_values[0]), 1e-300)
@@ -55,10 +52,5 @@ def layout(ctx: AssembleContext) -> Layout:
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
-    transfer = ctx.inputs["d2i.transfer_t"].attrs
-    return Output({
-        "width": transfer["width"], "height": transfer["height"],
-        "gather_count": transfer["gather_count"], "haar_length": transfer["haar_length"],
-        "budget": ctx.params["truncate.budget"],
-        "tolerance": float(ctx.params["truncate.tolerance"]),
-        "coefficients": int(ctx.params["truncate.coefficients"])})
+    return Output({**cut_attrs(ctx, "d2i.transfer_t"),
+                   "coefficients": int(ctx.params["truncate.coefficients"])})
