@@ -220,33 +220,57 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
     owner = np.zeros_like(row) if pooled else row // n
     group = np.where(index >= haar_length, 0,
                      np.where((index < COARSE_KEPT) & (row % n == 0), 1, 2))
-    # one sort by (block, group, largest first): magnitudes as float32 bit patterns,
-    # which order as the magnitudes do
+    # an owner's entries in the order they are kept: by group, then largest first
+    # (magnitudes as float32 bit patterns, which order as the magnitudes do), then as
+    # they come
     magnitude = np.abs(value).astype(np.float32).view(np.int32).astype(np.int64)
-    order = np.argsort((owner << 34) | (group << 31) | (0x7FFFFFFF - magnitude),
-                       kind="stable")
-    row, index, value, group = row[order], index[order], value[order], group[order]
+    rank = (group << 31) | (0x7FFFFFFF - magnitude)
     owners = 1 if pooled else len(blocks)
-    per_block = np.bincount(owner[order], minlength=owners)
-    near = group == 0
     owner_of_row = np.zeros_like(local) if pooled else local
+    per_owner = np.bincount(owner, minlength=owners)
     if budget_rule(params) == "tolerance":
-        keep = kept_counts(per_block, _block_residual(rows, owner_of_row, owners), value,
-                           float(params["truncate.tolerance"]), near, group == 1)
+        order = np.argsort((owner << 34) | rank, kind="stable")
+        keep = kept_counts(per_owner, _block_residual(rows, owner_of_row, owners),
+                           value[order], float(params["truncate.tolerance"]),
+                           group[order] == 0, group[order] == 1)
+        kept = order[_leading(per_owner, keep)]
     else:
         rows_with_entries = np.bincount(owner_of_row, weights=count > 0, minlength=owners)
-        near_count = np.bincount(owner[order], weights=near, minlength=owners)
+        near_count = np.bincount(owner, weights=group == 0, minlength=owners)
         keep = (near_count + budget * rows_with_entries).astype(np.int64)
-    start = np.concatenate([[0], np.cumsum(per_block)[:-1]])
-    kept = np.arange(len(row)) - np.repeat(start, per_block) < np.repeat(keep, per_block)
+        if pooled:  # one owner: a selection, not a sort
+            kept = _smallest(rank, int(keep[0]))
+        else:
+            order = np.argsort((owner << 34) | rank, kind="stable")
+            kept = order[_leading(per_owner, keep)]
+    # each row's entries in its owner's order
+    kept = kept[np.lexsort((kept, rank[kept], row[kept]))]
     row, index, value = row[kept], index[kept], value[kept]
-    within = np.argsort(row, kind="stable")  # each row's entries in the block's order
-    row, index, value = row[within], index[within], value[within]
     counts = np.bincount(row, minlength=len(blocks) * n).astype(np.int32)
     scale, half = quantise_values(counts, value)
     all_rows = np.arange(len(blocks) * n)
     return {"row": (blocks[all_rows // n] * n + all_rows % n).astype(np.int32),
             "count": counts, "index": index.astype(np.int32), "value": half, "scale": scale}
+
+
+def _leading(per_owner: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Positions, in a list of entries grouped by owner (``per_owner`` entries each, in
+    order), of each owner's first ``keep`` entries."""
+    start = np.concatenate([[0], np.cumsum(per_owner)[:-1]])
+    place = np.arange(int(per_owner.sum())) - np.repeat(start, per_owner)
+    return np.flatnonzero(place < np.repeat(keep, per_owner))
+
+
+def _smallest(rank: np.ndarray, keep: int) -> np.ndarray:
+    """Positions of the ``keep`` smallest of ``rank`` (int64), equal ranks by position —
+    the first ``keep`` of a stable sort, found by one partition (linear time)."""
+    if keep >= len(rank):
+        return np.arange(len(rank))
+    if keep <= 0:
+        return np.zeros(0, np.int64)
+    last = np.partition(rank, keep - 1)[keep - 1]
+    below = np.flatnonzero(rank < last)
+    return np.concatenate([below, np.flatnonzero(rank == last)[:keep - len(below)]])
 
 
 def _block_residual(rows: dict[str, np.ndarray], local: np.ndarray, blocks: int
