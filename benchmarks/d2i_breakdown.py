@@ -10,8 +10,9 @@ transport (the indirect image is what d2i approximates; its direct term is exact
                 to 1 and 2; the floor's indirect error next to the basis's own error.
 ``truncation``  a sharp indirect shadow: a narrow spot light (the only light) lights a
                 low patch of the back wall behind the small box, which casts that
-                patch's indirect shadow on the floor in front of it. truncate.tolerance
-                swept; the floor's indirect error.
+                patch's indirect shadow on the floor in front of it. The proportional
+                budgets (the default rule) swept together — D's per pixel, T's b0 and
+                Ms's per row, as multiples of the defaults; the floor's indirect error.
 
 Each study writes ``d2i_breakdown_<study>.json`` and a chart (PNG) into ``--out``, and
 the indirect images (×4) of its extremes for viewing.
@@ -37,6 +38,7 @@ from pipeline.math.brdf_pca import read_basis
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene, default_scene_path, load_scene
 from pipeline.scene_edits import with_material_edits
+from pipeline.stagefile import load_stagefile
 from pipeline.store import open_artifact
 
 
@@ -176,14 +178,19 @@ def _truncation(out: Path, workdir: Path, size: int, spp: int) -> None:
         del doc["objects"]["luminaire"]
 
     scene = _variant(workdir, "cornell_spot", spot_on_back_wall).with_image_size(size, size)
+    defaults = load_stagefile().params
+    budgets = ("truncate.d_coefficients", "truncate.coefficients", "truncate.ms_coefficients")
     rows = []
-    for tolerance in (0.001, 0.005, 0.02, 0.05, 0.1, 0.2, 0.4):
-        baked = scene.with_settings({"gather.count": 4096, "truncate.tolerance": tolerance})
+    for factor in (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625):
+        settings = {name: max(1, round(factor * int(defaults[name]))) for name in budgets}
+        baked = scene.with_settings({"gather.count": 4096, "truncate.budget": "proportional",
+                                     **settings})
         row = _indirect_errors(baked, baked, workdir, spp, ["floor"])
-        rows.append({"truncate.tolerance": tolerance, **row})
-        click.echo(f"tolerance {tolerance}: floor {row['floor']['noise_corrected']:.3f}")
-    _save(out, "truncation", rows, "truncate.tolerance", ["floor", "surfaces"],
-          "truncate.tolerance (relative L2 per row)")
+        rows.append({**settings, **row})
+        click.echo(f"budgets ×{factor} (D {settings[budgets[0]]} per pixel): floor "
+                   f"{row['floor']['noise_corrected']:.3f}")
+    _save(out, "truncation", rows, budgets[0], ["floor", "surfaces"],
+          "D coefficients per pixel (T's and Ms's budgets scaled alike)")
 
 
 STUDIES = {"gathers": _gathers, "gamma": _gamma, "truncation": _truncation}
