@@ -164,3 +164,24 @@ def test_pooled_selection_is_the_head_of_a_stable_sort():
     for keep in (0, 1, 37, 500, 999, 1000, 1200):
         expected = np.sort(np.argsort(rank, kind="stable")[:keep])
         np.testing.assert_array_equal(np.sort(_smallest(rank, keep)), expected)
+
+
+def test_cut_rows_are_stored_by_ascending_index():
+    """Every cut row (per row: cut_to_budget; per block: cut_pixel_blocks, both budget
+    rules) stores its entries by strictly ascending index — the order zstd packs best
+    (truncate.by_index) — and keeps the same entries as the order they were chosen in."""
+    from pipeline.stages.truncate import cut_pixel_blocks, cut_to_budget
+
+    width, height, length = 8, 8, 64
+    rows = _pixel_rows(np.random.default_rng(11), width, height, length, 60)
+    columns = length + 60
+    for rule in ("proportional", "tolerance"):
+        params = {"truncate.budget": rule, "truncate.d_coefficients": 6,
+                  "truncate.coefficients": 6, "truncate.tolerance": 0.1,
+                  "truncate.shared_budget": "chunk"}
+        for cut in (cut_pixel_blocks(params, rows, length, columns, width, 4),
+                    cut_to_budget(params, "d", rows, length)):
+            row = np.repeat(np.arange(len(cut["d_count"])), cut["d_count"])
+            same_row = row[1:] == row[:-1]
+            assert np.all(np.diff(cut["d_index"])[same_row] > 0)
+            assert same_row.any()
