@@ -249,21 +249,20 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
     owners = 1 if pooled else len(blocks)
     owner_of_row = np.zeros_like(local) if pooled else local
     per_owner = np.bincount(owner, minlength=owners)
+    order = None  # the entries by owner, then rank: not needed for one owner's budget
     if budget_rule(params) == "tolerance":
         order = np.argsort((owner << 34) | rank, kind="stable")
         keep = kept_counts(per_owner, _block_residual(rows, owner_of_row, owners),
                            value[order], float(params["truncate.tolerance"]),
                            group[order] == 0, group[order] == 1)
-        kept = order[_leading(per_owner, keep)]
     else:
         rows_with_entries = np.bincount(owner_of_row, weights=count > 0, minlength=owners)
         near_count = np.bincount(owner, weights=group == 0, minlength=owners)
         keep = (near_count + budget * rows_with_entries).astype(np.int64)
-        if pooled:  # one owner: a selection, not a sort
-            kept = _smallest(rank, int(keep[0]))
-        else:
+        if not pooled:
             order = np.argsort((owner << 34) | rank, kind="stable")
-            kept = order[_leading(per_owner, keep)]
+    kept = (_smallest(rank, int(keep[0])) if order is None  # a selection, not a sort
+            else order[_leading(per_owner, keep)])
     kept = kept[_row_index_order(row[kept], index[kept])]  # as by_index stores rows
     row, index, value = row[kept], index[kept], value[kept]
     counts = np.bincount(row, minlength=len(blocks) * n).astype(np.int32)
