@@ -115,6 +115,7 @@ class Workdir:
 def software_versions() -> dict[str, str]:
     """Versions of the libraries whose behaviour shapes artifact contents."""
     import platform
+    from importlib import metadata
 
     import zarr
 
@@ -122,9 +123,9 @@ def software_versions() -> dict[str, str]:
 
     versions = {"python": platform.python_version(), "numpy": np.__version__,
                 "zarr": zarr.__version__, "prt": pipeline.__version__}
-    for name in ("trimesh", "embreex", "scipy"):
-        with contextlib.suppress(Exception):
-            versions[name] = __import__(name).__version__
+    for name in ("trimesh", "embreex", "scipy"):  # from their metadata: importing
+        with contextlib.suppress(metadata.PackageNotFoundError):  # trimesh takes 0.7 s
+            versions[name] = metadata.version(name)
     return versions
 
 

@@ -154,18 +154,6 @@ def test_block_sizes_must_be_powers_of_two_within_a_chunk():
             block_size(params, "truncate.d_block", "transfer.tile")
 
 
-def test_pooled_selection_is_the_head_of_a_stable_sort():
-    """truncate._smallest (the pooled budget's selection, a partition instead of a sort)
-    keeps exactly the first ``keep`` entries of a stable sort, equal ranks by position —
-    on ranks with many ties (8 distinct values), at every kind of ``keep``."""
-    from pipeline.stages.truncate import _smallest
-
-    rank = np.random.default_rng(5).integers(0, 8, size=1000).astype(np.int64) << 31
-    for keep in (0, 1, 37, 500, 999, 1000, 1200):
-        expected = np.sort(np.argsort(rank, kind="stable")[:keep])
-        np.testing.assert_array_equal(np.sort(_smallest(rank, keep)), expected)
-
-
 def test_cut_rows_are_stored_by_ascending_index():
     """Every cut row (per row: cut_to_budget; per block: cut_pixel_blocks, both budget
     rules) stores its entries by strictly ascending index — the order zstd packs best

@@ -19,6 +19,8 @@ from functools import cache
 
 import numpy as np
 
+from pipeline.math.selection import largest_magnitudes
+
 _SQRT_HALF = np.sqrt(0.5)
 BLOCK_LEVELS = 5  # levels per matrix product in forward (blocks of 32)
 
@@ -101,21 +103,21 @@ def inverse(coefficients: np.ndarray, n: int | None = None) -> np.ndarray:
 def truncate(coefficients: np.ndarray, tolerance: float, cap: int) -> dict[str, np.ndarray]:
     """Keep each row's largest coefficients of (rows, N), largest first, until the dropped
     ones hold at most ``tolerance`` of the row's norm (relative L2), and never more than
-    ``cap``. CSR result: ``count`` (rows,) int32, flat ``index`` int32 and ``value``
-    float32 (Σ count,), and ``residual`` (rows,) float32, the dropped coefficients' norm
-    over the row's norm (0 for an all-zero row, which keeps nothing)."""
+    ``cap`` (of equal magnitudes, the lower index first). CSR result: ``count`` (rows,)
+    int32, flat ``index`` int32 and ``value`` float32 (Σ count,), and ``residual``
+    (rows,) float32, the dropped coefficients' norm over the row's norm (0 for an
+    all-zero row, which keeps nothing)."""
     coefficients = np.asarray(coefficients)
     n, size = coefficients.shape
     cap = min(int(cap), size)
     if cap == 0 or n == 0:
         return {"count": np.zeros(n, np.int32), "index": np.zeros(0, np.int32),
                 "value": np.zeros(0, np.float32), "residual": np.zeros(n, np.float32)}
-    top = np.argpartition(-np.abs(coefficients), cap - 1, axis=1)[:, :cap] if cap < size \
-        else np.broadcast_to(np.arange(size), (n, size)).copy()
+    top = largest_magnitudes(coefficients, cap)  # by column, ties to the first
     values = np.take_along_axis(coefficients, top, axis=1)
     order = np.argsort(-np.abs(values), axis=1, kind="stable")
     top, values = np.take_along_axis(top, order, axis=1), np.take_along_axis(values, order, 1)
-    total = np.sum(np.square(coefficients, dtype=np.float64), axis=1)
+    total = np.einsum("ij,ij->i", coefficients, coefficients, dtype=np.float64)
     dropped = total[:, None] - np.cumsum(np.square(values, dtype=np.float64), axis=1)
     enough = dropped <= (tolerance * tolerance) * total[:, None]
     count = np.where(enough.any(axis=1), np.argmax(enough, axis=1) + 1, cap)

@@ -264,7 +264,8 @@ def split_near(rows: np.ndarray, area: np.ndarray, fraction: float = NEAR_FRACTI
     weight *= area[None, :]
     bar = fraction * weight.sum(axis=1)
     candidates = np.flatnonzero((weight.max(axis=1, initial=0) >= bar) & (bar > 0))
-    local, column = np.nonzero(weight[candidates] >= bar[candidates, None])
+    local, column = np.divmod(np.flatnonzero(weight[candidates] >= bar[candidates, None]),
+                              rows.shape[1])  # a flat search: 2-D np.nonzero is slower
     row = candidates[local]
     far = rows.copy()
     if len(row) == 0:
@@ -300,7 +301,9 @@ def fill_sourceless(rows: np.ndarray, area: np.ndarray, length: int) -> np.ndarr
     source = np.flatnonzero(area[:count] > 0)
     out = np.empty((len(rows), length), rows.dtype)
     out[:, :count] = rows
-    free = np.setdiff1d(np.arange(length), source)
+    sourced = np.zeros(length, bool)
+    sourced[source] = True
+    free = np.flatnonzero(~sourced)
     if len(free) == 0:
         return out
     if len(source) == 0:

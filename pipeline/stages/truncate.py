@@ -55,6 +55,7 @@ import scipy.sparse as sp
 
 from pipeline.errors import PrtError
 from pipeline.math.blocks import block_transform, pixel_blocks
+from pipeline.math.selection import smallest_per_row
 from pipeline.rows import ROW_CHUNKS, cut_rows, quantise_values
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
@@ -261,7 +262,7 @@ def cut_blocks(params: dict[str, Any], rows: dict[str, np.ndarray], block_of: np
         keep = (near_count + budget * rows_with_entries).astype(np.int64)
         if not pooled:
             order = np.argsort((owner << 34) | rank, kind="stable")
-    kept = (_smallest(rank, int(keep[0])) if order is None  # a selection, not a sort
+    kept = (smallest_per_row(rank[None], int(keep[0]))[0] if order is None  # no sort
             else order[_leading(per_owner, keep)])
     kept = kept[_row_index_order(row[kept], index[kept])]  # as by_index stores rows
     row, index, value = row[kept], index[kept], value[kept]
@@ -278,18 +279,6 @@ def _leading(per_owner: np.ndarray, keep: np.ndarray) -> np.ndarray:
     start = np.concatenate([[0], np.cumsum(per_owner)[:-1]])
     place = np.arange(int(per_owner.sum())) - np.repeat(start, per_owner)
     return np.flatnonzero(place < np.repeat(keep, per_owner))
-
-
-def _smallest(rank: np.ndarray, keep: int) -> np.ndarray:
-    """Positions of the ``keep`` smallest of ``rank`` (int64), equal ranks by position —
-    the first ``keep`` of a stable sort, found by one partition (linear time)."""
-    if keep >= len(rank):
-        return np.arange(len(rank))
-    if keep <= 0:
-        return np.zeros(0, np.int64)
-    last = np.partition(rank, keep - 1)[keep - 1]
-    below = np.flatnonzero(rank < last)
-    return np.concatenate([below, np.flatnonzero(rank == last)[:keep - len(below)]])
 
 
 def _block_residual(rows: dict[str, np.ndarray], local: np.ndarray, blocks: int
