@@ -201,3 +201,17 @@ def read_only_buffer(array: Any) -> Any:
     a = np.ascontiguousarray(array)
     return cl.Buffer(context(), cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                      hostbuf=a if a.size else np.zeros(1, a.dtype))
+
+
+def shared_read_only_buffer(array: Any) -> Any:
+    """A read-only buffer of a large NumPy array that stays unchanged for the buffer's
+    life: on a CPU device the array's own memory (USE_HOST_PTR: PoCL reads it in place,
+    so a 1 GB table is resident once, not twice; the buffer holds a reference to it), on
+    a GPU a device copy as :func:`read_only_buffer`."""
+    import numpy as np
+    import pyopencl as cl
+
+    a = np.ascontiguousarray(array)
+    if not a.size or not device().type & cl.device_type.CPU:
+        return read_only_buffer(a)
+    return cl.Buffer(context(), cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=a)

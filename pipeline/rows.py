@@ -18,6 +18,7 @@ import numpy as np
 
 # zarr chunk lengths of stored rows' arrays: entries (index, value), rows (count, ...)
 ROW_CHUNKS = {"coefficient_chunk": 1 << 20, "row_chunk": 1 << 16}
+SORT_PIECE = 1 << 22  # entries moved at a time by sort_rows
 ROW_FIELDS = {"count": np.int32, "residual": np.float32, "index": np.int32,
                "value": np.float32}
 
@@ -39,15 +40,24 @@ def place_in_runs(key: np.ndarray) -> np.ndarray:
 def sort_rows(key: np.ndarray, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """CSR rows (``count`` and, if present, ``residual`` and ``scale`` per row; flat
     ``index``, ``value``) reordered by ``key`` (one per row; stable, so rows with equal keys keep
-    their order)."""
+    their order). The entries move in pieces of about ``SORT_PIECE`` (the gather's
+    positions of all entries at once would take 8 bytes per entry)."""
     order = np.argsort(key, kind="stable")
     count = rows["count"].astype(np.int64)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])[order]
     new_count = count[order]
-    new_start = np.concatenate([[0], np.cumsum(new_count)[:-1]])
-    entry = np.repeat(start[order] - new_start, new_count) + np.arange(new_count.sum())
-    out = {"count": rows["count"][order], "index": rows["index"][entry],
-           "value": rows["value"][entry]}
+    new_end = np.cumsum(new_count)
+    out = {"count": rows["count"][order], "index": np.empty_like(rows["index"]),
+           "value": np.empty_like(rows["value"])}
+    cuts = np.searchsorted(new_end, np.arange(SORT_PIECE, int(new_end[-1]) if len(new_end)
+                                              else 0, SORT_PIECE), side="right")
+    for first, last in zip(np.r_[0, cuts], np.r_[cuts, len(order)], strict=True):
+        e0 = int(new_end[first - 1]) if first else 0
+        e1 = int(new_end[last - 1]) if last else 0
+        entry = np.repeat(start[first:last] - (new_end[first:last] - new_count[first:last]),
+                          new_count[first:last]) + np.arange(e0, e1)
+        out["index"][e0:e1] = rows["index"][entry]
+        out["value"][e0:e1] = rows["value"][entry]
     for per_row in ("residual", "scale"):
         if per_row in rows:
             out[per_row] = rows[per_row][order]
@@ -84,9 +94,11 @@ def quantise_values(count: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, n
 
 
 def expand_values(count: np.ndarray, value: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """float32 values of rows stored by :func:`quantise_values`."""
-    row = np.repeat(np.arange(len(count)), count.astype(np.int64))
-    return value.astype(np.float32) * scale[row]
+    """float32 values of rows stored by :func:`quantise_values` (each value times its
+    row's scale, the scales repeated per entry: 4 bytes of temporary per entry)."""
+    out = value.astype(np.float32)
+    out *= np.repeat(scale.astype(np.float32, copy=False), count.astype(np.int64))
+    return out
 
 
 @dataclass

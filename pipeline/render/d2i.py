@@ -74,14 +74,21 @@ SHADOW_TRACERS = ("auto", "device", "embree")  # auto: the device's BVH on a GPU
 LAYOUTS = ("auto", "gpu", "cpu")  # the products' value type and work shape (D2iRenderer)
 
 
-def _ordered_rows(stored: dict[str, np.ndarray], prefix: str, key: str, size: int) -> Rows:
+def _ordered_rows(artifact: Artifact, prefix: str, key: str, size: int, expand: bool
+                  ) -> tuple[Rows, np.ndarray]:
     """The ``prefix`` (d, t or ms) rows of a truncate stage's artifact, stored chunk by
     chunk, ordered by ``key`` (T: their pixel, a pixel's rows keeping their order; D: the
-    block row); values kept as stored, float16 over a per-row scale."""
-    rows = sort_rows(stored[key], {
-        "count": stored[f"{prefix}_count"], "index": stored[f"{prefix}_index"],
-        "value": stored[f"{prefix}_value"], "scale": stored[f"{prefix}_scale"]})
-    return Rows.from_counts(rows["count"], rows["index"], rows["value"], size, rows["scale"])
+    block row), and the keys in that order. Values as stored, float16 over a per-row
+    scale, or with ``expand`` float32; the stored arrays are let go as soon as they are
+    reordered (the 400² Tableau's T: 105 M entries)."""
+    stored = artifact.read_all()
+    keys = stored.pop(key)
+    rows = sort_rows(keys, {name: stored.pop(f"{prefix}_{name}")
+                            for name in ("count", "index", "value", "scale")})
+    del stored
+    ordered = Rows.from_counts(rows.pop("count"), rows.pop("index"), rows.pop("value"), size,
+                               rows.pop("scale"))
+    return (ordered.expanded() if expand else ordered), np.sort(keys, kind="stable")
 
 
 class D2iRenderer:
@@ -126,18 +133,25 @@ class D2iRenderer:
         self.gather_area = gather.read("area").astype(np.float64)
         # the radiance vector the rows index: Haar coefficients, then gather values
         self.size = self.haar_length + len(self.gather_area)
+        # float16 values halve the products' value bytes; a GPU converts them for free,
+        # PoCL's CPU device element by element (the 400² light edit took 2.1× longer)
+        self.half_values = gpu_layout
+        # a work-group per row (coalesced reads) on a GPU; one work-item per row, which
+        # streams its row through the cache, on a CPU
+        self.grouped_products = gpu_layout
+        expand = not self.half_values
         # Ms and D are stored as rows across blocks of gather samples and of pixels
         # (pipeline/math/blocks.py): their products are unblocked per item (kernel unblock)
         bounce = artifacts["d2i.truncate_ms"]
-        self.ms = _ordered_rows(bounce.read_all(), "ms", "ms_row", self.size)
+        self.ms, _ = _ordered_rows(bounce, "ms", "ms_row", self.size, expand)
         ms_block = int(bounce.attrs["block"])
         gathers = np.arange(len(self.gather_area))
         self.blocks = {"ms": (gathers // ms_block, gathers % ms_block, haar.matrix(ms_block))}
         # D rows are stored tile by tile, T rows by tile and material: D in block-row
         # order, T in raster order of their pixels (a pixel's T rows b0..bk stay in order)
-        self.d = _ordered_rows(transport.read_all(), "d", "d_row", self.size)
-        stored = artifacts["d2i.truncate_t"].read_all()
-        self.t = _ordered_rows(stored, "t", "t_pixel", self.size)
+        self.d, _ = _ordered_rows(transport, "d", "d_row", self.size, expand)
+        self.t, self.t_pixel = _ordered_rows(artifacts["d2i.truncate_t"], "t", "t_pixel",
+                                             self.size, expand)
         d_block = int(transport.attrs["d_block"])
         pixel_block, pixel_slot = pixel_blocks(np.arange(self.direct.width
                                                               * self.direct.height),
@@ -149,15 +163,6 @@ class D2iRenderer:
             if rows.count != expected:
                 raise PrtError(source.path, f"holds {rows.count} {name} rows, expected "
                                f"{expected} (blocks of {len(transform)}): re-bake it")
-        # float16 values halve the products' value bytes; a GPU converts them for free,
-        # PoCL's CPU device element by element (the 400² light edit took 2.1× longer)
-        self.half_values = gpu_layout
-        # a work-group per row (coalesced reads) on a GPU; one work-item per row, which
-        # streams its row through the cache, on a CPU
-        self.grouped_products = gpu_layout
-        if not self.half_values:
-            self.ms, self.d, self.t = (r.expanded() for r in (self.ms, self.d, self.t))
-        self.t_pixel = np.sort(stored["t_pixel"], kind="stable")
         npix = len(self.direct.material_id)
         self.glossy_first = np.full(npix, -1, np.int32)
         self.glossy_rows = np.zeros(npix, np.int32)
@@ -188,9 +193,9 @@ class D2iRenderer:
     # ------------------------------------------------------------------------ device
 
     def upload(self, name: str, rows: Rows) -> None:
-        """Device copies of ``rows`` and a buffer for their products, for
-        ``_sparse(name, rows, ...)``."""
-        self.buffers[name] = {k: cl.read_only_buffer(getattr(rows, k))
+        """Device buffers of ``rows`` (on a CPU device their own memory) and a buffer
+        for their products, for ``_sparse(name, rows, ...)``."""
+        self.buffers[name] = {k: cl.shared_read_only_buffer(getattr(rows, k))
                               for k in ("offsets", "index", "value")}
         self.buffers[name]["scale"] = cl.read_only_buffer(
             np.ones(1, np.float32) if rows.scale is None else rows.scale)
@@ -401,26 +406,32 @@ class D2iRenderer:
         return out
 
     def freeze(self, coefficients: np.ndarray) -> Rows:
-        """Each glossy pixel's T rows merged into one row Σ_j c_j T_j^w (light edits)."""
-        material = self.direct.material_id[self.t_pixel]
+        """Each glossy pixel's T rows merged into one row Σ_j c_j T_j^w (light edits):
+        the sparse product C T of the pixels' coefficient rows C (pixels × T rows, c_j
+        of its material at its row j) with T, summed in float32 (≤ k + 1 terms per
+        entry), entries that cancel exactly dropped, indices ascending per row. SciPy's
+        product runs in one pass over T with a dense accumulator per pixel: linear in
+        T's entries and in memory (a sort of all entries' keys took 28 s and 9 GB on the
+        400² Tableau)."""
+        import scipy.sparse as sp
+
         first = np.r_[True, self.t_pixel[1:] != self.t_pixel[:-1]] if len(self.t_pixel) \
             else np.zeros(0, bool)
-        row_in_pixel = place_in_runs(self.t_pixel)
-        scale = coefficients[material, row_in_pixel] if len(self.t_pixel) else np.zeros(0)
-        counts = np.diff(self.t.offsets)
-        row_of_entry = np.repeat(np.arange(self.t.count), counts)
-        pixel_of_entry = np.cumsum(first)[row_of_entry] - 1 if len(row_of_entry) else \
-            np.zeros(0, np.int64)
-        key = pixel_of_entry.astype(np.int64) * self.size + self.t.index
-        unique, inverse = np.unique(key, return_inverse=True)
-        value = np.zeros(len(unique))
-        np.add.at(value, inverse, self.t.values() * scale[row_of_entry])
-        per_pixel = np.bincount(unique // self.size, minlength=int(first.sum()))
+        pixel_of_row = np.cumsum(first) - 1
+        material = self.direct.material_id[self.t_pixel]
+        weight = coefficients[material, place_in_runs(self.t_pixel)].astype(np.float32)
+        combine = sp.csr_matrix((weight, (pixel_of_row, np.arange(self.t.count))),
+                                shape=(int(first.sum()), self.t.count))
+        t = sp.csr_matrix((self.t.values(), self.t.index.astype(np.int32, copy=False),
+                           self.t.offsets), shape=(self.t.count, self.size))
+        frozen = combine @ t
+        frozen.sort_indices()
+        per_pixel = np.diff(frozen.indptr)
         if self.half_values:  # quantised as the truncate stage stores rows
-            row_scale, half = quantise_values(per_pixel, value)
-            rows = Rows.from_counts(per_pixel, unique % self.size, half, self.size, row_scale)
+            row_scale, half = quantise_values(per_pixel, frozen.data)
+            rows = Rows.from_counts(per_pixel, frozen.indices, half, self.size, row_scale)
         else:
-            rows = Rows.from_counts(per_pixel, unique % self.size, value, self.size)
+            rows = Rows.from_counts(per_pixel, frozen.indices, frozen.data, self.size)
         self.upload("frozen", rows)
         return rows
 
