@@ -11,7 +11,11 @@ transfer tiles of ``--tile`` pixels. One run:
 2. the small box's ``gamma_range`` edited to [0.15, 0.5]: the forecast (``prt run
    --dry-run --json``), then the re-bake, its wall seconds and the stages and chunks
    that ran; with ``--repeats N``, N re-bakes, the range toggled between [0.15, 0.5]
-   and [0.1, 0.5] (each a new basis: the same chunks re-run), and their median;
+   and [0.1, 0.5] (each a new basis: the same chunks re-run), and their median. Each
+   repeat records the box's basis size k: the narrower range needs k = 4 where the full
+   bake's needs 5, so its T chunks have 5 rows per pixel instead of 6 (at 400²: 14.4
+   against 17.6 s); the first re-bake to a k not yet seen also builds the transfer kernel
+   for it (a compile-time row count) in each worker;
 3. the small box moved 20 mm along x: the same.
 
 Each step is a ``prt`` command (Python start-up included in its seconds, as a user
@@ -28,6 +32,7 @@ import json
 import os
 import shutil
 import statistics
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,14 +43,18 @@ from bench_cores import ROOT, prt, quiet_prt, scene_file
 UNTIL = ("--until", "d2i.truncate", "--until", "d2i.truncate_t", "--until", "d2i.truncate_ms")
 
 
-def two_glossy_scene(folder: Path, size: int, tile: int) -> dict[str, Any]:
-    """The Cornell box with its small box in a glossy Ward material, as a dictionary."""
+def two_glossy_scene(folder: Path, size: int, tile: int, gathers: int | None
+                     ) -> dict[str, Any]:
+    """The Cornell box with its small box in a glossy Ward material, as a dictionary
+    (``gathers``: its gather count, None for the scene's)."""
     doc = yaml.safe_load(scene_file(folder, size).read_text())
     doc["materials"]["smallbox_ward"] = {"model": "ward", "albedo": [0.45, 0.30, 0.90],
                                          "specular": 0.08, "gamma": 0.2,
                                          "gamma_range": [0.1, 0.5]}
     doc["objects"]["smallbox"]["material"] = "smallbox_ward"
     doc["settings"] = {"transfer.tile": tile}
+    if gathers is not None:
+        doc["settings"]["gather.count"] = gathers
     return doc
 
 
@@ -55,11 +64,11 @@ def write(folder: Path, doc: dict[str, Any], name: str) -> Path:
     return path
 
 
-def rebake(scene: Path, workdir: Path) -> dict[str, Any]:
-    """The forecast, then the re-bake: seconds, stages and chunk counts."""
+def rebake(scene: Path, workdir: Path, run: Callable[[list[str]], dict]) -> dict[str, Any]:
+    """The forecast, then the re-bake (by ``run``): seconds, stages and chunk counts."""
     base = ["run", str(scene), *UNTIL, "--workdir", str(workdir)]
     plan = prt([*base, "--dry-run"])["report"]["dry_run"]
-    r = quiet_prt(base)
+    r = run(base)
     stages = r["report"]["stages"]
     return {"wall_s": r["wall_s"], "cpu_s": r["cpu_s"], "noisy": r["noisy"],
             "stage_s": sum(s["seconds"] for s in stages),
@@ -72,6 +81,18 @@ def rebake(scene: Path, workdir: Path) -> dict[str, Any]:
                          for p in plan if p["state"] != "fresh"}}
 
 
+def basis_k(work: Path) -> int:
+    """The small box's basis size k (its T rows per pixel: k + 1) in the work directory."""
+    from pipeline.store import open_artifact
+
+    basis = open_artifact(work / "brdf_basis.zarr")
+    return int(basis.read("k")[list(basis.attrs["material_names"]).index("smallbox_ward")])
+
+
+def gamma_range(doc: dict[str, Any]) -> list[float]:
+    return doc["materials"]["smallbox_ward"]["gamma_range"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--workdir", type=Path, required=True)
@@ -79,15 +100,21 @@ def main() -> None:
     parser.add_argument("--tile", type=int, default=16, help="transfer tile edge")
     parser.add_argument("--repeats", type=int, default=1,
                         help="γ-range re-bakes (the range toggled), median reported")
+    parser.add_argument("--gathers", type=int, default=None,
+                        help="gather count [default: the scene's]")
+    parser.add_argument("--no-quiet", action="store_true",
+                        help="run each step at once, neither waiting for a quiet machine "
+                        "nor repeating noisy runs (a smoke test: timings not comparable)")
     parser.add_argument("--out", type=Path,
                         default=ROOT / "benchmarks" / "results" / "rebake.json")
     args = parser.parse_args()
     folder = args.workdir
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
-    doc = two_glossy_scene(folder, args.size, args.tile)
+    doc = two_glossy_scene(folder, args.size, args.tile, args.gathers)
     work = folder / "work"
-    full = quiet_prt(["run", str(write(folder, doc, "scene.yaml")), *UNTIL, "--workdir",
+    run = (lambda a: {**prt(a), "noisy": None}) if args.no_quiet else quiet_prt
+    full = run(["run", str(write(folder, doc, "scene.yaml")), *UNTIL, "--workdir",
                       str(work)])
     result: dict[str, Any] = {"cpus": os.cpu_count(), "size": args.size,
                               "transfer_tile": args.tile,
@@ -97,22 +124,25 @@ def main() -> None:
                                                            full["report"]["stages"]),
                                             "stages": {s["name"]: s["seconds"] for s in
                                                        full["report"]["stages"]}}}
+    k_full = basis_k(work)
     gamma = json.loads(json.dumps(doc))
     walls = []
     for repeat in range(args.repeats):
         gamma["materials"]["smallbox_ward"]["gamma_range"] = [0.15 if repeat % 2 == 0 else
                                                               0.1, 0.5]
-        edit = rebake(write(folder, gamma, "gamma.yaml"), work)
+        edit = rebake(write(folder, gamma, "gamma.yaml"), work, run)
         result.setdefault("gamma_range_edit", edit)
-        walls.append((edit["wall_s"], edit["stage_s"]))
-    result["gamma_range_edit"]["repeats"] = [{"wall_s": w, "stage_s": st} for w, st in walls]
+        walls.append((edit["wall_s"], edit["stage_s"], gamma_range(gamma), basis_k(work)))
+    result["gamma_range_edit"]["full_bake_k"] = k_full
+    result["gamma_range_edit"]["repeats"] = [
+        {"wall_s": w, "stage_s": st, "gamma_range": r, "k": k} for w, st, r, k in walls]
     result["gamma_range_edit"]["median_ratio_to_full"] = (
-        statistics.median(w for w, _ in walls) / full["wall_s"])
+        statistics.median(w for w, *_ in walls) / full["wall_s"])
     result["gamma_range_edit"]["median_stage_ratio_to_full"] = (
-        statistics.median(st for _, st in walls) / result["full_bake"]["stage_s"])
+        statistics.median(st for _, st, *_ in walls) / result["full_bake"]["stage_s"])
     moved = json.loads(json.dumps(gamma))
     moved["objects"]["smallbox"]["transform"] = {"translate": [20.0, 0.0, 0.0]}
-    result["moved_small_box"] = rebake(write(folder, moved, "moved.yaml"), work)
+    result["moved_small_box"] = rebake(write(folder, moved, "moved.yaml"), work, run)
     for edit in ("gamma_range_edit", "moved_small_box"):
         result[edit]["ratio_to_full"] = result[edit]["wall_s"] / full["wall_s"]
         result[edit]["stage_ratio_to_full"] = (result[edit]["stage_s"]
