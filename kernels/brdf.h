@@ -32,6 +32,8 @@
 
 #define BRDF_PI 3.14159265358979f
 
+#include "fastmath.h"
+
 /* exp and log1p of the lobes; a program may define them first (kernels/brdf_tables.cl:
  * kernels/fastmath.h's, which a CPU vectorises). */
 #ifndef BRDF_EXP
@@ -113,12 +115,13 @@ float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
 
 /* The fixed term f_F(wi, wo) of paper 000 Table 4 (without rho_s; pipeline/math/brdf.py
  * fixed_term): 0 below either horizon and for Lambert. */
-inline float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
-    int model = (int)mat[0];
+inline __attribute__((always_inline))
+float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
+    int model = BRDF_MODEL_OF(mat);
     float nl = wi.z, nv = wo.z;
     if (model == MODEL_LAMBERT || nl <= 0.0f || nv <= 0.0f) return 0.0f;
     if (model == MODEL_BLINN_PHONG || model == MODEL_LAFORTUNE) return 1.0f;
-    if (model == MODEL_WARD || model == MODEL_WARD_ANISOTROPIC) return rsqrt(nl * nv);
+    if (model == MODEL_WARD || model == MODEL_WARD_ANISOTROPIC) return 1.0f / sqrt(nl * nv);
     if (model == MODEL_WARD_DUER) return 1.0f / (nl * nv);
     float3 h = normalize(wi + wo);
     float vh = fmax(dot(wo, h), 1e-30f);
@@ -137,15 +140,16 @@ inline float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
  * angle delta = angle(N, H) in radians (the anisotropic Ward's effective delta_e), or
  * for Lafortune the arc cosine of its lobe base, arccos(x) in [0, pi/2] (computed from
  * 1 - x in double where available, so that x near 1 keeps its digits). */
-inline float brdf_coordinate_angle(__global const float* mat, float3 wi, float3 wo) {
-    int model = (int)mat[0];
+inline __attribute__((always_inline))
+float brdf_coordinate_angle(__global const float* mat, float3 wi, float3 wo) {
+    int model = BRDF_MODEL_OF(mat);
     if (model == MODEL_LAFORTUNE) {
         float u = clamp(lafortune_one_minus_x(mat, wi, wo), 0.0f, 1.0f);
         return 2.0f * asin(sqrt(0.5f * u));                  /* arccos(1 - u) */
     }
     float3 s = wi + wo;
     float sy = model == MODEL_WARD_ANISOTROPIC ? s.y / mat[8] : s.y;
-    return atan2(sqrt(s.x * s.x + sy * sy), fmax(s.z, 0.0f));
+    return fast_atan2(sqrt(s.x * s.x + sy * sy), fmax(s.z, 0.0f));
 }
 
 /* The full BRDF kd / pi + rho_s * f_F * f_E (RGB, 1/sr); zero below either horizon. */
@@ -157,7 +161,7 @@ inline float3 brdf_eval(__global const float* mat, float3 wi, float3 wo) {
 }
 
 /* World vector v in the frame (t, n x t, n). */
-inline float3 to_local(float3 v, float3 n, float3 t) {
+inline __attribute__((always_inline)) float3 to_local(float3 v, float3 n, float3 t) {
     return (float3)(dot(v, t), dot(v, cross(n, t)), dot(v, n));
 }
 

@@ -21,6 +21,8 @@
 #ifndef PRT_TRIPLE_LOOKUP_H
 #define PRT_TRIPLE_LOOKUP_H
 
+#include "fastmath.h"
+
 #define TRIPLE_LIGHT_ROWS 8
 #define TRIPLE_VIS_ROWS 4
 #define TRIPLE_BRDF_ROWS 9
@@ -62,22 +64,6 @@ inline void triple_linear(float x, int count, int wrap, int* lo, int* hi, float*
     }
 }
 
-/* atan2(y, x) in [−π, π] by a minimax polynomial for atan on [0, 1]: within 7.5e-7 rad
- * of the true angle (checked on 2·10^6 points; a grid coordinate moves by < 4e-6 of a
- * step), several times cheaper than PoCL's atan2/acos; atan2(0, 0) = 0. */
-inline float triple_atan2(float y, float x) {
-    float ax = fabs(x), ay = fabs(y);
-    float hi = fmax(ax, ay);
-    float a = hi > 0.0f ? fmin(ax, ay) / hi : 0.0f;
-    float s = a * a;
-    float r = ((((-0.0040540580f * s + 0.0218612288f) * s - 0.0559098861f) * s
-                + 0.0964200441f) * s - 0.1390853351f) * s;
-    r = ((r + 0.1994653599f) * s - 0.3332985605f) * s * a + a;
-    if (ay > ax) r = 1.57079632679f - r;
-    if (x < 0.0f) r = TRIPLE_PI - r;
-    return y < 0.0f ? -r : r;
-}
-
 /* φ mod 2π in [0, 2π). */
 inline float triple_wrap_angle(float a) {
     a -= TRIPLE_TWO_PI * floor(a / TRIPLE_TWO_PI);
@@ -90,14 +76,14 @@ inline float triple_wrap_angle(float a) {
 inline float3 triple_frame_coords(float3 n, float3 t, const triple_grids* g) {
     float3 np = (float3)(n.z, n.x, n.y), tp = (float3)(t.z, t.x, t.y);
     float cos_theta = clamp(np.z, -1.0f, 1.0f), sin_theta = sqrt(np.x * np.x + np.y * np.y);
-    float theta = triple_atan2(sin_theta, cos_theta);  /* arccos(n'_z), sharper at poles */
+    float theta = fast_atan2(sin_theta, cos_theta);  /* arccos(n'_z), sharper at poles */
     int at_pole = sin_theta < 1e-9f;
-    float phi = at_pole ? 0.0f : triple_wrap_angle(triple_atan2(np.y, np.x));
+    float phi = at_pole ? 0.0f : triple_wrap_angle(fast_atan2(np.y, np.x));
     /* the reference frame Rz(φ) Ry(θ): cos, sin of φ and θ from n' itself (no trig) */
     float cp = at_pole ? 1.0f : np.x / sin_theta, sp = at_pole ? 0.0f : np.y / sin_theta;
     float3 ref_t = (float3)(cp * cos_theta, sp * cos_theta, -sin_theta);
     float3 ref_b = (float3)(-sp, cp, 0.0f);
-    float psi = triple_wrap_angle(triple_atan2(dot(tp, ref_b), dot(tp, ref_t)));
+    float psi = triple_wrap_angle(fast_atan2(dot(tp, ref_b), dot(tp, ref_t)));
     return (float3)(phi * g->n_phi / TRIPLE_TWO_PI, theta * (g->n_theta - 1) / TRIPLE_PI,
                     psi * g->n_psi / TRIPLE_TWO_PI);
 }
@@ -125,9 +111,9 @@ inline void triple_frame_rows(float3 x, const triple_grids* g, uint* rows, float
  * pipeline/math/brdf.py, so the pixel's BRDF weights are). Per camera. */
 #define TRIPLE_BELOW (-1.0f)
 inline float2 triple_view_coords(float3 wo, const triple_grids* g) {
-    float phi = triple_wrap_angle(triple_atan2(wo.y, wo.x));
+    float phi = triple_wrap_angle(fast_atan2(wo.y, wo.x));
     if (!(wo.z > 0.0f)) return (float2)(phi * g->view_phi / TRIPLE_TWO_PI, TRIPLE_BELOW);
-    float theta = triple_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z);
+    float theta = fast_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z);
     return (float2)(phi * g->view_phi / TRIPLE_TWO_PI,
                     theta * (g->view_theta - 1) / (0.5f * TRIPLE_PI));
 }

@@ -215,3 +215,31 @@ def shared_read_only_buffer(array: Any) -> Any:
     if not a.size or not device().type & cl.device_type.CPU:
         return read_only_buffer(a)
     return cl.Buffer(context(), cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
+
+
+def shared_output_buffer(array: Any) -> Any:
+    """A buffer for kernels' output into the NumPy array ``array``, starting from its
+    values (entries no kernel writes keep them): on a CPU device the array's own memory
+    (USE_HOST_PTR: no copy either way), elsewhere a device copy; :func:`read_output_buffer`
+    brings the result back."""
+    import pyopencl as cl
+
+    flags = cl.mem_flags.READ_WRITE
+    if device().type & cl.device_type.CPU:
+        return cl.Buffer(context(), flags | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
+    return cl.Buffer(context(), flags | cl.mem_flags.COPY_HOST_PTR, hostbuf=array)
+
+
+def read_output_buffer(array: Any, buffer: Any) -> None:
+    """``array`` (the host array of :func:`shared_output_buffer`) made current with the
+    kernels' writes to ``buffer`` (after the queue's launches): a map and unmap where it
+    is the buffer's memory, a copy otherwise."""
+    import pyopencl as cl
+
+    if buffer.flags & cl.mem_flags.USE_HOST_PTR:
+        mapped, _ = cl.enqueue_map_buffer(queue(), buffer, cl.map_flags.READ, 0,
+                                          array.shape, array.dtype)
+        mapped.base.release(queue())
+        queue().finish()
+    else:
+        cl.enqueue_copy(queue(), array, buffer)

@@ -1,5 +1,6 @@
-"""kernels/fastmath.h (exp and log1p without libm calls, for kernels/brdf_tables.cl)
-against NumPy's float64 exp / log1p of the same float32 inputs."""
+"""kernels/fastmath.h (exp, log1p and atan2 without libm calls, for kernels that PoCL
+should vectorise) against NumPy's float64 exp / log1p / arctan2 of the same float32
+inputs."""
 
 from __future__ import annotations
 
@@ -52,3 +53,44 @@ def test_fast_exp_and_log1p_match_float64_to_a_few_ulp():
     e_end, l_end = _run(ends)
     assert np.array_equal(e_end, [0.0, 0.0, np.inf, np.inf])
     assert l_end[-1] == np.inf
+
+
+ATAN2_SOURCE = """
+#include "fastmath.h"
+__kernel void atan2_eval(__global const float* y, __global const float* x,
+                         __global float* out) {
+    int i = get_global_id(0);
+    out[i] = fast_atan2(y[i], x[i]);
+}
+"""
+
+
+def test_fast_atan2_matches_float64_to_its_stated_bound():
+    """Within 1e-6 rad of float64 arctan2 (the minimax polynomial's error plus float32
+    evaluation and rounding, whose ulp at π is 2.4e-7; measured 9.0e-7) in all four
+    quadrants, over
+    directions at every scale, on the axes and at (0, 0), where it is 0; and relative
+    error ≤ 1e-6 for small angles (the BRDF coordinate δ near the mirror direction)."""
+    import pyopencl as cl_
+
+    from pipeline import cl
+
+    rng = np.random.default_rng(5)
+    angle = rng.uniform(-np.pi, np.pi, 200000)
+    radius = 10.0 ** rng.uniform(-20, 20, len(angle))
+    small = 10.0 ** rng.uniform(-7, -1, 20000)
+    y = np.concatenate([radius * np.sin(angle), small, [0, 0, 1, -1, 0]]).astype(np.float32)
+    x = np.concatenate([radius * np.cos(angle), np.ones_like(small), [0, 1, 0, 0, -1]]
+                       ).astype(np.float32)
+    program = cl_.Program(cl.context(), ATAN2_SOURCE).build(
+        options=["-I", str(cl.kernel_dir())])
+    out = np.empty_like(x)
+    out_buf = cl_.Buffer(cl.context(), cl_.mem_flags.WRITE_ONLY, out.nbytes)
+    program.atan2_eval(cl.queue(), x.shape, None, cl.read_only_buffer(y),
+                       cl.read_only_buffer(x), out_buf)
+    cl_.enqueue_copy(cl.queue(), out, out_buf)
+    exact = np.arctan2(y.astype(np.float64), x.astype(np.float64))
+    assert np.max(np.abs(out - exact)) <= 1e-6
+    tiny = slice(len(angle), len(angle) + len(small))
+    assert np.all(np.abs(out[tiny] - exact[tiny]) <= 1e-6 * exact[tiny])
+    assert out[-5] == 0.0

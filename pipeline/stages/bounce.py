@@ -39,7 +39,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         receivers = Receivers(position, normal, tangent_from_normal(normal), normal)
         vis = center_visibility(tracer, position, normal, disks, epsilon)
         ms, _ = kernel(receivers, vis, None)
-        parts.append(compress_rows(ms * disks.inverse_area, disks.area, keep, cap))
+        ms *= disks.inverse_area  # in place: the kernel's fresh array
+        parts.append(compress_rows(ms, disks.area, keep, cap))
     return {f"ms_{k}": join_arrays([p[k] for p in parts], dt) for k, dt in ROW_FIELDS.items()}
 
 

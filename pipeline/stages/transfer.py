@@ -39,7 +39,7 @@ import numpy as np
 from pipeline import cl
 from pipeline.executors import map_slices
 from pipeline.math import haar
-from pipeline.math.brdf import BrdfParams, pack_materials
+from pipeline.math.brdf import MODEL_CODES, BrdfParams, pack_materials
 from pipeline.math.transfer import (
     FIRST_CHECK,
     PLANE_MARGIN,
@@ -56,6 +56,7 @@ from pipeline.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays, sort_rows
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
+POINT_GROUP = 64     # work-group size of transfer_points (its pair list is padded to it)
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
 COMPRESS_BLOCK = 128  # rows per compression task: its temporaries stay in cache
 
@@ -113,9 +114,7 @@ class TransferKernel:
     """kernels/transfer.cl over one set of gather disks (uploaded once)."""
 
     def __init__(self, disks: Disks, solid_angle: float, tolerance: float) -> None:
-        import pyopencl as pcl
-
-        self.pcl, self.ctx, self.queue = pcl, cl.context(), cl.queue()
+        self.queue = cl.queue()
         self.count, self.subarea = len(disks.area), disks.points.shape[1]
         self.disks = cl.read_only_buffer(disks.packed)
         self.points = cl.read_only_buffer(np.asarray(disks.points, np.float32))
@@ -126,7 +125,7 @@ class TransferKernel:
     def __call__(self, receivers: Receivers, visibility: np.ndarray,
                  table: GlossyTable | None) -> tuple[np.ndarray, np.ndarray | None]:
         """D (P, G) and T (P, R, G) float32, as pipeline.math.transfer.transfer."""
-        pcl, n = self.pcl, len(receivers.position)
+        n = len(receivers.position)
         packed = np.concatenate([receivers.position, receivers.normal, receivers.tangent,
                                  receivers.wo], axis=1).astype(np.float32)
         rows = 0 if table is None else len(table.rows)
@@ -145,24 +144,37 @@ class TransferKernel:
             grid = table.grid.astype(np.float32)
             values = table.rows.astype(np.float32)
             angle_lo, angle_scale = _grid_angles(table.params, table.grid)
+            defines["BRDF_MODEL"] = MODEL_CODES[table.params.model]
             if table.params.model == "lafortune":
                 defines["REVERSED_GRID"] = 1
-        d = np.empty((n, self.count), np.float32)
-        t = np.empty((n, max(rows, 1), self.count), np.float32)
-        mf = pcl.mem_flags
-        d_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, d.nbytes)
-        t_buf = pcl.Buffer(self.ctx, mf.WRITE_ONLY, t.nbytes)
-        kernel = cl.kernel("transfer.cl", "transfer_pairs", defines)
-        kernel(self.queue, (self.count, n), None, cl.read_only_buffer(packed), np.int32(n),
-               self.disks, np.int32(self.count), self.points, self.polygons,
-               cl.read_only_buffer(np.ascontiguousarray(visibility, np.uint8)),
-               cl.read_only_buffer(material), cl.read_only_buffer(grid),
-               cl.read_only_buffer(values),
-               np.int32(len(grid)), np.float32(angle_lo), np.float32(angle_scale),
-               self.solid_angle, self.tolerance, d_buf, t_buf)
-        pcl.enqueue_copy(self.queue, d, d_buf)
-        if rows:
-            pcl.enqueue_copy(self.queue, t, t_buf)
+        pairs = np.flatnonzero(visibility).astype(np.uint32)
+        d = np.zeros((n, self.count), np.float32)
+        t = np.zeros((n, max(rows, 1), self.count), np.float32)
+        d_buf, t_buf = cl.shared_output_buffer(d), cl.shared_output_buffer(t)
+        if len(pairs):
+            common = (cl.read_only_buffer(material), cl.read_only_buffer(grid),
+                      cl.read_only_buffer(values), np.int32(len(grid)),
+                      np.float32(angle_lo), np.float32(angle_scale), self.solid_angle)
+            receivers_buf = cl.read_only_buffer(packed)
+            deferred = np.zeros(len(pairs), np.uint8)
+            deferred_buf = cl.shared_output_buffer(deferred)
+            padded = np.zeros(-(-len(pairs) // POINT_GROUP) * POINT_GROUP, np.uint32)
+            padded[:len(pairs)] = pairs
+            cl.kernel("transfer.cl", "transfer_points", defines)(
+                self.queue, (len(padded),), (POINT_GROUP,), receivers_buf, self.disks,
+                np.int32(self.count), cl.read_only_buffer(padded), np.int32(len(pairs)),
+                *common, deferred_buf, d_buf, t_buf)
+            cl.read_output_buffer(deferred, deferred_buf)
+            near = pairs[deferred.view(bool)]
+            if len(near):
+                cl.kernel("transfer.cl", "transfer_pairs", defines)(
+                    self.queue, (len(near),), None, receivers_buf, self.disks,
+                    np.int32(self.count), self.points, self.polygons,
+                    cl.read_only_buffer(near), np.int32(len(near)), *common,
+                    self.tolerance, d_buf, t_buf)
+            cl.read_output_buffer(d, d_buf)
+            if rows:
+                cl.read_output_buffer(t, t_buf)
         return d, (t if rows else None)
 
 
@@ -293,7 +305,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         receivers = Receivers(tile["position"][batch], tile["normal"][batch],
                               tile["tangent"][batch], tile["wo"][batch])
         d, _ = kernel(receivers, vis, None)
-        d_parts.append((batch, compress_rows(d * disks.inverse_area, disks.area, keep, cap), 1))
+        d *= disks.inverse_area  # in place: the kernel's fresh array
+        d_parts.append((batch, compress_rows(d, disks.area, keep, cap), 1))
         own = glossy[batch]
         v_parts.append((batch[own], np.packbits(vis[own].astype(bool), axis=1)))
     unseen = np.flatnonzero(tile["material"] < 0)
