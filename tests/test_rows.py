@@ -34,3 +34,25 @@ def test_sort_rows_moves_whole_rows_in_key_order(monkeypatch, piece):
                                     "index": np.zeros(0, np.int32),
                                     "value": np.zeros(0, np.float32)})
     assert len(empty["count"]) == 0 and len(empty["index"]) == 0
+
+
+def test_merge_rows_puts_first_entries_before_seconds_in_each_row():
+    """pipeline.stages.transfer.merge_rows against the definition: row by row, the
+    first CSR's entries then the second's, with empty rows on either side."""
+    from pipeline.stages.transfer import merge_rows
+
+    rng = np.random.default_rng(3)
+    first_count, second_count = rng.integers(0, 4, 30), rng.integers(0, 6, 30)
+    first = {"count": first_count, "index": rng.integers(0, 99, first_count.sum()),
+             "value": rng.standard_normal(first_count.sum())}
+    second = {"count": second_count, "index": rng.integers(0, 99, second_count.sum()),
+              "value": rng.standard_normal(second_count.sum()), "residual": rng.random(30)}
+    merged = merge_rows(first, second)
+    ends = [np.cumsum(np.concatenate([[0], part["count"]])) for part in (first, second)]
+    for name in ("index", "value"):
+        expected = np.concatenate([
+            np.concatenate([part[name][end[r]:end[r + 1]] for part, end in
+                            zip((first, second), ends, strict=True)]) for r in range(30)])
+        np.testing.assert_array_equal(merged[name], expected.astype(merged[name].dtype))
+    np.testing.assert_array_equal(merged["count"], first_count + second_count)
+    assert merged["residual"] is second["residual"]

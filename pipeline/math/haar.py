@@ -19,7 +19,7 @@ from functools import cache
 
 import numpy as np
 
-from pipeline.math.selection import largest_magnitudes
+from pipeline.math.selection import largest_magnitudes, order_by_magnitude
 
 _SQRT_HALF = np.sqrt(0.5)
 BLOCK_LEVELS = 5  # levels per matrix product in forward (blocks of 32)
@@ -114,9 +114,8 @@ def truncate(coefficients: np.ndarray, tolerance: float, cap: int) -> dict[str, 
         return {"count": np.zeros(n, np.int32), "index": np.zeros(0, np.int32),
                 "value": np.zeros(0, np.float32), "residual": np.zeros(n, np.float32)}
     top = largest_magnitudes(coefficients, cap)  # by column, ties to the first
+    top = order_by_magnitude(np.take_along_axis(coefficients, top, axis=1), top)
     values = np.take_along_axis(coefficients, top, axis=1)
-    order = np.argsort(-np.abs(values), axis=1, kind="stable")
-    top, values = np.take_along_axis(top, order, axis=1), np.take_along_axis(values, order, 1)
     total = np.einsum("ij,ij->i", coefficients, coefficients, dtype=np.float64)
     dropped = total[:, None] - np.cumsum(np.square(values, dtype=np.float64), axis=1)
     enough = dropped <= (tolerance * tolerance) * total[:, None]

@@ -220,15 +220,20 @@ def _compress_block(rows: np.ndarray, area: np.ndarray, keep_tolerance: float,
 def merge_rows(first: dict[str, np.ndarray], second: dict[str, np.ndarray]
                ) -> dict[str, np.ndarray]:
     """CSR rows whose entries are ``first``'s, then ``second``'s (same row count);
-    ``residual`` from ``second``."""
-    rows = np.arange(len(first["count"]))
-    row_of = np.concatenate([np.repeat(rows, first["count"]), np.repeat(rows, second["count"])])
-    order = np.argsort(row_of, kind="stable")  # within a row, first's entries lead
-    return {"count": (first["count"] + second["count"]).astype(np.int32),
-            "index": np.concatenate([first["index"], second["index"]])[order].astype(np.int32),
-            "value": np.concatenate([first["value"], second["value"]])[order]
-            .astype(np.float32),
-            "residual": second["residual"]}
+    ``residual`` from ``second``. Each entry goes straight to its place (row start, plus
+    first's count for second's entries, plus its rank within its row): no sort."""
+    count = first["count"] + second["count"]
+    start = np.cumsum(count) - count
+    out = {"count": count.astype(np.int32),
+           "index": np.empty(int(count.sum()), np.int32),
+           "value": np.empty(int(count.sum()), np.float32),
+           "residual": second["residual"]}
+    for part, offset in ((first, start), (second, start + first["count"])):
+        own_start = np.cumsum(part["count"]) - part["count"]
+        place = np.arange(len(part["index"])) + np.repeat(offset - own_start, part["count"])
+        out["index"][place] = part["index"]
+        out["value"][place] = part["value"]
+    return out
 
 
 # ---------------------------------------------------------------------------- the stage
@@ -249,16 +254,24 @@ def _cached(kind: str, key: str, build) -> Any:
 def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, Disks, TransferKernel, float]:
     """The Embree scene, the gather disks, the transfer kernel over them (each built once
     per process and input key) and the ray offset (scene units)."""
-    geometry, gather = ctx.inputs["geometry"], ctx.inputs["d2i.gather"]
+    geometry = ctx.inputs["geometry"]
     tracer = _cached("tracer", geometry.record["key"], lambda: RayTracer(
         geometry.read("vertices"), geometry.read("faces")))
+    disks, kernel = gather_tools(ctx)
+    bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
+    return tracer, disks, kernel, RAY_EPSILON * float(np.linalg.norm(bbox))
+
+
+def gather_tools(ctx: AssembleContext) -> tuple[Disks, TransferKernel]:
+    """The gather disks and the transfer kernel over them, without the Embree scene (a
+    stage that reads stored visibility traces no ray)."""
+    gather = ctx.inputs["d2i.gather"]
     disks = _cached("disks", gather.record["key"], lambda: gather_disks(gather))
     solid_angle = ctx.params["transfer.subarea_solid_angle"]
     tolerance = ctx.params["transfer.subarea_tolerance"]
     kernel = _cached("kernel", f"{gather.record['key']}{solid_angle}{tolerance}",
                      lambda: TransferKernel(disks, solid_angle, tolerance))
-    bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
-    return tracer, disks, kernel, RAY_EPSILON * float(np.linalg.norm(bbox))
+    return disks, kernel
 
 
 def tile_pixels(ctx: ChunkContext) -> tuple[dict[str, np.ndarray], np.ndarray]:

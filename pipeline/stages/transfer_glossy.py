@@ -26,9 +26,9 @@ from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.stages.transfer import (
     PIXEL_BATCH,
     compress_rows,
+    gather_tools,
     row_attrs,
     rows_by_pixel,
-    scene_tools,
     tile_pixels,
 )
 from pipeline.stages.transfer import layout as transfer_layout
@@ -67,7 +67,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     index = list(ctx.inputs["geometry"].attrs["material_names"]).index(name)
     own = np.flatnonzero(tile["material"] == index)
     vis = parent_visibility(ctx, pixel[own])
-    _, disks, kernel, _ = scene_tools(ctx)
+    disks, kernel = gather_tools(ctx)
     table = glossy_table(ctx, name)
     keep = float(ctx.params["transfer.keep_tolerance"])
     cap = int(ctx.params["transfer.max_coefficients"])

