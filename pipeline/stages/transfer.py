@@ -56,7 +56,12 @@ from pipeline.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays, sort_rows
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 RAY_EPSILON = 1e-4   # ray origin offset along the normal, relative to the scene diagonal
-POINT_GROUP = 64     # work-group size of transfer_points (its pair list is padded to it)
+# The work-group size of both kernels, fixed: PoCL compiles a kernel once per
+# work-group size, and left to choose, it picks one that divides each launch's pair
+# count — a new compile (0.1-1 s) for most batches. That was the first re-bake's extra
+# 2-9 s after a full bake (a basis of a new size: new kernels; NOTES.md, fourteenth
+# session).
+LAUNCH_GROUP = 64
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
 COMPRESS_BLOCK = 128  # rows per compression task: its temporaries stay in cache
 
@@ -158,17 +163,18 @@ class TransferKernel:
             receivers_buf = cl.read_only_buffer(packed)
             deferred = np.zeros(len(pairs), np.uint8)
             deferred_buf = cl.shared_output_buffer(deferred)
-            padded = np.zeros(-(-len(pairs) // POINT_GROUP) * POINT_GROUP, np.uint32)
+            padded = np.zeros(-(-len(pairs) // LAUNCH_GROUP) * LAUNCH_GROUP, np.uint32)
             padded[:len(pairs)] = pairs
             cl.kernel("transfer.cl", "transfer_points", defines)(
-                self.queue, (len(padded),), (POINT_GROUP,), receivers_buf, self.disks,
+                self.queue, (len(padded),), (LAUNCH_GROUP,), receivers_buf, self.disks,
                 np.int32(self.count), cl.read_only_buffer(padded), np.int32(len(pairs)),
                 *common, deferred_buf, d_buf, t_buf)
             cl.read_output_buffer(deferred, deferred_buf)
             near = pairs[deferred.view(bool)]
             if len(near):
                 cl.kernel("transfer.cl", "transfer_pairs", defines)(
-                    self.queue, (len(near),), None, receivers_buf, self.disks,
+                    self.queue, (-(-len(near) // LAUNCH_GROUP) * LAUNCH_GROUP,),
+                    (LAUNCH_GROUP,), receivers_buf, self.disks,
                     np.int32(self.count), self.points, self.polygons,
                     cl.read_only_buffer(near), np.int32(len(near)), *common,
                     self.tolerance, d_buf, t_buf)
