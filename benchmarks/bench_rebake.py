@@ -14,8 +14,10 @@ transfer tiles of ``--tile`` pixels. One run:
    and [0.1, 0.5] (each a new basis: the same chunks re-run), and their median. Each
    repeat records the box's basis size k: the narrower range needs k = 4 where the full
    bake's needs 5, so its T chunks have 5 rows per pixel instead of 6 (at 400²: 14.4
-   against 17.6 s); the first re-bake after the full bake ran 1.8–3.1 s slower than the
-   same edit repeated (cause not found; NOTES.md, thirteenth session);
+   against 17.6 s). A basis of a new size means new transfer kernels (ROWS = k + 1),
+   compiled once per process; until the fourteenth session PoCL also compiled them once
+   per launch size, which made the first re-bake after the full bake 2–9 s slower than
+   the same edit repeated (NOTES.md, fourteenth session);
 3. the small box moved 20 mm along x: the same.
 
 Each step is a ``prt`` command (Python start-up included in its seconds, as a user
