@@ -102,13 +102,13 @@ def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
     def group(rows: slice) -> None:
         facing = n[rows] @ c.T > np.sum(n[rows] * x[rows], axis=1)[:, None]
         facing &= x[rows] @ ng.T > c_side
-        p_idx, g_idx = np.nonzero(facing)
+        pair = np.flatnonzero(facing)  # p · G + g (a flat search: 2-D nonzero is slower)
         start = np.repeat(start_of[rows], np.count_nonzero(facing, axis=1), axis=0)
-        ray = np.take(end_of, g_idx, axis=0)
+        ray = np.take(end_of, pair % len(c), axis=0)
         ray -= start
-        t_far = np.full(len(p_idx), 1 - 1e-4, np.float32)
+        t_far = np.full(len(pair), 1 - 1e-4, np.float32)
         blocked = tracer.occluded(start, ray, t_far, threads=1)
-        facing[p_idx[blocked], g_idx[blocked]] = False  # most rays are free: clear the rest
+        facing.reshape(-1)[pair[blocked]] = False  # most rays are free: clear the rest
         vis[rows] = facing
 
     map_slices(group, len(x), max(1, -(-len(x) // (4 * tracer.threads))), tracer.threads)
