@@ -1,6 +1,6 @@
 /* exp, log1p and atan2 in float32 from additions, multiplications and bit operations
- * only, so that a CPU device vectorises them across work-items (PoCL calls its scalar libm for
- * exp / log1p: measured ~45 ns per exp + log1p pair, 10x a Blinn-Phong lobe's other
+ * only, so that a CPU device vectorises them across work-items (PoCL calls its scalar
+ * libm for exp / log1p: measured ~45 ns per exp + log1p pair, 10x a Blinn-Phong lobe's other
  * arithmetic, and an out-of-line call stops the vectoriser; so no builtin is called
  * here). Cephes' expf / logf polynomials (S. L. Moshier); relative error a few
  * ulp (tests/test_triple_tables.py: against NumPy's float64, tolerance 4e-7). Used by

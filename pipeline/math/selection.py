@@ -16,8 +16,9 @@ Long rows (n ≥ 16 k) are first cut down to candidates: a partition of every 16
 gives a per-row threshold that about 1.6 k keys meet, and only those go through the
 exact selection. A row whose candidates are fewer than k (the sample was unlucky) or
 more than n / 4 (many equal keys) takes the exact path on its own, so the result never
-depends on the sample; it is 2-3x faster on the transfer stages' rows of 16384 Haar
-coefficients cut to 512.
+depends on the sample. On three blocks of 128 real T rows (16384 Haar coefficients
+cut to 512): 9.1, 17.2, 9.0 ms by the partition alone, 4.9, 5.2, 6.6 ms so (measured
+with tests running beside).
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def order_by_magnitude(values: np.ndarray, positions: np.ndarray) -> np.ndarray:
     decreasing magnitude of ``values`` (rows, k, the entries at those positions), equal
     magnitudes by position: what a stable argsort of −|values| gives. For float32, one
     sort of int64 keys −bits · 2³² + position (all distinct, so no stability is needed)
-    instead: 2.4× faster at 128 × 512 (NumPy's AVX-512 sort), the same result."""
+    instead: 2.5× faster on random 128 × 512 (2.66 → 1.06 ms), the same result."""
     if values.dtype != np.float32 or positions.size == 0 or positions.max() >= 1 << 31:
         order = np.argsort(-np.abs(values), axis=1, kind="stable")
         return np.take_along_axis(positions, order, axis=1)

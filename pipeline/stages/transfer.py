@@ -119,7 +119,6 @@ class TransferKernel:
     """kernels/transfer.cl over one set of gather disks (uploaded once)."""
 
     def __init__(self, disks: Disks, solid_angle: float, tolerance: float) -> None:
-        self.queue = cl.queue()
         self.count, self.subarea = len(disks.area), disks.points.shape[1]
         self.disks = cl.read_only_buffer(disks.packed)
         self.points = cl.read_only_buffer(np.asarray(disks.points, np.float32))
@@ -154,7 +153,7 @@ class TransferKernel:
                 defines["REVERSED_GRID"] = 1
         pairs = np.flatnonzero(visibility).astype(np.uint32)
         d = np.zeros((n, self.count), np.float32)
-        t = np.zeros((n, max(rows, 1), self.count), np.float32)
+        t = np.zeros((n, rows, self.count) if rows else 1, np.float32)  # 1: an unused stand-in
         d_buf, t_buf = cl.shared_output_buffer(d), cl.shared_output_buffer(t)
         if len(pairs):
             common = (cl.read_only_buffer(material), cl.read_only_buffer(grid),
@@ -163,21 +162,20 @@ class TransferKernel:
             receivers_buf = cl.read_only_buffer(packed)
             deferred = np.zeros(len(pairs), np.uint8)
             deferred_buf = cl.shared_output_buffer(deferred)
+            # transfer_points reads its pair unguarded: the list is padded to the groups
             padded = np.zeros(-(-len(pairs) // LAUNCH_GROUP) * LAUNCH_GROUP, np.uint32)
             padded[:len(pairs)] = pairs
-            cl.kernel("transfer.cl", "transfer_points", defines)(
-                self.queue, (len(padded),), (LAUNCH_GROUP,), receivers_buf, self.disks,
-                np.int32(self.count), cl.read_only_buffer(padded), np.int32(len(pairs)),
-                *common, deferred_buf, d_buf, t_buf)
+            cl.enqueue(cl.kernel("transfer.cl", "transfer_points", defines), len(padded),
+                       receivers_buf, self.disks, np.int32(self.count),
+                       cl.read_only_buffer(padded), np.int32(len(pairs)), *common,
+                       deferred_buf, d_buf, t_buf, local=LAUNCH_GROUP)
             cl.read_output_buffer(deferred, deferred_buf)
             near = pairs[deferred.view(bool)]
             if len(near):
-                cl.kernel("transfer.cl", "transfer_pairs", defines)(
-                    self.queue, (-(-len(near) // LAUNCH_GROUP) * LAUNCH_GROUP,),
-                    (LAUNCH_GROUP,), receivers_buf, self.disks,
-                    np.int32(self.count), self.points, self.polygons,
-                    cl.read_only_buffer(near), np.int32(len(near)), *common,
-                    self.tolerance, d_buf, t_buf)
+                cl.enqueue(cl.kernel("transfer.cl", "transfer_pairs", defines), len(near),
+                           receivers_buf, self.disks, np.int32(self.count), self.points,
+                           self.polygons, cl.read_only_buffer(near), np.int32(len(near)),
+                           *common, self.tolerance, d_buf, t_buf, local=LAUNCH_GROUP)
             cl.read_output_buffer(d, d_buf)
             if rows:
                 cl.read_output_buffer(t, t_buf)
