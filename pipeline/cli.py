@@ -499,11 +499,13 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
         check_method_scene(m, sc)
         job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m], threads=cores.threads)
         plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
+    renderer_of = job.shared_renderer(sc, wd, m.name, values)  # the frame's and the sequence's
     result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
-                        threads=cores.threads, exposure=exposure)
+                        threads=cores.threads, exposure=exposure, renderer_of=renderer_of)
     frame = result.frame
     if sequence:
-        seq = job.render_sequence(sc, wd, m.name, sequence, out, values, exposure, plan=plan)
+        seq = job.render_sequence(sc, wd, m.name, sequence, out, values, exposure, plan=plan,
+                                  renderer_of=renderer_of)
         ms = sorted(t["total_ms"] for t in seq.timings)
         click.echo(f"Wrote {len(seq.exr)} {seq.kind} frames {seq.exr[0]} .. {seq.exr[-1]} "
                    f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)

@@ -7,6 +7,7 @@ returns plain results for the CLI to print. No method is named here.
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 from collections.abc import Callable
@@ -171,14 +172,17 @@ class RenderResult:
 def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | None = None,
            quiet: bool = False, reuse: bool = False,
            options: dict[str, Any] | None = None, threads: int | None = None,
-           exposure: float = 0.0) -> RenderResult:
+           exposure: float = 0.0,
+           renderer_of: Callable[[], Callable[[Scene], Frame]] | None = None) -> RenderResult:
     """Bake what ``method`` needs (``jobs``, ``threads``: as for :func:`bake`), render
     one frame, write ``out`` (linear EXR), a PNG preview beside it (× 2^``exposure``,
     in stops; the EXR is never scaled) and its record ``out.json`` (see
     :func:`output_state`).
 
     With ``reuse``, a frame whose inputs (see :func:`frame_key`) are unchanged since it
-    was written, and whose files are as written, is not rendered again."""
+    was written, and whose files are as written, is not rendered again.
+    ``renderer_of``: where the renderer comes from (:func:`shared_renderer`, built with
+    the same ``options``); default: one built for this frame."""
     from pipeline.images import check_writable
     from pipeline.method import check_method_scene
 
@@ -193,7 +197,8 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     key = frame_key(scene, workdir, m, options)
     if reuse and output_state(meta, key, exposure)[0] == "present":
         return RenderResult(out, png, None, baked)
-    frame = checked_frame(frame_renderer(scene, workdir, method, options)(scene), out)
+    renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
+    frame = checked_frame(renderer(scene), out)
     write_frame(out, frame.rgb, exposure)
     write_output_record(meta, key, [out, png], {"method": method, "exposure": exposure,
                                                 **frame.timings})
@@ -265,6 +270,18 @@ def frame_renderer(scene: Scene, workdir: Workdir, method: str,
     return resolve(m.renderer)(scene, method_artifacts(m, workdir), **(options or {}))
 
 
+def shared_renderer(scene: Scene, workdir: Workdir, method: str,
+                    options: dict[str, Any] | None = None
+                    ) -> Callable[[], Callable[[Scene], Frame]]:
+    """A factory of ``method``'s renderer (:func:`frame_renderer`) that builds it on
+    its first call and returns the same one after: the frame and the sequences of one
+    command share the artifacts it loaded (seconds on a large bake), and a command whose
+    outputs are all up to date builds none. Sharing is safe because each call of a
+    renderer renders from the scene it is given, and an edit mode sets up its own state
+    on entry."""
+    return functools.cache(lambda: frame_renderer(scene, workdir, method, options))
+
+
 def render_frame(scene: Scene, workdir: Workdir, method: str,
                  options: dict[str, Any] | None = None) -> Frame:
     """One frame of ``method`` (see ``frame_renderer``)."""
@@ -327,19 +344,20 @@ def sequence_record(out: Path, kind: str) -> Path:
 
 def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
                     options: dict[str, Any] | None = None, exposure: float = 0.0,
-                    reuse: bool = False, plan: SequencePlan | None = None
+                    reuse: bool = False, plan: SequencePlan | None = None,
+                    renderer_of: Callable[[], Callable[[Scene], Frame]] | None = None
                     ) -> SequenceResult:
     """Render a sequence of edits (see :func:`plan_sequence`; ``plan`` if already made)
     from the baked artifacts, PNG previews × 2^``exposure``. A renderer with an
     ``edit_mode`` renders the sequence in that faster mode. With ``reuse``, a sequence
     whose record says its frames are present (:func:`output_state`) is not rendered
-    again."""
+    again. ``renderer_of``: as for :func:`render`."""
     m = get_method(method)
     options = m.option_values({}) | (options or {})
     plan = plan or plan_sequence(scene, workdir, method, spec, out, options)
     if reuse and output_state(plan.record, plan.key, exposure)[0] == "present":
         return SequenceResult(plan.kind, plan.exr, [], plan.edits, plan.description, False)
-    renderer = frame_renderer(scene, workdir, method, options)
+    renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
     frame_of = renderer.edit_mode(plan.kind, scene) if hasattr(renderer, "edit_mode") \
         else renderer
     plan.record.unlink(missing_ok=True)
@@ -391,11 +409,12 @@ def main_job(scene: Scene, workdir: Workdir, frames: Path,
         except NotApplicable as exc:
             plans.append(SequenceResult(spec.partition(":")[0], [], [], [],
                                         skipped=exc.problem))
+    renderer_of = shared_renderer(scene, workdir, method.name, method.option_values({}))
     result = render(scene, workdir, method.name, out, jobs=jobs, quiet=quiet, reuse=True,
-                    threads=threads, exposure=exposure)
+                    threads=threads, exposure=exposure, renderer_of=renderer_of)
     sequences = [p if isinstance(p, SequenceResult) else
                  render_sequence(scene, workdir, method.name, p.spec, out, None, exposure,
-                                 reuse=True, plan=p) for p in plans]
+                                 reuse=True, plan=p, renderer_of=renderer_of) for p in plans]
     return report, result, sequences
 
 

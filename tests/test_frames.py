@@ -191,6 +191,39 @@ def test_light_sequence_names_its_light_and_path(baked, tmp_path):
     assert not (tmp_path / "b.exr").exists()
 
 
+def test_run_builds_one_renderer_for_its_frame_and_sequences(baked, tmp_path, monkeypatch):
+    """`prt run` renders its frame and both sequences with one renderer (loading the
+    artifacts once), and a run with every output up to date builds none; the frames are
+    the ones a renderer of their own gives (the same arrays)."""
+    scene_path, workdir, _ = baked
+    scene = load_scene(scene_path)
+    wd = job.workdir_for(scene, workdir)
+    built = []
+    own_renderer = job.frame_renderer
+
+    def counted(*args, **kwargs):
+        built.append(args[2])
+        return own_renderer(*args, **kwargs)
+
+    monkeypatch.setattr(job, "frame_renderer", counted)
+    shared = tmp_path / "shared"
+    _, frame, sequences = job.main_job(scene, wd, shared, None, (), 1, True)
+    assert built == ["d2i"] and len(sequences) == 2
+    job.main_job(scene, wd, shared, None, (), 1, True)
+    assert built == ["d2i"]  # everything up to date: nothing built
+
+    own = tmp_path / "own" / frame.exr.name  # each output with a renderer of its own
+    job.render(scene, wd, "d2i", own, quiet=True)
+    for seq in sequences:
+        job.render_sequence(scene, wd, "d2i", f"{seq.kind}:8", own)
+    assert len(built) == 4
+    pairs = [(frame.exr, own)] + [(path, own.parent / path.name)
+                                  for seq in sequences for path in seq.exr]
+    assert len(pairs) == 17
+    for ours, theirs in pairs:
+        assert np.array_equal(read_exr(ours), read_exr(theirs)), ours.name
+
+
 def test_run_skips_a_light_sequence_with_no_light_to_move(tmp_path):
     """A scene lit by a directional light only: `prt run` writes the frame and the
     gamma sequence, says the light sequence is skipped and why (before any frame is
