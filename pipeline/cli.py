@@ -495,13 +495,16 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
     wd = job.workdir_for(sc, workdir)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
+    baked = None
     if sequence:  # a bad spec, or one the scene cannot show, fails before any frame
         check_method_scene(m, sc)
-        job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m], threads=cores.threads)
+        baked = job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m],
+                         threads=cores.threads)
         plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
     renderer_of = job.shared_renderer(sc, wd, m.name, values)  # the frame's and the sequence's
     result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
-                        threads=cores.threads, exposure=exposure, renderer_of=renderer_of)
+                        threads=cores.threads, exposure=exposure, renderer_of=renderer_of,
+                        baked=baked)
     frame = result.frame
     if sequence:
         seq = job.render_sequence(sc, wd, m.name, sequence, out, values, exposure, plan=plan,

@@ -173,7 +173,8 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
            quiet: bool = False, reuse: bool = False,
            options: dict[str, Any] | None = None, threads: int | None = None,
            exposure: float = 0.0,
-           renderer_of: Callable[[], Callable[[Scene], Frame]] | None = None) -> RenderResult:
+           renderer_of: Callable[[], Callable[[Scene], Frame]] | None = None,
+           baked: list[StageRun] | None = None) -> RenderResult:
     """Bake what ``method`` needs (``jobs``, ``threads``: as for :func:`bake`), render
     one frame, write ``out`` (linear EXR), a PNG preview beside it (× 2^``exposure``,
     in stops; the EXR is never scaled) and its record ``out.json`` (see
@@ -182,7 +183,9 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     With ``reuse``, a frame whose inputs (see :func:`frame_key`) are unchanged since it
     was written, and whose files are as written, is not rendered again.
     ``renderer_of``: where the renderer comes from (:func:`shared_renderer`, built with
-    the same ``options``); default: one built for this frame."""
+    the same ``options``); default: one built for this frame. ``baked``: the report of
+    the bake the caller has just run for this method (nothing is planned again); None:
+    bake first."""
     from pipeline.images import check_writable
     from pipeline.method import check_method_scene
 
@@ -192,7 +195,8 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     check_method_scene(m, scene)
     check_writable(out)
     options = m.option_values({}) | (options or {})
-    baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
+    if baked is None:
+        baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
     key = frame_key(scene, workdir, m, options)
     if reuse and output_state(meta, key, exposure)[0] == "present":
@@ -410,8 +414,8 @@ def main_job(scene: Scene, workdir: Workdir, frames: Path,
             plans.append(SequenceResult(spec.partition(":")[0], [], [], [],
                                         skipped=exc.problem))
     renderer_of = shared_renderer(scene, workdir, method.name, method.option_values({}))
-    result = render(scene, workdir, method.name, out, jobs=jobs, quiet=quiet, reuse=True,
-                    threads=threads, exposure=exposure, renderer_of=renderer_of)
+    result = render(scene, workdir, method.name, out, quiet=quiet, reuse=True,
+                    exposure=exposure, renderer_of=renderer_of, baked=report)
     sequences = [p if isinstance(p, SequenceResult) else
                  render_sequence(scene, workdir, method.name, p.spec, out, None, exposure,
                                  reuse=True, plan=p, renderer_of=renderer_of) for p in plans]
