@@ -17,7 +17,9 @@ Measures, in one run on this machine:
   bytes they must move: rows, the radiance vector once per launch, the products; over
   their kernel time) as a fraction of the memory-bandwidth probe (pipeline/bandwidth.py),
   run in the same process: timed back to back like the probe (median of ``REPEATS``),
-  and as they ran inside the frames.
+  and as they ran inside the frames; on the GPU layout (a work-group per row), the same
+  products with each work-group size of ``GROUP_SWEEP`` (their time, and how far their
+  sums stray from the renderer's own size's: only the order of the additions differs);
 
 * shadow rays of the scene's lights from every pixel and gather sample: Embree's rate
   against the device kernel's (pipeline/bvh.py) on the same rays, and how many differ.
@@ -41,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+import pipeline.render.d2i as d2i_render
 from pipeline import cl, job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
@@ -56,6 +59,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 REPEATS = 25
 PAPER_TABLE5_MB = {"T": 152, "D": 60, "Ms": 20}
 PROFILED_TILES = 13
+GROUP_SWEEP = (8, 16, 32, 64, 128)  # work-items per row of the grouped products
 
 
 def transfer_breakdown(scene, workdir) -> dict[str, float]:
@@ -214,7 +218,39 @@ def product_kernels(renderer: D2iRenderer, scene, in_frame_ms: float) -> dict[st
         scene, renderer.material_names)]))
     back_to_back = statistics.median(renderer.products(frozen)[2] for _ in range(REPEATS))
     return {"bytes": float(product_bytes(renderer, frozen)), "ms": back_to_back,
-            "ms_in_frame": in_frame_ms}
+            "ms_in_frame": in_frame_ms, "group_sweep": group_sweep(renderer, frozen)}
+
+
+def group_sweep(renderer: D2iRenderer, frozen: Rows) -> dict[str, dict[str, float]] | None:
+    """The light-edit frame's two grouped product launches (D rows, frozen T rows) with
+    each work-group size of ``GROUP_SWEEP``, on the radiance vector the renderer holds:
+    their median kernel ms over ``REPEATS`` and the largest deviation of any product from
+    the renderer's own size's, relative to the launch's largest |product| (the sums are
+    added in another order only, so float32 rounding: ≲ 1e-6). None on the CPU layout
+    (a work-item per row)."""
+    if not renderer.grouped_products:
+        return None
+    launches = (("d", renderer.d), ("frozen", frozen))
+    own = d2i_render.SPARSE_GROUP
+    reference = {name: renderer._sparse(name, rows)[0] for name, rows in launches}
+    sweep = {}
+    try:
+        for group in GROUP_SWEEP:
+            d2i_render.SPARSE_GROUP = group  # read by the renderer at each launch
+            times, deviation = [], 0.0
+            for _ in range(REPEATS):
+                ms = 0.0
+                for name, rows in launches:
+                    values, kernel_ms = renderer._sparse(name, rows)
+                    ms += kernel_ms
+                    scale = max(float(np.abs(reference[name]).max()), 1e-30)
+                    deviation = max(deviation,
+                                    float(np.abs(values - reference[name]).max()) / scale)
+                times.append(ms)
+            sweep[str(group)] = {"ms": statistics.median(times), "deviation": deviation}
+    finally:
+        d2i_render.SPARSE_GROUP = own
+    return sweep
 
 
 def product_bytes(renderer: D2iRenderer, frozen: Rows) -> int:
@@ -292,6 +328,10 @@ def main() -> None:
     print(f"product kernels {gbs:.2f} GB/s = {result['product_kernel_bandwidth_fraction']:.0%} "
           f"of the probe back to back, "
           f"{result['product_kernel_bandwidth_fraction_in_frame']:.0%} in a frame; wrote {out}")
+    for group, run in (products["group_sweep"] or {}).items():
+        fraction = products["bytes"] / (run["ms"] * 1e-3) / 1e9 / bandwidth["opencl_copy_gbs"]
+        print(f"  {group:>3} work-items per row: {run['ms']:.3f} ms = {fraction:.0%} of the "
+              f"probe (sums within {run['deviation']:.1e} of the renderer's)")
 
 
 if __name__ == "__main__":

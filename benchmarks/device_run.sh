@@ -7,14 +7,10 @@
 # 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device),
 # d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio), distributed
 # (bench_distributed: each method's heaviest stage on 1 worker × 1 thread against local:16,
-# chunks made 4× smaller so that each of 16 workers gets several). Results go to OUTDIR. The machine has Python and NumPy but no registry: the project's other wheels
-# travel in .whl/ (cp312 manylinux, `pip download --no-deps`: pyopencl, pytools,
-# platformdirs, siphash24, trimesh, embreex, zarr, numcodecs, donfig, google-crc32c,
-# OpenEXR, xatlas, pydantic, pydantic-core, annotated-types, typing-inspection, and for
-# the step distributed dask, distributed, tornado, tblib, zict, partd, locket; ≈ 33 MB),
-# the shared data in .devdata/ (PRT_DATA: copy all of ../shared/data, 16 MB — the tests
-# read meshes the scenes do not name). Both folders listed in .git/info/exclude and named
-# in the run's carry. PoCL is not needed there.
+# chunks made 4× smaller so that each of 16 workers gets several). Results go to OUTDIR.
+# The machine has Python and NumPy but no registry: the project's other wheels travel in
+# .whl/ and the shared data in .devdata/ (PRT_DATA), both made here by
+# benchmarks/device_prepare.sh and named in the run's carry. PoCL is not needed there.
 set -u
 out=${1:?usage: benchmarks/device_run.sh OUTDIR STEP...}
 shift

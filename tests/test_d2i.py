@@ -101,7 +101,12 @@ def test_unblock_kernel_matches_numpy(baked):
         _close(got, unblock(blocks.astype(np.float64), block_of, slot, transform))
 
 
-def test_sparse_product_and_combination_kernels_match_numpy(baked):
+def test_sparse_product_and_combination_kernels_match_numpy(baked, monkeypatch):
+    """The products, one work-item per row and a work-group per row — of the
+    renderer's size and of the smallest and largest that benchmarks/bench_d2i.py sweeps
+    on a GPU —, and the combination, against NumPy."""
+    import pipeline.render.d2i as d2i_render
+
     scene, _, renderer = baked
     rng = np.random.default_rng(0)
     radiance = rng.random((renderer.size, 4)).astype(np.float32)
@@ -115,7 +120,10 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked):
     renderer.upload("d_int32", wide)  # the index type of radiance vectors beyond 2^16
     grouped = renderer.grouped_products
     # one work-item per row (a CPU's kernel) and a work-group per row (a GPU's)
-    for renderer.grouped_products in (False, True):
+    own = d2i_render.SPARSE_GROUP
+    for renderer.grouped_products, group in ((False, own), (True, own), (True, 8),
+                                             (True, 128)):
+        monkeypatch.setattr(d2i_render, "SPARSE_GROUP", group)
         for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms),
                            ("d_int32", wide), ("d_half", halves)):
             out, _ = renderer._sparse(name, rows, radiance)
@@ -125,6 +133,7 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked):
                       rows.values()[:, None].astype(np.float64) * radiance[rows.index])
             _close(out, expected)
     renderer.grouped_products = grouped
+    monkeypatch.undo()
     # combination: I = direct + kd D L + ρs max(0, Σ c_j T_j L)
     npix = len(renderer.direct.material_id)
     direct = rng.random((npix, 3)).astype(np.float32)
