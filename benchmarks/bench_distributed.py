@@ -7,8 +7,10 @@ Per case, the scene is baked once up to the stage, then the stage is re-run with
 alternating over ``--rounds`` rounds (each run started on a quiet machine and repeated
 when others used the cores meanwhile: benchmarks/bench_cores.py ``quiet_prt``):
 
-* d2i: ``d2i.transfer``, the default Cornell box at 128² (16 tiles of 32²);
-* triple: ``triple.visibility``, bunny_grace at 64² (texel tiles of its atlas);
+* d2i: ``d2i.transfer``, the default Cornell box at 128² (16 tiles of 32²; ``--size
+  d2i=256``: 64 tiles);
+* triple: ``triple.visibility``, bunny_grace at 64² (texel tiles of its atlas; ``--size
+  triple=128``: about 4× the texels);
 * sg: ``sg.fit``, bunny_sg_coarse (453 glossy vertices; the ground is Lambertian).
 
 Configurations: ``1x1`` (in-process, one thread: the baseline of the aim), ``1x2``
@@ -16,6 +18,12 @@ Configurations: ``1x1`` (in-process, one thread: the baseline of the aim), ``1x2
 stage's seconds are the run's own (its chunks and the assembly of its artifact; for
 local:2 also the cluster's start, ≈ 2 s, which a first stage pays); each run's
 artifact digest is recorded: they must all be equal.
+
+Each run's ``timeline`` comes from its chunk records (which process ran each chunk, when
+it started, its seconds): per worker process the first chunk's seconds against the
+median of its others (what a fresh process pays once: imports, opening the inputs,
+building its kernels), the stage's span from the first chunk's start to the last one's
+end, and the seconds the processes sat idle in it (waiting for work, or at the tail).
 
 ``overhead``: the scheduler's round trip per task on a LocalCluster of 2 workers, from
 ``--tasks`` no-op tasks submitted at once (what a chunk pays besides its work), for the
@@ -54,11 +62,17 @@ def config_args(config: str) -> list[str]:
     return ["--jobs", jobs, "--threads", threads]
 
 
-def cases(folder: Path, settings: dict[str, Any]) -> list[dict[str, Any]]:
+def cases(folder: Path, settings: dict[str, Any], sizes: dict[str, int] | None = None
+          ) -> list[dict[str, Any]]:
     """The method, scene arguments and heaviest stage of each case; ``settings``: stage
-    parameters over the scenes' own (smaller chunks for many workers, say)."""
+    parameters over the scenes' own (smaller chunks for many workers, say); ``sizes``:
+    image edges over the defaults (d2i 128, triple 64: the work grows with the pixels,
+    and triple's with the texels, about 3 a pixel) — a bake large enough for many
+    workers to share."""
+    sizes = {"d2i": 128, "triple": 64, **(sizes or {})}
     scenes = ROOT / "scenes"
-    cornell = scene_copy(default_scene_path(), folder / "cornell_box_128.yaml", 128,
+    edge = sizes["d2i"]
+    cornell = scene_copy(default_scene_path(), folder / f"cornell_box_{edge}.yaml", edge,
                          settings)
     grace = scene_copy(scenes / "bunny_grace.yaml", folder / "bunny_grace.yaml",
                        settings=settings)
@@ -66,7 +80,8 @@ def cases(folder: Path, settings: dict[str, Any]) -> list[dict[str, Any]]:
                     settings=settings)
     return [
         {"method": "d2i", "scene": [str(cornell)], "stage": "d2i.transfer"},
-        {"method": "triple", "scene": [str(grace), "--size", "64x64"],
+        {"method": "triple", "scene": [str(grace), "--size", f"{sizes['triple']}x"
+                                                             f"{sizes['triple']}"],
          "stage": "triple.visibility"},
         {"method": "sg", "scene": [str(sg)], "stage": "sg.fit"},
     ]
@@ -103,6 +118,31 @@ def scheduler_overhead(tasks: int, workers: int) -> dict[str, float]:
             "ms_per_task": per_task}
 
 
+def timeline(workdir: Path, stage: str) -> dict[str, Any]:
+    """The last run of ``stage``'s chunks, from their records (pipeline/runner.py
+    ``execute_chunk``): per process, the chunk count, its first chunk's seconds and the
+    median of its others; the span (first start to last end) and the idle process
+    seconds in it (span × processes − busy)."""
+    chunks = [json.loads(p.read_text()) for p in workdir.rglob(f".chunks/{stage}/*.json")]
+    by_process: dict[str, list[dict[str, Any]]] = {}
+    for c in sorted(chunks, key=lambda c: c["started"]):
+        by_process.setdefault(c["process"], []).append(c)
+    start = min(c["started"] for c in chunks)
+    span = max(c["started"] + c["seconds"] for c in chunks) - start
+    processes = {
+        name: {"chunks": len(own), "first_s": own[0]["seconds"],
+               "others_median_s": statistics.median(c["seconds"] for c in own[1:])
+               if len(own) > 1 else None,
+               "first_start_s": own[0]["started"] - start}
+        for name, own in by_process.items()}
+    excess = [p["first_s"] - p["others_median_s"] for p in processes.values()
+              if p["others_median_s"] is not None]
+    return {"processes": len(processes), "span_s": span,
+            "idle_s": span * len(processes) - sum(c["seconds"] for c in chunks),
+            "first_chunk_excess_s_median": statistics.median(excess) if excess else None,
+            "per_process": processes}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--workdir", type=Path, required=True,
@@ -116,6 +156,9 @@ def main() -> None:
     parser.add_argument("--set", dest="settings", action="append", default=[],
                         metavar="NAME=VALUE", help="stage parameter over the scenes' own "
                         "(repeatable), e.g. transfer.tile=16 for more chunks than workers")
+    parser.add_argument("--size", dest="sizes", action="append", default=[],
+                        metavar="METHOD=EDGE", help="image edge of a case (d2i, triple) "
+                        "over its default (128, 64), e.g. d2i=256 for 16 workers")
     parser.add_argument("--max-wait", type=float, default=1800.0,
                         help="longest wait for a quiet machine before a run, seconds")
     parser.add_argument("--out", type=Path,
@@ -125,13 +168,16 @@ def main() -> None:
 
     configs = args.configs.split(",")
     settings = dict(parse_setting(t) for t in args.settings)
+    sizes = {method: int(edge) for method, _, edge in (t.partition("=") for t in args.sizes)}
+    if set(sizes) - {"d2i", "triple"}:
+        parser.error(f"--size: a case of d2i or triple, not {sorted(set(sizes))}")
     result: dict[str, Any] = {"cpus": os.cpu_count(), "configs": configs, "cases": {},
-                              "settings": settings,
+                              "settings": settings, "sizes": sizes,
                               "load_average_start": os.getloadavg()[0]}
     workers = max([int(c.split(":")[1]) for c in configs if c.startswith("local:")] or [2])
     result["overhead"] = scheduler_overhead(args.tasks, workers)
     print("overhead", json.dumps(result["overhead"]), flush=True)
-    for case in cases(args.workdir, settings):
+    for case in cases(args.workdir, settings, sizes):
         if args.only and case["method"] not in args.only:
             continue
         workdir = args.workdir / case["method"]
@@ -149,8 +195,11 @@ def main() -> None:
                     "other_cpu_s": r["other_cpu_s"], "noisy": r["noisy"],
                     "chunks": len(record["chunk_digests"]),
                     "chunk_seconds_sum": sum(record["chunk_seconds"].values()),
-                    "digest": record["digest"]})
-                print(case["method"], config, json.dumps(runs[config][-1]), flush=True)
+                    "digest": record["digest"], "timeline": timeline(workdir, case["stage"])})
+                shown = {k: v for k, v in runs[config][-1].items() if k != "timeline"}
+                t = runs[config][-1]["timeline"]
+                shown["timeline"] = {k: v for k, v in t.items() if k != "per_process"}
+                print(case["method"], config, json.dumps(shown), flush=True)
         median = {c: statistics.median(r["stage_s"] for r in rs) for c, rs in runs.items()}
         digests = {r["digest"] for rs in runs.values() for r in rs}
         ratios = {f"speedup_{c}_vs_1x1": median["1x1"] / median[c] for c in configs

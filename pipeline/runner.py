@@ -32,7 +32,9 @@ from __future__ import annotations
 import datetime
 import hashlib
 import importlib
+import os
 import shutil
+import socket
 import sys
 import time
 from dataclasses import dataclass, field
@@ -379,7 +381,7 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     from pipeline.meshio import primitive_mesh, read_mesh
 
     one_blas_thread()
-    start = time.perf_counter()
+    start, started = time.perf_counter(), time.time()
     try:
         _check_code(task)
         meshes = {name: read_mesh(Path(src)) if kind == "file" else primitive_mesh(src)
@@ -402,7 +404,9 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
     chunkwrite.record_chunk(Path(task.marker), {
         "stage": task.stage, "chunk": task.chunk.id, "key": task.key,
         "digest": arrays_digest(arrays), "seconds": seconds, "meta": ctx.meta,
-        "parts": task.parts})
+        "parts": task.parts,
+        # where and when it ran (UNIX seconds): a run's timeline, per worker process
+        "process": f"{socket.gethostname()}:{os.getpid()}", "started": started})
     return task.chunk.id, seconds
 
 

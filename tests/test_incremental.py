@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import copy
+import itertools
+import os
+import socket
+import time
 
 import numpy as np
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
+from pipeline.chunkwrite import read_marker
 from pipeline.runner import plan, run
 from pipeline.scene import load_scene
 from pipeline.stagefile import load_stagefile
@@ -47,8 +52,12 @@ def test_second_run_executes_nothing(baked):
 
 
 def test_first_run_runs_every_chunk(tmp_path):
-    """A fresh work directory runs every chunk of every stage."""
-    report = bake(small_scene_dict(), tmp_path, Workdir(tmp_path / "w"))
+    """A fresh work directory runs every chunk of every stage; each chunk's record says
+    which process ran it (this one, in-process), from when (UNIX seconds) and how long:
+    the chunks of a stage one after the other."""
+    workdir = Workdir(tmp_path / "w")
+    before = time.time()
+    report = bake(small_scene_dict(), tmp_path, workdir)
     assert ran(report) == {
         "geometry": ["floor", "box", "ball"],
         "gbuffer": TILES,
@@ -56,6 +65,13 @@ def test_first_run_runs_every_chunk(tmp_path):
         "total": ["all"],
         "tiles": TILES,
     }
+    records = sorted((read_marker(workdir.marker("tiles", tile)) for tile in TILES),
+                     key=lambda r: r["started"])
+    assert {r["process"] for r in records} == {f"{socket.gethostname()}:{os.getpid()}"}
+    assert before <= records[0]["started"]
+    for earlier, later in itertools.pairwise(records):
+        assert earlier["started"] + earlier["seconds"] <= later["started"]
+    assert records[-1]["started"] + records[-1]["seconds"] <= time.time()
 
 
 def test_declared_param_reruns_declaring_stage_and_dependents(baked):
