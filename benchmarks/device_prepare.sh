@@ -21,13 +21,14 @@ names="pyopencl pytools platformdirs siphash24 trimesh embreex zarr numcodecs do
 google-crc32c OpenEXR xatlas pydantic pydantic-core annotated-types typing-inspection
 dask distributed tornado tblib zict partd locket"
 # name==version as this environment has them (importlib.metadata normalises the names)
-pins=$("$py" -c 'import sys
+pins=$("$py" -c '
+import sys
 from importlib.metadata import PackageNotFoundError, version
 for name in sys.argv[1:]:
     try:
         print(f"{name}=={version(name)}")
     except PackageNotFoundError:
-        sys.exit(f"device_prepare: {name} is not installed in {sys.executable}'"'"'s environment")
+        sys.exit(f"device_prepare: {name} is not installed in {sys.executable}")
 ' $names)
 rm -rf .whl && mkdir .whl
 for pin in $pins; do
@@ -39,21 +40,21 @@ for pin in $pins; do
 done
 count=$(ls .whl | wc -l)
 [ "$count" -eq "$(echo $pins | wc -w)" ] || { echo "device_prepare: $count wheels for $(echo $pins | wc -w) packages" >&2; exit 1; }
-# The shared data files that the project's files name (a 64 MiB carry has no room for
-# the maps and meshes nothing reads), folders as they are.
+# The shared data: the maps and meshes that a file of the project names (a 64 MiB carry
+# has no room for the others), every other file and folder as it is.
 data=${PRT_DATA:-../shared/data}
 rm -rf .devdata && mkdir .devdata
 for path in "$data"/*; do
-    if [ -d "$path" ] && [ "$(basename "$path")" != envmaps ] && [ "$(basename "$path")" != meshes ]; then
+    name=$(basename "$path")
+    if [ "$name" != envmaps ] && [ "$name" != meshes ]; then
         cp -r "$path" .devdata/
-    elif [ -d "$path" ]; then
-        mkdir -p ".devdata/$(basename "$path")"
-        for file in "$path"/*; do
-            git grep -qF "$(basename "$file")" -- ':!benchmarks/results' \
-                && cp "$file" ".devdata/$(basename "$path")/"
-        done
-    else
-        cp "$path" .devdata/
+        continue
     fi
+    mkdir -p ".devdata/$name"
+    for file in "$path"/*; do
+        if git grep -qF "$(basename "$file")" -- ':!benchmarks/results'; then
+            cp "$file" ".devdata/$name/"
+        fi
+    done
 done
 du -sh .whl .devdata
