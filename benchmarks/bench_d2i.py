@@ -43,7 +43,6 @@ from pathlib import Path
 
 import numpy as np
 
-import pipeline.render.d2i as d2i_render
 from pipeline import cl, job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
@@ -231,12 +230,12 @@ def group_sweep(renderer: D2iRenderer, frozen: Rows) -> dict[str, dict[str, floa
     if not renderer.grouped_products:
         return None
     launches = (("d", renderer.d), ("frozen", frozen))
-    own = d2i_render.SPARSE_GROUP
+    own = renderer.sparse_group
     reference = {name: renderer._sparse(name, rows)[0] for name, rows in launches}
     sweep = {}
     try:
         for group in GROUP_SWEEP:
-            d2i_render.SPARSE_GROUP = group  # read by the renderer at each launch
+            renderer.sparse_group = group  # read at each launch
             times, deviation = [], 0.0
             for _ in range(REPEATS):
                 ms = 0.0
@@ -249,7 +248,7 @@ def group_sweep(renderer: D2iRenderer, frozen: Rows) -> dict[str, dict[str, floa
                 times.append(ms)
             sweep[str(group)] = {"ms": statistics.median(times), "deviation": deviation}
     finally:
-        d2i_render.SPARSE_GROUP = own
+        renderer.sparse_group = own
     return sweep
 
 

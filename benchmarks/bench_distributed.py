@@ -48,6 +48,7 @@ from typing import Any
 import yaml
 from bench_cores import ROOT, prt, quiet_prt, scene_copy, stage_seconds
 
+from pipeline.chunkwrite import read_marker
 from pipeline.scene import default_scene_path
 from pipeline.store import read_record
 
@@ -118,12 +119,14 @@ def scheduler_overhead(tasks: int, workers: int) -> dict[str, float]:
             "ms_per_task": per_task}
 
 
-def timeline(workdir: Path, stage: str) -> dict[str, Any]:
-    """The last run of ``stage``'s chunks, from their records (pipeline/runner.py
-    ``execute_chunk``): per process, the chunk count, its first chunk's seconds and the
-    median of its others; the span (first start to last end) and the idle process
-    seconds in it (span × processes − busy)."""
-    chunks = [json.loads(p.read_text()) for p in workdir.rglob(f".chunks/{stage}/*.json")]
+def timeline(artifact: Path, stage: str) -> dict[str, Any]:
+    """The last run of ``stage``'s chunks (its ``artifact``), from their records
+    (pipeline/runner.py ``execute_chunk``, beside the artifact as pipeline/store.py
+    ``Workdir.markers`` lays them out): per process, the chunk count, its first chunk's
+    seconds and the median of its others; the span (first start to last end) and the
+    idle process seconds in it (span × processes − busy)."""
+    markers = (read_marker(p) for p in (artifact.parent / ".chunks" / stage).glob("*.json"))
+    chunks = [m for m in markers if m is not None]
     by_process: dict[str, list[dict[str, Any]]] = {}
     for c in sorted(chunks, key=lambda c: c["started"]):
         by_process.setdefault(c["process"], []).append(c)
@@ -188,14 +191,15 @@ def main() -> None:
             for config in configs:
                 r = quiet_prt([*base, "--force", case["stage"], *config_args(config)],
                               max_wait_s=args.max_wait)
-                record = read_record(next(workdir.rglob(f"{case['stage']}.zarr")))
+                artifact = next(workdir.rglob(f"{case['stage']}.zarr"))
+                record = read_record(artifact)
                 runs[config].append({
                     "round": round_, "stage_s": stage_seconds(r["report"], case["stage"]),
                     "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
                     "other_cpu_s": r["other_cpu_s"], "noisy": r["noisy"],
                     "chunks": len(record["chunk_digests"]),
                     "chunk_seconds_sum": sum(record["chunk_seconds"].values()),
-                    "digest": record["digest"], "timeline": timeline(workdir, case["stage"])})
+                    "digest": record["digest"], "timeline": timeline(artifact, case["stage"])})
                 shown = {k: v for k, v in runs[config][-1].items() if k != "timeline"}
                 t = runs[config][-1]["timeline"]
                 shown["timeline"] = {k: v for k, v in t.items() if k != "per_process"}

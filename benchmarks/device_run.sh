@@ -8,7 +8,7 @@
 # d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio), distributed
 # (bench_distributed: d2i's and triple's heaviest stages on 1 worker × 1 thread against
 # local:16, each worker given several chunks — d2i at 256², 64 tiles; triple's texel tiles
-# 4× smaller, 181 — and each run's timeline: ≈ 8 minutes; sg.fit did not fit before).
+# 4× smaller, 181 — and each run's timeline: ≈ 6–8 minutes by estimate; sg.fit did not fit before).
 # Results go to OUTDIR.
 # The machine has Python and NumPy but no registry: the project's other wheels travel in
 # .whl/ and the shared data in .devdata/ (PRT_DATA), both made here by

@@ -101,12 +101,10 @@ def test_unblock_kernel_matches_numpy(baked):
         _close(got, unblock(blocks.astype(np.float64), block_of, slot, transform))
 
 
-def test_sparse_product_and_combination_kernels_match_numpy(baked, monkeypatch):
+def test_sparse_product_and_combination_kernels_match_numpy(baked):
     """The products, one work-item per row and a work-group per row — of the
     renderer's size and of the smallest and largest that benchmarks/bench_d2i.py sweeps
     on a GPU —, and the combination, against NumPy."""
-    import pipeline.render.d2i as d2i_render
-
     scene, _, renderer = baked
     rng = np.random.default_rng(0)
     radiance = rng.random((renderer.size, 4)).astype(np.float32)
@@ -118,12 +116,10 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked, monkeypatch):
     halves = Rows(renderer.d.offsets, renderer.d.index, half, scale)
     renderer.upload("d_half", halves)
     renderer.upload("d_int32", wide)  # the index type of radiance vectors beyond 2^16
-    grouped = renderer.grouped_products
+    grouped, own = renderer.grouped_products, renderer.sparse_group
     # one work-item per row (a CPU's kernel) and a work-group per row (a GPU's)
-    own = d2i_render.SPARSE_GROUP
-    for renderer.grouped_products, group in ((False, own), (True, own), (True, 8),
-                                             (True, 128)):
-        monkeypatch.setattr(d2i_render, "SPARSE_GROUP", group)
+    for renderer.grouped_products, renderer.sparse_group in (
+            (False, own), (True, own), (True, 8), (True, 128)):
         for name, rows in (("d", renderer.d), ("t", renderer.t), ("ms", renderer.ms),
                            ("d_int32", wide), ("d_half", halves)):
             out, _ = renderer._sparse(name, rows, radiance)
@@ -132,8 +128,7 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked, monkeypatch):
             np.add.at(expected, np.repeat(np.arange(rows.count), counts),
                       rows.values()[:, None].astype(np.float64) * radiance[rows.index])
             _close(out, expected)
-    renderer.grouped_products = grouped
-    monkeypatch.undo()
+    renderer.grouped_products, renderer.sparse_group = grouped, own
     # combination: I = direct + kd D L + ρs max(0, Σ c_j T_j L)
     npix = len(renderer.direct.material_id)
     direct = rng.random((npix, 3)).astype(np.float32)

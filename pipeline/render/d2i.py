@@ -139,6 +139,7 @@ class D2iRenderer:
         # a work-group per row (coalesced reads) on a GPU; one work-item per row, which
         # streams its row through the cache, on a CPU
         self.grouped_products = gpu_layout
+        self.sparse_group = SPARSE_GROUP  # work-items per row when grouped
         expand = not self.half_values
         # Ms and D are stored as rows across blocks of gather samples and of pixels
         # (pipeline/math/blocks.py): their products are unblocked per item (kernel unblock)
@@ -218,13 +219,14 @@ class D2iRenderer:
             self.pcl.enqueue_copy(self.queue, self.radiance_buffer,
                                   np.ascontiguousarray(radiance_w, np.float32))
         defines = {"INDEX_T": "ushort" if rows.index.dtype == np.uint16 else "int",
-                   "VALUE_HALF": int(rows.scale is not None), "SPARSE_GROUP": SPARSE_GROUP}
+                   "VALUE_HALF": int(rows.scale is not None),
+                   "SPARSE_GROUP": self.sparse_group}
         args = (buf["offsets"], buf["index"], buf["value"], buf["scale"],
                 self.radiance_buffer, np.int32(rows.count))
         if self.grouped_products:
             ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows_grouped", defines),
-                        rows.count * SPARSE_GROUP, *args, out=out, out_buffer=buf["out"],
-                        local=SPARSE_GROUP)
+                        rows.count * self.sparse_group, *args, out=out,
+                        out_buffer=buf["out"], local=self.sparse_group)
         else:
             ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", defines), rows.count,
                         *args, out=out, out_buffer=buf["out"])
