@@ -49,6 +49,7 @@ import yaml
 from bench_cores import ROOT, prt, quiet_prt, scene_copy, stage_seconds
 
 from pipeline.chunkwrite import read_marker
+from pipeline.dask_executor import LEAN_WORKERS
 from pipeline.scene import default_scene_path
 from pipeline.store import read_record
 
@@ -100,13 +101,19 @@ def noop(x: int) -> int:
 
 def scheduler_overhead(tasks: int, workers: int) -> dict[str, float]:
     """Milliseconds per task of ``tasks`` no-op tasks on a LocalCluster of ``workers``
-    (submitted at once, gathered as they complete), median of 5 batches."""
+    set up as ``prt run --scheduler local:N`` sets up its own (submitted at once,
+    gathered as they complete), median of 5 batches. With dask's defaults the nannies
+    would also write MALLOC_TRIM_THRESHOLD_ into this process's environment, and every
+    run after this one, the one-process baseline too, would inherit it (1.5 times as
+    slow; pipeline/dask_executor.py ``heap_as_glibc_default``)."""
     import logging
 
+    import dask
     from distributed import Client, LocalCluster, as_completed
 
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
+    with dask.config.set(LEAN_WORKERS), \
+            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                         dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
         client.gather(client.map(noop, range(4), pure=False))  # warm-up
         per_task = []

@@ -16,7 +16,7 @@ import pytest
 from helpers import D2I_STAGES, TOY_STAGEFILE, artifact_bytes, small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.dask_executor import DaskExecutor, parse_scheduler
+from pipeline.dask_executor import MALLOC_TRIM, DaskExecutor, parse_scheduler
 from pipeline.errors import PrtError
 from pipeline.runner import run
 from pipeline.scene import default_scene_path, load_scene
@@ -78,6 +78,55 @@ def test_a_worker_killed_mid_stage_changes_nothing(tmp_path):
         assert killed[0] not in client.run(os.getpid).values()  # a new worker took over
     assert len([r for r in report if r.name == "tiles"][0].ran_chunks) == 9
     assert artifact_bytes(workdir) == artifact_bytes(reference)
+
+
+def test_local_workers_start_without_the_nannys_malloc_setting(monkeypatch):
+    """dask's nannies give their workers MALLOC_TRIM_THRESHOLD_=65536 and write it into
+    the starting process's own environment too (where every later child, a local
+    pool's workers or a one-process bake started from it, would inherit it): neither
+    happens for a ``local:N`` cluster (``LEAN_WORKERS``)."""
+    monkeypatch.delenv(MALLOC_TRIM, raising=False)
+    with DaskExecutor("local:2") as executor:
+        seen = executor.client().run(os.environ.get, MALLOC_TRIM)
+    assert len(seen) == 2 and set(seen.values()) == {None}
+    assert MALLOC_TRIM not in os.environ
+
+
+FAULTS_PER_ARRAY = """
+import resource, sys
+import numpy as np
+from pipeline.dask_executor import heap_as_glibc_default
+undone = heap_as_glibc_default() if sys.argv[1] == "undo" else None
+def faults():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+def fill_and_free():
+    np.ones(1 << 17)  # 1 MiB, filled (its pages touched), then freed
+fill_and_free()  # once: the heap grows to hold it
+before = faults()
+for _ in range(20):
+    fill_and_free()
+print(undone, (faults() - before) / 20)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+@pytest.mark.parametrize("undo", [False, True])
+def test_a_remote_workers_malloc_setting_is_undone(undo):
+    """A process started with the nanny's MALLOC_TRIM_THRESHOLD_=65536 (a remote ``dask
+    worker``'s) maps every 1 MiB NumPy array afresh and faults in each of its 256 pages
+    of 4 KiB (257 faults counted an array here); after ``heap_as_glibc_default`` it
+    reuses the heap (no faults an array here; at most 32, an eighth of the pages,
+    allowed for the allocator's bookkeeping). Arrays of 1 MiB, not larger: NumPy asks
+    for huge pages from 4 MiB on, which would hide the faults."""
+    result = subprocess.run(
+        [sys.executable, "-c", FAULTS_PER_ARRAY, "undo" if undo else "keep"],
+        capture_output=True, text=True, env={**os.environ, MALLOC_TRIM: "65536"})
+    assert result.returncode == 0, result.stderr
+    undone, faults = result.stdout.split()
+    if undo:
+        assert undone == "True" and float(faults) <= 32
+    else:
+        assert float(faults) > 128  # the setting's effect, which the undo removes
 
 
 @pytest.mark.parametrize("text, expected", [("local:3", (None, 3)),
