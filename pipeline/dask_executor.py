@@ -61,6 +61,8 @@ LEAN_WORKERS = {
     "distributed.admin.tick.interval": "1s",
     "distributed.admin.system-monitor.interval": "5s",
     "distributed.worker.memory.monitor-interval": "1s",
+    # a stage's queued chunks handed out one per worker thread: the next when one ends
+    "distributed.scheduler.worker-saturation": 1.0,
     # and without the nanny's MALLOC_TRIM_THRESHOLD_ (see heap_as_glibc_default)
     f"distributed.nanny.pre-spawn-environ.{MALLOC_TRIM}": None,
 }
@@ -189,10 +191,10 @@ class DaskExecutor:
         client = self.client()
         parent = os.getpid() if self.local_workers else None
         search = search_dirs()
-        token = uuid.uuid4().hex[:8]
-        futures = [client.submit(run_on_worker, fn, task, self.threads, search, parent,
-                                 key=f"{_label(task, i)}#{token}", pure=False)
-                   for i, task in enumerate(tasks)]
+        token = uuid.uuid4().hex
+        futures = client.map(run_on_worker, [fn] * len(tasks), tasks, threads=self.threads,
+                             search=search, parent=parent, pure=False,
+                             key=[_key(task, i, token) for i, task in enumerate(tasks)])
         pending = set(futures)
         try:
             for future in as_completed(futures):
@@ -225,10 +227,17 @@ class DaskExecutor:
         self.close()
 
 
-def _label(task: Any, index: int) -> str:
-    """A task's name in the dashboard: ``stage/chunk`` for a chunk task."""
+def _key(task: Any, index: int, token: str) -> tuple[str, str]:
+    """A task's key: ``("STAGE-TOKEN", "CHUNK")`` for a chunk task. dask groups tasks by
+    the key's first part less its token (``STAGE``, what the dashboard shows), so a
+    stage's chunks form one group; a group of more than twice the cluster's threads,
+    without dependencies, is queued on the scheduler and handed out as workers free up
+    (``worker-saturation``), instead of being shared out among the workers in advance,
+    where the worker with the slower chunks finishes last while the other waits."""
     stage, chunk = getattr(task, "stage", None), getattr(task, "chunk", None)
-    return f"{stage}/{chunk.id}" if stage and chunk is not None else f"task-{index}"
+    if stage and chunk is not None:
+        return f"{stage}-{token}", str(chunk.id)
+    return f"task-{token}", str(index)
 
 
 def announce_on_stderr(line: str) -> None:

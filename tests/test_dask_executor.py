@@ -62,7 +62,7 @@ def test_a_worker_killed_mid_stage_changes_nothing(tmp_path):
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
                 for address, keys in client.processing().items():
-                    running = [k for k in keys if str(k).startswith("tiles/")]
+                    running = [k for k in keys if k[0].startswith("tiles-")]
                     if running:
                         time.sleep(0.1)  # into the chunk's sleep
                         os.kill(pids[address], signal.SIGKILL)
@@ -78,6 +78,25 @@ def test_a_worker_killed_mid_stage_changes_nothing(tmp_path):
         assert killed[0] not in client.run(os.getpid).values()  # a new worker took over
     assert len([r for r in report if r.name == "tiles"][0].ran_chunks) == 9
     assert artifact_bytes(workdir) == artifact_bytes(reference)
+
+
+def test_a_stages_chunks_are_handed_out_as_workers_free_up():
+    """A stage's chunks form one dask task group, queued on the scheduler and handed
+    out one per worker thread as each ends (not shared out among the workers in
+    advance, which left one worker idle while the other ran its slower share): after
+    the first of 12 chunks (0.3 s each) ends on 2 workers, each worker holds one."""
+    from types import SimpleNamespace
+
+    tasks = [SimpleNamespace(stage="demo", chunk=SimpleNamespace(id=f"c{i}"))
+             for i in range(12)]
+    with DaskExecutor("local:2") as executor:
+        client = executor.client()
+        results = executor.map_unordered(lambda t: time.sleep(0.3) or t.chunk.id, tasks)
+        first = next(results)
+        held = {worker: len(keys) for worker, keys in client.processing().items()}
+        rest = list(results)
+    assert sorted([first, *rest]) == sorted(t.chunk.id for t in tasks)
+    assert len(held) == 2 and max(held.values()) == 1, held
 
 
 def test_local_workers_start_without_the_nannys_malloc_setting(monkeypatch):
