@@ -29,11 +29,13 @@ in-process runs never load it.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
 import uuid
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 from pipeline.errors import PrtError
@@ -134,11 +136,11 @@ class DaskExecutor:
     pipeline/executors.py ``Executor`` interface).
 
     ``scheduler``: an address, or ``local:N`` for a LocalCluster of N single-threaded
-    worker processes started on first use (each chunk then gets ``threads``, default
-    the available CPUs / N; a stage with one chunk runs in this process with all of
-    them, as the local pool does). ``announce`` gets one line when the client connects
-    (the cluster and its dashboard address). Use it as a context manager: the client,
-    and a LocalCluster, are closed at the end."""
+    worker processes, started at once in the background, beside the run's planning
+    (each chunk then gets ``threads``, default the available CPUs / N; a stage with one
+    chunk runs in this process with all of them, as the local pool does). ``announce``
+    gets one line when the client connects (the cluster and its dashboard address). Use
+    it as a context manager: the client, and a LocalCluster, are closed at the end."""
 
     def __init__(self, scheduler: str, threads: int | None = None,
                  announce: Callable[[str], None] | None = None) -> None:
@@ -150,26 +152,40 @@ class DaskExecutor:
         self.announce = announce
         self._client: Any = None
         self._cluster: Any = None
+        self._starting: Future | None = None  # (client, cluster) of a LocalCluster
+        if self.local_workers:
+            # Its start (about a second: N processes import dask) overlaps the run's
+            # planning and any stage of one chunk, which run here.
+            starter = ThreadPoolExecutor(1, thread_name_prefix="prt-dask-start")
+            self._starting = starter.submit(self._connect)
+            starter.shutdown(wait=False)
 
-    def client(self) -> Any:
-        """The dask client, connected (and the LocalCluster started) on first use."""
-        if self._client is None:
-            import dask
-            from distributed import Client, LocalCluster
+    def _connect(self) -> tuple[Any, Any]:
+        """(client, LocalCluster or None): the cluster started, or the scheduler reached."""
+        import dask
+        from distributed import Client, LocalCluster
 
+        if not self.local_workers:
             try:
-                if self.local_workers:
-                    with dask.config.set(LEAN_WORKERS):  # the nannies hand it to workers
-                        self._cluster = LocalCluster(
-                            n_workers=self.local_workers, threads_per_worker=1,
-                            processes=True, dashboard_address=":0",
-                            silence_logs=logging.ERROR)
-                    self._client = Client(self._cluster)
-                else:
-                    self._client = Client(self.address, timeout=CONNECT_TIMEOUT)
+                return Client(self.address, timeout=CONNECT_TIMEOUT), None
             except OSError as exc:
                 raise PrtError("--scheduler", f"cannot reach the dask scheduler at "
                                f"{self.address}: {exc}") from None
+        with dask.config.set(LEAN_WORKERS):  # the nannies hand it to the workers
+            cluster = LocalCluster(n_workers=self.local_workers, threads_per_worker=1,
+                                   processes=True, dashboard_address=":0",
+                                   silence_logs=logging.ERROR)
+        return Client(cluster), cluster
+
+    def client(self) -> Any:
+        """The dask client, connected (the LocalCluster's start waited for) on first
+        use."""
+        if self._client is None:
+            if self._starting is not None:
+                starting, self._starting = self._starting, None
+                self._client, self._cluster = starting.result()
+            else:
+                self._client, self._cluster = self._connect()
             if self.announce:
                 workers = self._client.scheduler_info().get("workers", {})
                 link = self._client.dashboard_link or "none (install bokeh)"
@@ -212,7 +228,12 @@ class DaskExecutor:
                 wait([f for f in pending if f.key in running])
 
     def close(self) -> None:
-        """Close the client and stop a LocalCluster's workers."""
+        """Close the client and stop a LocalCluster's workers (once started, if no stage
+        needed them)."""
+        if self._starting is not None:
+            starting, self._starting = self._starting, None
+            with contextlib.suppress(Exception):  # a failed start left nothing to close
+                self._client, self._cluster = starting.result()
         if self._client is not None:
             self._client.close()
             self._client = None
