@@ -16,7 +16,8 @@ when others used the cores meanwhile: benchmarks/bench_cores.py ``quiet_prt``):
 Configurations: ``1x1`` (in-process, one thread: the baseline of the aim), ``1x2``
 (in-process, both cores as threads), ``local:2`` and ``2x1`` (the local pool). The
 stage's seconds are the run's own (its chunks and the assembly of its artifact; for
-local:2 also the cluster's start, ≈ 2 s, which a first stage pays); each run's
+local:2 also what remains of the cluster's start after the run's planning, ≈ 1 s on 2
+cores, which a first stage waits for); each run's
 artifact digest is recorded: they must all be equal.
 
 Each run's ``timeline`` comes from its chunk records (which process ran each chunk, when

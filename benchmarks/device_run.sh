@@ -8,7 +8,9 @@
 # d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio), distributed
 # (bench_distributed: d2i's and triple's heaviest stages on 1 worker × 1 thread against
 # local:16, each worker given several chunks — d2i at 256², 64 tiles; triple's texel tiles
-# 4× smaller, 181 — and each run's timeline: ≈ 6–8 minutes by estimate; sg.fit did not fit before).
+# 4× smaller, 181 — and each run's timeline: ≈ 6–8 minutes by estimate; sg.fit did not fit before),
+# scaling (core_scaling_probe: core-bound, memory-bound and allocation-bound work in 1–16
+# processes at once, the last with and without dask's malloc setting; ≈ 1 minute).
 # Results go to OUTDIR.
 # The machine has Python and NumPy but no registry: the project's other wheels travel in
 # .whl/ and the shared data in .devdata/ (PRT_DATA), both made here by
@@ -46,6 +48,8 @@ render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
              --configs 1x1,local:16 --rounds 1 --max-wait 10 --only d2i --only triple \
              --size d2i=256 --set triple.texel_tile=16 \
              --out "$out/distributed_16.json" ;;
+    scaling) timeout 120 python3 benchmarks/core_scaling_probe.py \
+             --out "$out/core_scaling_16.json" ;;
     *) echo "unknown step $step" ;;
     esac
 done
