@@ -99,10 +99,10 @@ def heap_as_glibc_default() -> bool:
 
     With that variable set, glibc turns off its sliding mmap threshold: every block of
     128 KiB or more (a chunk's NumPy temporaries) is mapped fresh from the kernel and
-    unmapped when freed, and every page of it is faulted in and zeroed again. A chunk of
-    d2i.transfer then runs about 1.5 times as long (Cornell box at 128², 2 processes:
-    the stage 16.4 s with the variable against 11.4 s without; in one process 31.4 s
-    against 21.0 s). A LocalCluster's workers start without it (``LEAN_WORKERS``); a
+    unmapped when freed, and every page of it is faulted in and zeroed again. A stage
+    then runs 1.4 to 2.4 times as long (one process, with against without: d2i.transfer
+    on the Cornell box at 128² 31.4 / 21.0 s, triple.visibility 49.6 / 35.6 s, sg.fit
+    97.4 / 39.9 s). A LocalCluster's workers start without it (``LEAN_WORKERS``); a
     remote ``dask worker``'s nanny still sets it, so the thresholds glibc would have slid
     to are set here instead: blocks below 32 MiB from the heap, the heap's top trimmed
     past 64 MiB free (glibc's caps, DEFAULT_MMAP_THRESHOLD_MAX and twice it)."""
