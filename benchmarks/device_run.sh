@@ -6,9 +6,10 @@
 # tables (triple's rotation grid and one BRDF table), triple (bench_triple at 1024x768,
 # 80 / 320, baked at 128²), d2i (bench_d2i at 400², 16k gathers; shadows on the device),
 # d2i_cpu_layout (the same bake, the CPU's product layout: the layouts' ratio), distributed
-# (bench_distributed: d2i's and triple's heaviest stages on 1 worker × 1 thread against
+# (bench_distributed: each method's heaviest stage on 1 worker × 1 thread against
 # local:16, each worker given several chunks — d2i at 256², 64 tiles; triple's texel tiles
-# 4× smaller, 181 — and each run's timeline: ≈ 6–8 minutes by estimate; sg.fit did not fit before),
+# 4× smaller, 181; sg's vertex batches of 16, 29 on the glossy bunny — and each run's
+# timeline: ≈ 5–6 minutes by estimate from this 2-core machine's one-worker times),
 # scaling (core_scaling_probe: core-bound, memory-bound and allocation-bound work in 1–16
 # processes at once, the last with and without dask's malloc setting; ≈ 1 minute).
 # Results go to OUTDIR.
@@ -46,7 +47,7 @@ render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
              --out "$out/d2i_bench_400_gpu_cpu_layout.json" 2>&1 | grep -v "chunk/s" ;;
     distributed) timeout 560 python3 benchmarks/bench_distributed.py --workdir /tmp/bd \
              --configs 1x1,local:16 --rounds 1 --max-wait 10 --only d2i --only triple \
-             --size d2i=256 --set triple.texel_tile=16 \
+             --only sg --size d2i=256 --set triple.texel_tile=16 --set sg.fit_batch=16 \
              --out "$out/distributed_16.json" ;;
     scaling) timeout 120 python3 benchmarks/core_scaling_probe.py \
              --out "$out/core_scaling_16.json" ;;
