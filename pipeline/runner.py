@@ -542,6 +542,7 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
     markers = {c: chunkwrite.read_marker(workdir.marker(name, c)) for c in ids}
     todo = [c for c in p.chunks if forced or spec.chunks.by == "none"
             or (markers[c.id] or {}).get("key") != p.chunk_keys[c.id]]
+    todo = longest_first(todo, (previous or {}).get("chunk_seconds") or {})
     tasks = [ChunkTask(name, spec.impl, c, p.chunk_keys[c.id], p.seeds[c.id], p.params,
                        p.sections[c.id], {dep: (str(workdir.artifact(dep)),
                                                 stagefile.stages[dep].output)
@@ -592,6 +593,18 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
     return StageRun(name, "ran", [c for c in ids if c in done],
                     [c for c in ids if c not in done], seconds,
                     "forced" if forced else p.reason, tolerances)
+
+
+def longest_first(chunks: list[Chunk], seconds: dict[str, float]) -> list[Chunk]:
+    """``chunks`` in the order they are handed to the workers: those the stage's last
+    bake timed (``seconds``, its record's ``chunk_seconds``) longest first, as a re-bake
+    after an edit has them, so that the last to start are the short ones and no worker
+    is left alone with a long chunk at the end; chunks without a time first, in plan
+    order (a first bake runs in plan order). The artifact does not depend on the
+    order."""
+    untimed = [c for c in chunks if c.id not in seconds]
+    timed = sorted((c for c in chunks if c.id in seconds), key=lambda c: -seconds[c.id])
+    return untimed + timed
 
 
 def _drop_stale_markers(workdir: Workdir, stage: str, keep: set[str]) -> None:

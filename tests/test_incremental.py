@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
+from pipeline.chunk import Chunk
 from pipeline.chunkwrite import read_marker
-from pipeline.runner import plan, run
+from pipeline.executors import InProcessExecutor
+from pipeline.runner import longest_first, plan, run
 from pipeline.scene import load_scene
 from pipeline.stagefile import load_stagefile
-from pipeline.store import Workdir, open_artifact
+from pipeline.store import Workdir, open_artifact, read_record
 
 STAGEFILE = TESTS / "toy" / "stages.yaml"
 
@@ -153,6 +155,34 @@ def test_force_reruns_only_the_forced_stage(baked):
     after = open_artifact(workdir.artifact("per_object")).read_all()
     for name in before:
         assert before[name].tobytes() == after[name].tobytes()
+
+
+def test_a_rerun_hands_out_the_longest_chunks_first(baked):
+    """A stage's chunks reach the executor longest first by the seconds the stage's last
+    bake recorded (so the workers end on short ones), those it did not time first; a
+    first bake's in plan order (test_first_run_runs_every_chunk's bake, here the
+    fixture's). The artifact is the same whatever the order."""
+    doc, workdir, folder = baked
+    seconds = read_record(workdir.artifact("tiles"))["chunk_seconds"]
+    before = open_artifact(workdir.artifact("tiles")).read_all()
+    handed: list[str] = []
+
+    class Recording(InProcessExecutor):
+        def map_unordered(self, fn, tasks):
+            tasks = list(tasks)
+            handed.extend(t.chunk.id for t in tasks)
+            return super().map_unordered(fn, tasks)
+
+    bake(doc, folder, workdir, force=("tiles",), executor=Recording())
+    assert handed == sorted(TILES, key=lambda tile: -seconds[tile])
+    after = open_artifact(workdir.artifact("tiles")).read_all()
+    assert all(before[name].tobytes() == after[name].tobytes() for name in before)
+
+
+def test_longest_first_puts_untimed_chunks_first():
+    chunks = [Chunk(c, "tile") for c in ("a", "b", "c", "d", "e")]
+    order = longest_first(chunks, {"b": 1.0, "c": 3.0, "e": 1.0})
+    assert [c.id for c in order] == ["a", "d", "c", "b", "e"]  # ties keep plan order
 
 
 def test_until_runs_only_upstream(tmp_path):
