@@ -58,7 +58,8 @@ MALLOC_TRIM = "MALLOC_TRIM_THRESHOLD_"  # glibc's variable, which dask's nannies
 # the GIL (and, with one core per worker, CPU) from the chunk running beside them.
 # Measured on d2i.transfer at 128², 2 workers, two rounds alternating: the chunks' own
 # seconds 45.3–45.6 against 49.3–50.3 with dask's defaults, the stage 25.1–25.2 s against
-# 27.2–28.9 s (the local pool: 24.1–25.3 s). The dashboard's profile page stays empty.
+# 27.2–28.9 s (the local pool: 24.1–25.3 s; all of these with the nanny's malloc setting,
+# before it was removed). The dashboard's profile page stays empty.
 LEAN_WORKERS = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.system-monitor.gil.enabled": False,
