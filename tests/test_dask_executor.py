@@ -148,6 +148,44 @@ def test_a_remote_workers_malloc_setting_is_undone(undo):
         assert float(faults) > 128  # the setting's effect, which the undo removes
 
 
+def faults_per_array(_task) -> tuple[str | None, float]:
+    """(this process's MALLOC_TRIM_THRESHOLD_, page faults per 1 MiB array made and
+    freed), as FAULTS_PER_ARRAY measures them."""
+    import resource
+
+    import numpy as np
+
+    def faults():
+        return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+
+    np.ones(1 << 17)
+    before = faults()
+    for _ in range(20):
+        np.ones(1 << 17)
+    return os.environ.get(MALLOC_TRIM), (faults() - before) / 20
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_chunks_on_a_cluster_of_dasks_defaults_run_without_its_malloc_setting():
+    """A cluster started with dask's own settings, as a remote ``dask worker``'s nanny
+    starts its worker (MALLOC_TRIM_THRESHOLD_=65536 in the worker's environment), given
+    to DaskExecutor by its address: a task runs after the worker's preparation has undone
+    the setting (no more faults per 1 MiB array than the undo test allows)."""
+    import logging
+
+    from distributed import LocalCluster
+
+    try:
+        with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                          dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+                DaskExecutor(cluster.scheduler_address) as executor:
+            [(setting, faults)] = list(executor.map_unordered(faults_per_array, [None]))
+    finally:
+        os.environ.pop(MALLOC_TRIM, None)  # the nanny wrote it into this process too
+    assert setting == "65536"
+    assert faults <= 32
+
+
 @pytest.mark.parametrize("text, expected", [("local:3", (None, 3)),
                                             ("tcp://10.0.0.5:8786", ("tcp://10.0.0.5:8786", 0))])
 def test_scheduler_values(text, expected):
