@@ -105,8 +105,8 @@ def scheduler_overhead(tasks: int, workers: int) -> dict[str, float]:
     set up as ``prt run --scheduler local:N`` sets up its own (submitted at once,
     gathered as they complete), median of 5 batches. With dask's defaults the nannies
     would also write MALLOC_TRIM_THRESHOLD_ into this process's environment, and every
-    run after this one, the one-process baseline too, would inherit it (1.5 times as
-    slow; pipeline/dask_executor.py ``heap_as_glibc_default``)."""
+    run after this one, the one-process baseline too, would inherit it (1.4 to 2.4 times
+    as slow; pipeline/dask_executor.py ``heap_as_glibc_default``)."""
     import logging
 
     import dask

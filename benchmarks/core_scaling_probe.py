@@ -24,7 +24,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-MALLOC_TRIM = "MALLOC_TRIM_THRESHOLD_"
+from pipeline.dask_executor import MALLOC_TRIM
 
 
 def python_loop(_: int) -> float:

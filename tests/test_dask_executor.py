@@ -111,46 +111,10 @@ def test_local_workers_start_without_the_nannys_malloc_setting(monkeypatch):
     assert MALLOC_TRIM not in os.environ
 
 
-FAULTS_PER_ARRAY = """
-import resource, sys
-import numpy as np
-from pipeline.dask_executor import heap_as_glibc_default
-undone = heap_as_glibc_default() if sys.argv[1] == "undo" else None
-def faults():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-def fill_and_free():
-    np.ones(1 << 17)  # 1 MiB, filled (its pages touched), then freed
-fill_and_free()  # once: the heap grows to hold it
-before = faults()
-for _ in range(20):
-    fill_and_free()
-print(undone, (faults() - before) / 20)
-"""
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
-@pytest.mark.parametrize("undo", [False, True])
-def test_a_remote_workers_malloc_setting_is_undone(undo):
-    """A process started with the nanny's MALLOC_TRIM_THRESHOLD_=65536 (a remote ``dask
-    worker``'s) maps every 1 MiB NumPy array afresh and faults in each of its 256 pages
-    of 4 KiB (257 faults counted an array here); after ``heap_as_glibc_default`` it
-    reuses the heap (no faults an array here; at most 32, an eighth of the pages,
-    allowed for the allocator's bookkeeping). Arrays of 1 MiB, not larger: NumPy asks
-    for huge pages from 4 MiB on, which would hide the faults."""
-    result = subprocess.run(
-        [sys.executable, "-c", FAULTS_PER_ARRAY, "undo" if undo else "keep"],
-        capture_output=True, text=True, env={**os.environ, MALLOC_TRIM: "65536"})
-    assert result.returncode == 0, result.stderr
-    undone, faults = result.stdout.split()
-    if undo:
-        assert undone == "True" and float(faults) <= 32
-    else:
-        assert float(faults) > 128  # the setting's effect, which the undo removes
-
-
-def faults_per_array(_task) -> tuple[str | None, float]:
-    """(this process's MALLOC_TRIM_THRESHOLD_, page faults per 1 MiB array made and
-    freed), as FAULTS_PER_ARRAY measures them."""
+def faults_per_array(_task=None) -> tuple[str | None, float]:
+    """(this process's MALLOC_TRIM_THRESHOLD_, page faults per 1 MiB NumPy array made and
+    freed: its pages touched when filled), over 20 arrays after a first one (for which
+    the heap grows)."""
     import resource
 
     import numpy as np
@@ -163,6 +127,36 @@ def faults_per_array(_task) -> tuple[str | None, float]:
     for _ in range(20):
         np.ones(1 << 17)
     return os.environ.get(MALLOC_TRIM), (faults() - before) / 20
+
+
+def undo_then_count(undo: bool) -> tuple[bool | None, float]:
+    """(``heap_as_glibc_default``'s answer, or None without it; faults per array)."""
+    from pipeline.dask_executor import heap_as_glibc_default
+
+    undone = heap_as_glibc_default() if undo else None
+    return undone, faults_per_array()[1]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+@pytest.mark.parametrize("undo", [False, True])
+def test_a_remote_workers_malloc_setting_is_undone(undo, monkeypatch):
+    """A process started with the nanny's MALLOC_TRIM_THRESHOLD_=65536 (a remote ``dask
+    worker``'s) maps every 1 MiB NumPy array afresh and faults in each of its 256 pages
+    of 4 KiB (257 faults counted an array here); after ``heap_as_glibc_default`` it
+    reuses the heap (no faults an array here; at most 32, an eighth of the pages,
+    allowed for the allocator's bookkeeping). Arrays of 1 MiB, not larger: NumPy asks
+    for huge pages from 4 MiB on, which would hide the faults. The process is spawned
+    with the variable set (glibc reads it when a process starts)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    monkeypatch.setenv(MALLOC_TRIM, "65536")
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        undone, faults = pool.submit(undo_then_count, undo).result()
+    if undo:
+        assert undone is True and faults <= 32
+    else:
+        assert faults > 128  # the setting's effect, which the undo removes
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
