@@ -30,9 +30,10 @@ block           [0, ``of``) in blocks of ``size``      ``span`` (start, end)
 texel_tile      per object, tiles of its texture      ``object``, ``region`` in texels
                 (``of``'s attr ``texture_sizes``:
                 {object: [height, width]})
-vertex_batch    per object, runs of ``size`` vertices  ``object``, ``span`` (start, end)
-                (``of``'s attr ``vertex_counts``:     in the object's own vertices
-                {object: count})
+vertex_batch    per object, the fewest runs of at      ``object``, ``span`` (start, end)
+                most ``size`` vertices, of even        in the object's own vertices
+                lengths (``of``'s attr
+                ``vertex_counts``: {object: count})
 =============== ====================================== ==================================
 """
 
@@ -128,10 +129,19 @@ def _vertex_batches(spec: StageSpec, scene: Scene, params: dict[str, Any],
     size = _positive(scene, spec.chunks.size, params[spec.chunks.size])
     chunks = []
     for obj, count in _upstream_attr(spec, upstream, "vertex_counts").items():
-        chunks.extend(make_chunk(f"{obj}/v{s:08d}", "vertex_batch", object=obj,
-                                 span=(s, min(s + size, int(count))))
-                      for s in range(0, int(count), size))
+        bounds = even_runs(int(count), size)
+        chunks.extend(make_chunk(f"{obj}/v{s:08d}", "vertex_batch", object=obj, span=(s, e))
+                      for s, e in zip(bounds[:-1], bounds[1:], strict=True))
     return chunks
+
+
+def even_runs(count: int, size: int) -> list[int]:
+    """Bounds of the fewest runs of at most ``size`` items covering [0, ``count``),
+    their lengths differing by at most one: 453 in runs of at most 256 -> [0, 226, 453].
+    Even, so that no run is a short remainder: workers sharing an object's runs finish
+    together (runs of 256 and 197 left one of two workers idle for the last tenth)."""
+    runs = -(-count // size)
+    return [count * i // runs for i in range(runs + 1)] if runs else [0]
 
 
 Chunker = Callable[[StageSpec, Scene, dict[str, Any], Mapping[str, Any]], list[Chunk]]

@@ -205,13 +205,16 @@ PART_DIGEST = 16  # hex digits kept of each part's digest in a chunk's record
 
 def chunk_key_parts(code: str, schema_version: int, params: dict[str, Any],
                     sections: dict[str, Any], inputs: dict[str, Any],
-                    chunk_id: str) -> dict[str, str]:
-    """Chunk ``chunk_id``'s key part by part, each a short digest, named as ``prt status``
-    says them: ``code``, ``schema``, ``param NAME``, ``scene SECTION``, ``input STAGE``
-    (or ``input STAGE[NAME]`` per chunk of a ``chunk_inputs`` input, ``input
-    STAGE[twin]`` for its twin chunk). Recorded with each written chunk, so that a stale
-    chunk's record says which parts changed."""
-    parts = {"code": code[:PART_DIGEST], "schema": str(schema_version)}
+                    chunk: Chunk) -> dict[str, str]:
+    """``chunk``'s key part by part, each a short digest, named as ``prt status`` says
+    them: ``code``, ``schema``, ``chunk extent`` (its coordinates: a tile's region, a
+    batch's span), ``param NAME``, ``scene SECTION``, ``input STAGE`` (or ``input
+    STAGE[NAME]`` per chunk of a ``chunk_inputs`` input, ``input STAGE[twin]`` for its
+    twin chunk). Recorded with each written chunk, so that a stale chunk's record says
+    which parts changed."""
+    chunk_id = chunk.id
+    parts = {"code": code[:PART_DIGEST], "schema": str(schema_version),
+             "chunk extent": digest(chunk.coords)[:PART_DIGEST]}
     parts.update({f"param {k}": digest(v)[:PART_DIGEST] for k, v in params.items()})
     parts.update({f"scene {k}": digest(v)[:PART_DIGEST] for k, v in sections.items()})
     for dep, value in inputs.items():
@@ -249,10 +252,11 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
         data = digest({"stage": spec.name, "params": params, "scene": sections,
                        "inputs": inputs, "chunk": c.id})
         p.seeds[c.id] = seed_from_key(data)
+        # the coordinates too: a chunker whose code changed may cut the same ids anew
         p.chunk_keys[c.id] = digest({"data": data, "code": code,
-                                     "schema_version": schema_version})
+                                     "schema_version": schema_version, "coords": c.coords})
         p.chunk_parts[c.id] = chunk_key_parts(code, schema_version, params, sections, inputs,
-                                              c.id)
+                                              c)
     p.key = digest({"stage": spec.name, "chunks": p.chunk_keys})
     scene_digests = {path: digest(value) for s in p.sections.values()
                      for path, value in s.items()}
@@ -264,7 +268,8 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
     p.key_parts = {"stage": spec.name, "code": code, "schema_version": schema_version,
                    "params": params, "inputs": inputs_all,
                    "scene": dict(sorted(scene_digests.items())),
-                   "chunks": sorted(p.chunk_keys)}
+                   "chunks": sorted(p.chunk_keys),
+                   "chunk_extents": digest([[c.id, c.coords] for c in chunks])}
     p.state, p.reason = _state(workdir.artifact(spec.name), p.key, p.key_parts)
     return p
 
@@ -335,7 +340,8 @@ def explain_change(old: dict[str, Any], new: dict[str, Any]) -> str:
     for k in sorted(set(old_inputs) | set(new_inputs)):
         if old_inputs.get(k) != new_inputs.get(k):
             reasons.append(f"input {k} changed")
-    if not reasons and old.get("chunks") != new["chunks"]:
+    if not reasons and (old.get("chunks"), old.get("chunk_extents")) != (
+            new["chunks"], new["chunk_extents"]):
         reasons.append("chunk layout changed")
     return "; ".join(reasons) or "key changed"
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
-from pipeline.chunk import Chunk
+from pipeline.chunk import Chunk, make_chunk
 from pipeline.chunkwrite import read_marker
 from pipeline.executors import InProcessExecutor
 from pipeline.runner import longest_first, plan, run
@@ -264,8 +264,13 @@ def test_texel_tiles_and_vertex_batches_are_planned_from_upstream_data(tmp_path)
 
     geometry = open_artifact(workdir.artifact("geometry"))
     counts = geometry.attrs["vertex_counts"]
-    assert ran(report)["vertex_sums"] == [f"{obj}/v{s:08d}" for obj, n in counts.items()
-                                          for s in range(0, n, 7)]
+    starts = [(obj, n * i // -(-n // 7)) for obj, n in counts.items() for i in range(-(-n // 7))]
+    assert ran(report)["vertex_sums"] == [f"{obj}/v{s:08d}" for obj, s in starts]
+    sums = open_artifact(workdir.artifact("vertex_sums"))
+    for obj in counts:  # even runs per object, none a short remainder
+        runs = [sums.read_piece("vertices", c).shape[0] for c in ran(report)["vertex_sums"]
+                if c.startswith(f"{obj}/")]
+        assert sum(runs) == counts[obj] and max(runs) <= 7 and max(runs) - min(runs) <= 1
     vertices = open_artifact(workdir.artifact("vertex_sums")).read("vertices")
     assert vertices.tobytes() == geometry.read("vertices").tobytes()
 
@@ -277,6 +282,46 @@ def test_texel_tiles_and_vertex_batches_are_planned_from_upstream_data(tmp_path)
     assert set(ran(report)) == {"atlas", "texels"}
     assert len(ran(report)["texels"]) == sum(-(-h // 4) * -(-w // 4) for h, w in
                                              sizes.values())
+
+
+def test_a_chunk_cut_anew_under_the_same_id_re_runs(tmp_path, monkeypatch):
+    """A chunk's key holds its coordinates, not only its id: when the chunker cuts the
+    same ids over other vertices (new chunker code, same params and inputs), those chunks
+    re-run, `prt status` says why, and the artifact equals a bake from scratch (before the
+    fix, the old pieces were reused and the artifact held the old runs' vertices)."""
+    from pipeline import chunking
+
+    doc = small_scene_dict()
+    scene = load_scene(write_scene(tmp_path, doc))
+    stagefile = load_stagefile(CHUNKED)
+    workdir = Workdir(tmp_path / "w")
+    run(scene, stagefile, workdir, progress=False)
+
+    planned = chunking.CHUNKERS["vertex_batch"]
+    moved: set[str] = set()
+
+    def recut(spec, scene, params, upstream):
+        """The same ids; each object's first run hands its last vertex to the second."""
+        chunks = planned(spec, scene, params, upstream)
+        out = list(chunks)
+        for i, (a, b) in enumerate(itertools.pairwise(chunks)):
+            if a.object == b.object and a.span[0] == 0:
+                out[i] = make_chunk(a.id, a.kind, object=a.object, span=(0, a.span[1] - 1))
+                out[i + 1] = make_chunk(b.id, b.kind, object=b.object,
+                                        span=(a.span[1] - 1, b.span[1]))
+                moved.update((a.id, b.id))
+        return out
+
+    monkeypatch.setitem(chunking.CHUNKERS, "vertex_batch", recut)
+    states = {p.spec.name: (p.state, p.reason) for p in plan(scene, stagefile, workdir)}
+    assert states["vertex_sums"] == ("stale", "chunk layout changed")
+    report = run(scene, stagefile, workdir, progress=False)
+    assert moved and sorted(ran(report)["vertex_sums"]) == sorted(moved)
+    assert set(ran(report)) == {"vertex_sums"}
+    scratch = Workdir(tmp_path / "scratch")
+    run(scene, stagefile, scratch, progress=False)
+    assert read_record(workdir.artifact("vertex_sums"))["digest"] == \
+        read_record(scratch.artifact("vertex_sums"))["digest"]
 
 
 def test_status_blames_the_atlas_not_the_geometry_when_the_tiles_change(tmp_path):

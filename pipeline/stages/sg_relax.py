@@ -4,10 +4,10 @@ lobes the renderer reads; one chunk per object.
 
 ``sg.fit`` fits vertex batches apart (in parallel, each its own chunk), so it counts and
 relaxes flips only over the edges inside a batch. The edges between batches were left
-with far more flips: on the coarse bunny (scenes/bunny_sg_coarse.yaml, batches of 256)
-19 % of the edges cross a batch boundary, and 41–46 % of the vertex pairs there were
-flipped by more than 5° against 13–15 % inside batches; after this stage 17–18 %
-(benchmarks/sg_fit_report.py; NOTES.md, issue 17, fifth session).
+with far more flips: on the coarse bunny (scenes/bunny_sg_coarse.yaml, batches of 256,
+the default then) 19 % of the edges cross a batch boundary, and 41–46 % of the vertex
+pairs there were flipped by more than 5° against 13–15 % inside batches; after this
+stage 17–18 % (benchmarks/sg_fit_report.py; NOTES.md, issue 17, fifth session).
 
 This stage runs ``sg.fit_relaxation_sweeps`` sweeps of pipeline/math/sg_coherence.py
 ``relax`` over each object's whole mesh in its breadth-first order, starting from the
