@@ -47,6 +47,16 @@ PACKING_EFFICIENCY = 0.7  # charts' share of the packed texture, to predict its 
 SIDE_TOLERANCE = 0.2      # a packed side this far from its target is packed again,
 REPACKS = 3               # at most this many times
 
+# The last atlas made in this process, kept alive until the next one is made (or the
+# process ends). Freeing an xatlas Atlas (xatlas::Destroy) stops its task scheduler's
+# worker threads, and it wakes them without taking their mutex (jpcy/xatlas,
+# source/xatlas/xatlas.cpp, TaskScheduler::~TaskScheduler and workerThread): a worker
+# that is still on its way back to sleep after generate()'s last task misses the wake-up,
+# and join() waits for it forever. Seen once, in a clean-clone CI run: a pool worker in
+# ~TaskScheduler's join for ten minutes at no CPU (py-spy --native), the suite stalled.
+# Freed one atlas later, its workers have long been asleep and the wake-up reaches them.
+_held_atlas: list = [None]
+
 
 def object_piece(artifact, name: str, obj: str) -> np.ndarray:
     """The piece of segmented array ``name`` that the chunk of object ``obj`` wrote."""
@@ -72,6 +82,7 @@ def _pack(vertices: np.ndarray, faces: np.ndarray, density: float
     pack = xatlas.PackOptions()
     pack.texels_per_unit, pack.padding, pack.bilinear = float(density), PADDING, True
     atlas.generate(xatlas.ChartOptions(), pack)
+    _held_atlas[0] = atlas  # frees the previous one, long idle (see _held_atlas)
     mapping, indices, uv = atlas[0]
     if atlas.atlas_count != 1 or not np.array_equal(mapping[indices], faces):
         raise PrtError(None, f"xatlas returned {atlas.atlas_count} atlases or reordered "
