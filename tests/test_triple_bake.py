@@ -355,7 +355,6 @@ def test_texture_side_follows_the_size_on_screen_within_its_bounds():
     assert all(abs(s - t) <= 0.2 * t for s, t in zip(sides, targets, strict=True)), sides
 
 
-
 def test_an_xatlas_atlas_is_freed_only_when_the_next_one_is_made():
     """Freeing an xatlas Atlas right after generate() can hang its process forever (a
     lost wake-up in xatlas's task scheduler; pipeline/stages/atlas.py ``_held_atlas``):
