@@ -16,10 +16,11 @@ for folder in /.whl/ /.devdata/; do
 done
 # What the device machine's image lacks (/work/.library/device/KINDS.md lists what it
 # has: NumPy, SciPy, click, PyYAML, tqdm, cloudpickle, toolz, fsspec, msgpack, psutil, ...):
-# the project's dependencies and, for the step `distributed`, dask's.
+# the project's dependencies, for the step `distributed` dask's, and pytest-timeout (the
+# suite's guard against a hung test: pyproject.toml).
 names="pyopencl pytools platformdirs siphash24 trimesh embreex zarr numcodecs donfig
 google-crc32c OpenEXR xatlas pydantic pydantic-core annotated-types typing-inspection
-dask distributed tornado tblib zict partd locket"
+dask distributed tornado tblib zict partd locket pytest-timeout"
 # name==version as this environment has them (importlib.metadata normalises the names)
 pins=$("$py" -c '
 import sys
