@@ -19,7 +19,9 @@ Configurations: ``1x1`` (in-process, one thread: the baseline of the aim), ``1x2
 stage's seconds are the run's own (its chunks and the assembly of its artifact; for
 local:2 also what remains of the cluster's start after the run's planning, ≈ 1 s on 2
 cores, which a first stage waits for); each run's
-artifact digest is recorded: they must all be equal.
+artifact digest is recorded: they must all be equal. Speed-ups are given as the ratio of
+the medians and as the median of each round's own ratio (``..._per_round_median``: on a
+machine whose speed drifts between rounds, the pairs of one round are comparable).
 
 Each run's ``timeline`` comes from its chunk records (which process ran each chunk, when
 it started, its seconds): per worker process the first chunk's seconds against the
@@ -217,6 +219,11 @@ def main() -> None:
         digests = {r["digest"] for rs in runs.values() for r in rs}
         ratios = {f"speedup_{c}_vs_1x1": median["1x1"] / median[c] for c in configs
                   if c != "1x1" and "1x1" in median}
+        # the same from each round's own pair (robust to a machine that drifts between
+        # rounds: one worker and the configuration ran minutes apart, not an hour)
+        ratios.update({f"speedup_{c}_vs_1x1_per_round_median": statistics.median(
+            a["stage_s"] / b["stage_s"] for a, b in zip(runs["1x1"], runs[c], strict=True))
+            for c in configs if c != "1x1" and "1x1" in runs})
         result["cases"][case["method"]] = {
             "stage": case["stage"], "scene": case["scene"], "stage_s_median": median,
             **ratios, "identical_digests": len(digests) == 1, "runs": runs}
