@@ -268,8 +268,7 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
     p.key_parts = {"stage": spec.name, "code": code, "schema_version": schema_version,
                    "params": params, "inputs": inputs_all,
                    "scene": dict(sorted(scene_digests.items())),
-                   "chunks": sorted(p.chunk_keys),
-                   "chunk_extents": digest([[c.id, c.coords] for c in chunks])}
+                   "chunks": digest([[c.id, c.coords] for c in chunks])}  # ids, extents
     p.state, p.reason = _state(workdir.artifact(spec.name), p.key, p.key_parts)
     return p
 
@@ -340,8 +339,7 @@ def explain_change(old: dict[str, Any], new: dict[str, Any]) -> str:
     for k in sorted(set(old_inputs) | set(new_inputs)):
         if old_inputs.get(k) != new_inputs.get(k):
             reasons.append(f"input {k} changed")
-    if not reasons and (old.get("chunks"), old.get("chunk_extents")) != (
-            new["chunks"], new["chunk_extents"]):
+    if not reasons and old.get("chunks") != new["chunks"]:
         reasons.append("chunk layout changed")
     return "; ".join(reasons) or "key changed"
 
