@@ -16,6 +16,8 @@
 #ifndef PRT_BRDF_H
 #define PRT_BRDF_H
 
+#include "inline.h"
+
 #ifdef cl_khr_fp64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
@@ -52,14 +54,14 @@
 #define BRDF_MODEL_OF(mat) ((int)(mat)[0])
 #endif
 
-inline float schlick_fresnel(float f0, float v_dot_h) {
+PRT_INLINE float schlick_fresnel(float f0, float v_dot_h) {
     float m = 1.0f - clamp(v_dot_h, 0.0f, 1.0f);
     float m2 = m * m;
     return f0 + (1.0f - f0) * m2 * m2 * m;
 }
 
 /* 1 - x for Lafortune's normalised lobe base x = (cxy (lx vx + ly vy) + cz lz vz) / max|C|. */
-inline float lafortune_one_minus_x(__global const float* mat, float3 wi, float3 wo) {
+PRT_INLINE float lafortune_one_minus_x(__global const float* mat, float3 wi, float3 wo) {
 #ifdef cl_khr_fp64
     double base = (double)mat[9] * ((double)wi.x * wo.x + (double)wi.y * wo.y)
                   + (double)mat[10] * ((double)wi.z * wo.z);
@@ -74,8 +76,7 @@ inline float lafortune_one_minus_x(__global const float* mat, float3 wi, float3 
 /* Scalar arithmetic (no float3 temporaries, no dot), the material read before any
  * branch, always inlined: a loop calling it then vectorises across work-items on a CPU
  * device (kernels/brdf_tables.cl). */
-inline __attribute__((always_inline))
-float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
+PRT_INLINE float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
     int model = BRDF_MODEL_OF(mat);
     float g = mat[7], ratio = mat[8], f0 = mat[11];  /* loaded before any branch */
     float nl = wi.z, nv = wo.z;
@@ -115,8 +116,7 @@ float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
 
 /* The fixed term f_F(wi, wo) of paper 000 Table 4 (without rho_s; pipeline/math/brdf.py
  * fixed_term): 0 below either horizon and for Lambert. */
-inline __attribute__((always_inline))
-float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
+PRT_INLINE float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
     int model = BRDF_MODEL_OF(mat);
     float nl = wi.z, nv = wo.z;
     if (model == MODEL_LAMBERT || nl <= 0.0f || nv <= 0.0f) return 0.0f;
@@ -140,8 +140,7 @@ float brdf_fixed(__global const float* mat, float3 wi, float3 wo) {
  * angle delta = angle(N, H) in radians (the anisotropic Ward's effective delta_e), or
  * for Lafortune the arc cosine of its lobe base, arccos(x) in [0, pi/2] (computed from
  * 1 - x in double where available, so that x near 1 keeps its digits). */
-inline __attribute__((always_inline))
-float brdf_coordinate_angle(__global const float* mat, float3 wi, float3 wo) {
+PRT_INLINE float brdf_coordinate_angle(__global const float* mat, float3 wi, float3 wo) {
     int model = BRDF_MODEL_OF(mat);
     if (model == MODEL_LAFORTUNE) {
         float u = clamp(lafortune_one_minus_x(mat, wi, wo), 0.0f, 1.0f);
@@ -153,7 +152,7 @@ float brdf_coordinate_angle(__global const float* mat, float3 wi, float3 wo) {
 }
 
 /* The full BRDF kd / pi + rho_s * f_F * f_E (RGB, 1/sr); zero below either horizon. */
-inline float3 brdf_eval(__global const float* mat, float3 wi, float3 wo) {
+PRT_INLINE float3 brdf_eval(__global const float* mat, float3 wi, float3 wo) {
     if (wi.z <= 0.0f || wo.z <= 0.0f) return (float3)(0.0f);
     float3 kd = (float3)(mat[1], mat[2], mat[3]);
     float3 ks = (float3)(mat[4], mat[5], mat[6]);
@@ -161,7 +160,7 @@ inline float3 brdf_eval(__global const float* mat, float3 wi, float3 wo) {
 }
 
 /* World vector v in the frame (t, n x t, n). */
-inline __attribute__((always_inline)) float3 to_local(float3 v, float3 n, float3 t) {
+PRT_INLINE float3 to_local(float3 v, float3 n, float3 t) {
     return (float3)(dot(v, t), dot(v, cross(n, t)), dot(v, n));
 }
 

@@ -5,12 +5,14 @@
 #ifndef PRT_BVH_H
 #define PRT_BVH_H
 
+#include "inline.h"
+
 #define BVH_STACK 64
 
 /* Whether the ray o + t d enters the box for some t in [0, tmax]; inv = 1 / d. Each
  * axis takes the entry plane by the sign of inv, so an inverted (empty) box is never
  * entered; 0 · inf = NaN (a ray in a box face's plane) is dropped by fmin/fmax. */
-inline bool bvh_box(float4 lo, float4 hi, float3 o, float3 inv, float tmax) {
+PRT_INLINE bool bvh_box(float4 lo, float4 hi, float3 o, float3 inv, float tmax) {
     float3 t_lo = (lo.xyz - o) * inv, t_hi = (hi.xyz - o) * inv;
     int3 forward = isgreaterequal(inv, (float3)(0.0f));
     float3 t_in = select(t_hi, t_lo, forward), t_out = select(t_lo, t_hi, forward);
@@ -20,7 +22,7 @@ inline bool bvh_box(float4 lo, float4 hi, float3 o, float3 inv, float tmax) {
 }
 
 /* Möller–Trumbore, both sides: a hit at 0 < t < tmax (t in units of |d|). */
-inline bool bvh_triangle(__global const float4* tri, float3 o, float3 d, float tmax) {
+PRT_INLINE bool bvh_triangle(__global const float4* tri, float3 o, float3 d, float tmax) {
     float3 v0 = tri[0].xyz, e1 = tri[1].xyz, e2 = tri[2].xyz;
     float3 p = cross(d, e2);
     float det = dot(e1, p);
@@ -37,7 +39,7 @@ inline bool bvh_triangle(__global const float4* tri, float3 o, float3 d, float t
 }
 
 /* Whether anything lies on o + t d, 0 < t < tmax: depth first, any hit ends it. */
-inline bool bvh_occluded(__global const float4* lo, __global const float4* hi,
+PRT_INLINE bool bvh_occluded(__global const float4* lo, __global const float4* hi,
                          __global const float4* tri, int leaves, float3 o, float3 d,
                          float tmax) {
     float3 inv = 1.0f / d;

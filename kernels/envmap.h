@@ -13,16 +13,18 @@
 #ifndef PRT_ENVMAP_H
 #define PRT_ENVMAP_H
 
+#include "inline.h"
+
 #define ENVMAP_PI 3.14159265358979f
 
 /* Map-space direction of world direction d for a map rotated by the angle whose cosine
  * and sine are c, s about +y: rotation_y(-angle) d (envmap.py: d @ to_world). */
-inline float3 envmap_from_world(float3 d, float c, float s) {
+PRT_INLINE float3 envmap_from_world(float3 d, float c, float s) {
     return (float3)(c * d.x - s * d.z, d.y, s * d.x + c * d.z);
 }
 
 /* Continuous texel coordinates (X, Y) of a map-space unit direction. */
-inline float2 envmap_texel_coords(float3 d, int width, int height) {
+PRT_INLINE float2 envmap_texel_coords(float3 d, int width, int height) {
     float u = atan2(d.x, -d.z) * (0.5f / ENVMAP_PI);
     u -= floor(u);
     float v = acos(clamp(d.y, -1.0f, 1.0f)) * (1.0f / ENVMAP_PI);
@@ -31,7 +33,7 @@ inline float2 envmap_texel_coords(float3 d, int width, int height) {
 
 /* Bilinear radiance between the texels (x0, y0) .. (x0 + 1, y0 + 1) with weights
  * fx, fy of the second ones; x0 wraps (any integer), y0 in [0, H - 1] clamps. */
-inline float3 envmap_bilinear(__global const float* rgb, int width, int height, int x0,
+PRT_INLINE float3 envmap_bilinear(__global const float* rgb, int width, int height, int x0,
                               int y0, float fx, float fy) {
     x0 %= width;
     if (x0 < 0) x0 += width;
@@ -43,7 +45,7 @@ inline float3 envmap_bilinear(__global const float* rgb, int width, int height, 
 }
 
 /* Radiance arriving from map-space unit direction d. */
-inline float3 envmap_radiance(__global const float* rgb, int width, int height, float3 d) {
+PRT_INLINE float3 envmap_radiance(__global const float* rgb, int width, int height, float3 d) {
     float2 xy = envmap_texel_coords(d, width, height);
     float x0 = floor(xy.x), y0 = floor(xy.y);
     return envmap_bilinear(rgb, width, height, (int)x0, (int)y0, xy.x - x0, xy.y - y0);

@@ -8,12 +8,12 @@
 #ifndef PRT_FASTMATH_H
 #define PRT_FASTMATH_H
 
-#define FASTMATH_INLINE inline __attribute__((always_inline))
+#include "inline.h"
 
 /* e^x: x = n ln2 + r, |r| <= ln2 / 2 (ln2 split in two for an exact n ln2), e^r by a
  * degree-7 polynomial, 2^n from the exponent bits (two factors, so n = 128 fits). 0 below -87.3 (under the smallest
  * normal float), +inf above 88.7. */
-FASTMATH_INLINE float fast_exp(float x) {
+PRT_INLINE float fast_exp(float x) {
     float t = x * 1.44269504088896341f + 0.5f;
     int i = (int)t;                                      /* n = floor(t), no libm call */
     i -= t < (float)i ? 1 : 0;
@@ -33,7 +33,7 @@ FASTMATH_INLINE float fast_exp(float x) {
 
 /* ln(u) for a normal u > 0: u = m 2^k, m in [sqrt(1/2), sqrt(2)), ln(m) = t - t^2/2 +
  * t^3 P(t) with t = m - 1. */
-FASTMATH_INLINE float fast_log(float u) {
+PRT_INLINE float fast_log(float u) {
     int bits = as_int(u);
     int k = ((bits >> 23) & 0xff) - 126;                 /* u = m' 2^k, m' in [1/2, 1) */
     float m = as_float((bits & 0x007fffff) | 0x3f000000);
@@ -52,7 +52,7 @@ FASTMATH_INLINE float fast_log(float u) {
 /* ln(1 + x) for x > -1, to a few ulp also for small |x|: with u = fl(1 + x),
  * ln(1 + x) = ln(u) · x / (u − 1) (Goldberg's correction for the rounding of u);
  * x itself where u rounds to 1; +inf for x = +inf. */
-FASTMATH_INLINE float fast_log1p(float x) {
+PRT_INLINE float fast_log1p(float x) {
     float u = 1.0f + x;
     float d = u - 1.0f;
     float out = d == 0.0f ? x : fast_log(u) * (x / d);
@@ -64,7 +64,7 @@ FASTMATH_INLINE float fast_log1p(float x) {
  * several times cheaper than PoCL's atan2/acos (measured: 50 of 124 ns per pair of the
  * transfer kernel); atan2(0, 0) = 0. Used by kernels/triple_lookup.h and brdf.h's PCA
  * coordinate. */
-FASTMATH_INLINE float fast_atan2(float y, float x) {
+PRT_INLINE float fast_atan2(float y, float x) {
     float ax = fabs(x), ay = fabs(y);
     float hi = fmax(ax, ay);
     float a = hi > 0.0f ? fmin(ax, ay) / hi : 0.0f;

@@ -10,6 +10,8 @@
 #ifndef PRT_LIGHTS_H
 #define PRT_LIGHTS_H
 
+#include "inline.h"
+
 #include "brdf.h"
 #include "sampling.h"
 
@@ -17,11 +19,11 @@
 #error "lights.h: build with pipeline.math.lights.light_defines() (the light row layout)"
 #endif
 
-inline float3 light_vec(__global const float* row, int at) {
+PRT_INLINE float3 light_vec(__global const float* row, int at) {
     return (float3)(row[at], row[at + 1], row[at + 2]);
 }
 
-inline float smoothstep_f(float e0, float e1, float x) {
+PRT_INLINE float smoothstep_f(float e0, float e1, float x) {
     float t = clamp((x - e0) / (e1 - e0), 0.0f, 1.0f);
     return t * t * (3.0f - 2.0f * t);
 }
@@ -30,7 +32,7 @@ inline float smoothstep_f(float e0, float e1, float x) {
  * the sum over its samples of f(wi, wo) * geometry term (see pipeline/math/lights.py).
  * n, t: unit normal and tangent; wo: unit direction to the viewer in the local frame;
  * mat: the material row (brdf.h); vis: the pixel's visibility row. */
-inline float3 light_reflected(__global const float* row, uint index, uint pixel, float3 p,
+PRT_INLINE float3 light_reflected(__global const float* row, uint index, uint pixel, float3 p,
                               float3 n, float3 t, float3 wo, __global const float* mat,
                               __global const uchar* vis) {
     int kind = (int)row[LIGHT_TYPE];
@@ -73,7 +75,7 @@ inline float3 light_reflected(__global const float* row, uint index, uint pixel,
 }
 
 /* Radiance seen directly on the front of quad lights' emitting objects. */
-inline float3 quad_emission(__global const float* lights, int nlights, int object, float3 view) {
+PRT_INLINE float3 quad_emission(__global const float* lights, int nlights, int object, float3 view) {
     float3 e = (float3)(0.0f);
     for (int i = 0; i < nlights; ++i) {
         __global const float* row = lights + i * LIGHT_FLOATS;

@@ -9,28 +9,30 @@
 #ifndef PRT_SG_H
 #define PRT_SG_H
 
+#include "inline.h"
+
 #include "envmap.h"
 
 #define SG_TWO_PI 6.28318530717959f
 
 /* G(w; mu, lam) = exp(-lam |w - mu|^2 / 2): no cancellation near the peak. */
-inline float sg_eval(float3 w, float3 mu, float lam) {
+PRT_INLINE float sg_eval(float3 w, float3 mu, float lam) {
     float3 d = w - mu;
     return exp(-0.5f * lam * dot(d, d));
 }
 
 /* (1 - e^{-2 lam}) / lam = -expm1(-2 lam) / lam, 2 at lam = 0. */
-inline float sg_integral_factor(float lam) {
+PRT_INLINE float sg_integral_factor(float lam) {
     return lam > 0.0f ? -expm1(-2.0f * lam) / lam : 2.0f;
 }
 
 /* Integral of G over the sphere: 2 pi (1 - e^{-2 lam}) / lam (sr). */
-inline float sg_integral(float lam) { return SG_TWO_PI * sg_integral_factor(lam); }
+PRT_INLINE float sg_integral(float lam) { return SG_TWO_PI * sg_integral_factor(lam); }
 
 /* G_a G_b = scale * G(w; *mu, *lam): u = la mu_a + lb mu_b, r = |u|, mean u/r, sharpness
  * r, scale = exp(-la lb |mu_a - mu_b|^2 / (r + la + lb)) (= e^{r - la - lb}). Returns
  * scale. Where r = 0 (equal antipodal lobes) the mean is mu_a and the sharpness 0. */
-inline float sg_product(float3 mu_a, float la, float3 mu_b, float lb, float3* mu,
+PRT_INLINE float sg_product(float3 mu_a, float la, float3 mu_b, float lb, float3* mu,
                         float* lam) {
     float3 u = la * mu_a + lb * mu_b;
     float r = length(u);
@@ -41,7 +43,7 @@ inline float sg_product(float3 mu_a, float la, float3 mu_b, float lb, float3* mu
 }
 
 /* Inner product of two lobes, the integral of G_a G_b over the sphere (sr). */
-inline float sg_inner(float3 mu_a, float la, float3 mu_b, float lb) {
+PRT_INLINE float sg_inner(float3 mu_a, float la, float3 mu_b, float lb) {
     float3 mu;
     float lam;
     float scale = sg_product(mu_a, la, mu_b, lb, &mu, &lam);
@@ -50,7 +52,7 @@ inline float sg_inner(float3 mu_a, float la, float3 mu_b, float lb) {
 
 /* Bilinear radiance of stack level l at the map coordinates (u, v) in [0, 1) x [0, 1]
  * (envmap.h's texel coordinates X = u W_l - 1/2, Y = v (H_l - 1)). */
-inline float3 sg_level_radiance(__global const float* stack, __global const int* level_info,
+PRT_INLINE float3 sg_level_radiance(__global const float* stack, __global const int* level_info,
                                 int l, float u, float v) {
     int width = level_info[3 * l + 1], height = level_info[3 * l + 2];
     float x = u * width - 0.5f, y = v * (height - 1);
@@ -64,7 +66,7 @@ inline float3 sg_level_radiance(__global const float* stack, __global const int*
  * around f = log(sigma / sigma0) / log(ratio) (clamped to [0, levels - 1]) and linear
  * in f between them. log_sigma0 = log(sigma0), inv_log_ratio = 1 / log(ratio). The map
  * coordinates (u, v) of mu are computed once for both levels. */
-inline float3 sg_env_integral(__global const float* stack, __global const int* level_info,
+PRT_INLINE float3 sg_env_integral(__global const float* stack, __global const int* level_info,
                               int levels, float log_sigma0, float inv_log_ratio,
                               float3 mu, float lam, float3 weight) {
     float f = (-0.5f * log(fmax(lam, 1e-30f)) - log_sigma0) * inv_log_ratio;

@@ -23,6 +23,7 @@
  * per frame on the host (the sum is linear); all times the light's scale. Lobes: the
  * stored slots, R x VIEWS x 7 floats (w_rgb, mu_xyz, lam), vertex v's in rows
  * first[v] .. first[v + 1] - 1 (first: V + 1 ints); D V x 3 floats. */
+#include "inline.h"
 #include "sg.h"
 
 #ifndef LAMBDA_LOG
@@ -31,13 +32,13 @@
 #define SG_FIELDS 7
 
 /* beta = M^-1 d for the 3x3 row-major inverse at m. */
-inline float3 sg_cone_weights(__global const float* m, float3 d) {
+PRT_INLINE float3 sg_cone_weights(__global const float* m, float3 d) {
     return (float3)(m[0] * d.x + m[1] * d.y + m[2] * d.z,
                     m[3] * d.x + m[4] * d.y + m[5] * d.z,
                     m[6] * d.x + m[7] * d.y + m[8] * d.z);
 }
 
-inline float sg_min3(float3 b) { return fmin(b.x, fmin(b.y, b.z)); }
+PRT_INLINE float sg_min3(float3 b) { return fmin(b.x, fmin(b.y, b.z)); }
 
 __kernel void sg_view_lookup(__global const float* parent_inverse,  /* 20 x 9 */
                              __global const int* children,          /* 20 x 9 */

@@ -21,6 +21,8 @@
 #ifndef PRT_SPHWAVELET_H
 #define PRT_SPHWAVELET_H
 
+#include "inline.h"
+
 #ifndef SW_LEVELS
 #error "sphwavelet.h: build with -D SW_LEVELS=<leaf level>"
 #endif
@@ -31,16 +33,16 @@
 #define SW_END 0xffffffffu
 
 /* First index of the wavelets of level l: 20·4^l. */
-inline uint sw_level_start(uint l) { return (uint)SW_ROOTS << (2 * l); }
+PRT_INLINE uint sw_level_start(uint l) { return (uint)SW_ROOTS << (2 * l); }
 
 /* First triangle of level l in the wavelet and tensor tables: 20·(4^l − 1)/3. */
-inline uint sw_node_base(uint l) { return (uint)SW_ROOTS * ((1u << (2 * l)) - 1u) / 3u; }
+PRT_INLINE uint sw_node_base(uint l) { return (uint)SW_ROOTS * ((1u << (2 * l)) - 1u) / 3u; }
 
 /* Level of a wavelet index (≥ 20): index ∈ [20·4^l, 20·4^(l+1)). */
-inline uint sw_level(uint index) { return (31u - clz(index / SW_ROOTS)) / 2u; }
+PRT_INLINE uint sw_level(uint index) { return (31u - clz(index / SW_ROOTS)) / 2u; }
 
 /* The depth-first sort key of a coefficient index (pipeline.math.sphwavelet.depth_first_keys). */
-inline uint sw_key(uint index) {
+PRT_INLINE uint sw_key(uint index) {
     const uint shift = 2u * (SW_LEVELS - 1u);
     if (index < SW_ROOTS) return (index << shift) << 6;
     uint l = sw_level(index);
@@ -62,7 +64,7 @@ typedef struct {
 
 /* A source over rows[0 .. count-1] of the table (start, index, value with `channels`
  * values per entry) with RGB weights. */
-inline sw_source sw_open(__global const uint* start, __global const ushort* index,
+PRT_INLINE sw_source sw_open(__global const uint* start, __global const ushort* index,
                          __global const float* value, int channels, const uint* rows,
                          const float3* weight, int count) {
     sw_source s;
@@ -79,7 +81,7 @@ inline sw_source sw_open(__global const uint* start, __global const ushort* inde
 }
 
 /* Lowers (*key, *index) to the smallest key at the heads of the source's rows. */
-inline void sw_peek(const sw_source* s, uint* key, uint* index) {
+PRT_INLINE void sw_peek(const sw_source* s, uint* key, uint* index) {
     for (int r = 0; r < s->count; ++r) {
         if (s->head[r] >= s->end[r]) continue;
         uint i = s->index[s->head[r]];
@@ -93,7 +95,7 @@ inline void sw_peek(const sw_source* s, uint* key, uint* index) {
 
 /* Takes the entries with indices in [first, first + n) from every row, summing
  * weight × value into c[index − first]. */
-inline void sw_take(sw_source* s, uint first, uint n, float3* c) {
+PRT_INLINE void sw_take(sw_source* s, uint first, uint n, float3* c) {
     for (uint k = 0; k < n; ++k) c[k] = (float3)(0.0f);
     for (int r = 0; r < s->count; ++r) {
         while (s->head[r] < s->end[r]) {
@@ -108,7 +110,7 @@ inline void sw_take(sw_source* s, uint first, uint n, float3* c) {
 }
 
 /* ∫ f g h dω per channel for the three sources (see the header comment). */
-inline float3 sw_triple(sw_source* src, __global const float* root_area,
+PRT_INLINE float3 sw_triple(sw_source* src, __global const float* root_area,
                         __global const float* wavelet, __global const float* tensor) {
     int path[SW_LEVELS];
     float3 own[3][SW_LEVELS][3];

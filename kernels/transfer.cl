@@ -30,14 +30,14 @@
  *             angle_scale, reversed when REVERSED_GRID (Lafortune), and the weight
  *             linearly in the coordinate, as numpy.interp does.
  */
+#include "inline.h"
 #include "brdf.h"
 
 #define FORM_FACTOR_CAP 3.14159265358979f
 
 /* The cell i and weight w of a coordinate on the grid: the value of a row there is
  * row[i] + w (row[i + 1] - row[i]). */
-inline __attribute__((always_inline))
-int table_cell(__global const float* grid, int h, float coord, float angle, float angle_lo,
+PRT_INLINE int table_cell(__global const float* grid, int h, float coord, float angle, float angle_lo,
                float angle_scale, float* w) {
     float f = (angle - angle_lo) * angle_scale;
 #ifdef REVERSED_GRID
@@ -54,8 +54,7 @@ int table_cell(__global const float* grid, int h, float coord, float angle, floa
 
 #if ROWS > 0
 /* rows[j] += geo * f_F(wi, wo) b_j(coordinate(wi, wo)) for every row j. */
-inline __attribute__((always_inline))
-void accumulate_rows(float* rows, __global const float* material,
+PRT_INLINE void accumulate_rows(float* rows, __global const float* material,
                      __global const float* grid, __global const float* table, const int h,
                      const float angle_lo, const float angle_scale, float3 wi, float3 wo,
                      float geo) {
@@ -76,7 +75,7 @@ void accumulate_rows(float* rows, __global const float* material,
 #endif
 
 /* Lambert's formula term of the edge a -> b (relative to the receiver). */
-inline float edge_term(float3 a, float3 b, float3 n) {
+PRT_INLINE float edge_term(float3 a, float3 b, float3 n) {
     float3 ua = normalize(a), ub = normalize(b);
     float3 c = cross(ua, ub);
     float s = length(c);
@@ -86,7 +85,7 @@ inline float edge_term(float3 a, float3 b, float3 n) {
 /* The integral of G over the polygon clipped to the receiver's upper half-space
  * (pipeline.math.transfer.polygon_geometry), and the clipped polygon's vertex mean
  * (relative to x) in *centroid. */
-inline float polygon_geometry(__global const float* poly, float3 x, float3 n,
+PRT_INLINE float polygon_geometry(__global const float* poly, float3 x, float3 n,
                               float3* centroid) {
     float3 first = (float3)(0.0f), prev = (float3)(0.0f), sum = (float3)(0.0f);
     float total = 0.0f;

@@ -21,6 +21,8 @@
 #ifndef PRT_TRIPLE_LOOKUP_H
 #define PRT_TRIPLE_LOOKUP_H
 
+#include "inline.h"
+
 #include "fastmath.h"
 
 #define TRIPLE_LIGHT_ROWS 8
@@ -47,7 +49,7 @@ typedef struct {
 } triple_lookup;
 
 /* frame_grids._linear: lower, upper index and upper weight of grid coordinate x. */
-inline void triple_linear(float x, int count, int wrap, int* lo, int* hi, float* frac) {
+PRT_INLINE void triple_linear(float x, int count, int wrap, int* lo, int* hi, float* frac) {
     if (wrap) {
         float f = floor(x);
         *frac = x - f;
@@ -65,7 +67,7 @@ inline void triple_linear(float x, int count, int wrap, int* lo, int* hi, float*
 }
 
 /* φ mod 2π in [0, 2π). */
-inline float triple_wrap_angle(float a) {
+PRT_INLINE float triple_wrap_angle(float a) {
     a -= TRIPLE_TWO_PI * floor(a / TRIPLE_TWO_PI);
     return a >= TRIPLE_TWO_PI ? 0.0f : a;
 }
@@ -73,7 +75,7 @@ inline float triple_wrap_angle(float a) {
 /* The frame's grid coordinates (φ, θ, ψ in units of the grid steps; φ before the map's
  * turn) of the frame (t, n × t, n): euler_angles in the pole basis [A | B | P] =
  * [+z | +x | +y], i.e. n' = (n.z, n.x, n.y). Per camera (kernel triple_angles). */
-inline float3 triple_frame_coords(float3 n, float3 t, const triple_grids* g) {
+PRT_INLINE float3 triple_frame_coords(float3 n, float3 t, const triple_grids* g) {
     float3 np = (float3)(n.z, n.x, n.y), tp = (float3)(t.z, t.x, t.y);
     float cos_theta = clamp(np.z, -1.0f, 1.0f), sin_theta = sqrt(np.x * np.x + np.y * np.y);
     float theta = fast_atan2(sin_theta, cos_theta);  /* arccos(n'_z), sharper at poles */
@@ -90,7 +92,7 @@ inline float3 triple_frame_coords(float3 n, float3 t, const triple_grids* g) {
 
 /* FrameGrid.weights from the grid coordinates x, the map turned by g->turn (φ − turn):
  * the 8 entries (j·n_θ + i)·n_ψ + k around it and their trilinear weights. Per frame. */
-inline void triple_frame_rows(float3 x, const triple_grids* g, uint* rows, float* weight) {
+PRT_INLINE void triple_frame_rows(float3 x, const triple_grids* g, uint* rows, float* weight) {
     int j[2], i[2], k[2];
     float wj, wi, wk;
     triple_linear(x.x - g->turn * g->n_phi / TRIPLE_TWO_PI, g->n_phi, 1, &j[0], &j[1], &wj);
@@ -110,7 +112,7 @@ inline void triple_frame_rows(float3 x, const triple_grids* g, uint* rows, float
  * below the shading frame's horizon gets θ_o = TRIPLE_BELOW (every BRDF is zero there,
  * pipeline/math/brdf.py, so the pixel's BRDF weights are). Per camera. */
 #define TRIPLE_BELOW (-1.0f)
-inline float2 triple_view_coords(float3 wo, const triple_grids* g) {
+PRT_INLINE float2 triple_view_coords(float3 wo, const triple_grids* g) {
     float phi = triple_wrap_angle(fast_atan2(wo.y, wo.x));
     if (!(wo.z > 0.0f)) return (float2)(phi * g->view_phi / TRIPLE_TWO_PI, TRIPLE_BELOW);
     float theta = fast_atan2(sqrt(wo.x * wo.x + wo.y * wo.y), wo.z);
@@ -120,7 +122,7 @@ inline float2 triple_view_coords(float3 wo, const triple_grids* g) {
 
 /* ViewGrid.weights from the view grid coordinates: entries j·n_θ + i and bilinear
  * weights. */
-inline void triple_view_rows(float2 x, const triple_grids* g, int* entries, float* weight) {
+PRT_INLINE void triple_view_rows(float2 x, const triple_grids* g, int* entries, float* weight) {
     int j[2], i[2];
     float wj, wi;
     triple_linear(x.x, g->view_phi, 1, &j[0], &j[1], &wj);
@@ -136,7 +138,7 @@ inline void triple_view_rows(float2 x, const triple_grids* g, int* entries, floa
 /* texel_lookups at continuous texel coordinates xy of a texture (height, width) whose
  * texel (i, j) is flat texel offset + i·width + j; texel_row[flat] its visibility row
  * (−1: empty). */
-inline void triple_texel_weights(float2 xy, int height, int width, int offset,
+PRT_INLINE void triple_texel_weights(float2 xy, int height, int width, int offset,
                                  __global const int* texel_row, uint* rows, float* weight) {
     float x = clamp(xy.x - 0.5f, 0.0f, (float)(width - 1));
     float y = clamp(xy.y - 0.5f, 0.0f, (float)(height - 1));
@@ -159,7 +161,7 @@ inline void triple_texel_weights(float2 xy, int height, int width, int offset,
 /* The camera's part of pixel i's lookups (kernel triple_angles, once per camera): the
  * grid coordinates of its shading frame and of its local view ω_o in (t, n × t, n), as
  * brdf.to_local. G-buffer arrays as triple_gbuffer.py's GBuffer. */
-inline void triple_angles_of(int i, __global const float* normal,
+PRT_INLINE void triple_angles_of(int i, __global const float* normal,
                              __global const float* tangent, __global const float* view,
                              const triple_grids* g, float3* frame, float2* view_coords) {
     float3 n = vload3(i, normal), t = vload3(i, tangent), v = vload3(i, view);
@@ -172,7 +174,7 @@ inline void triple_angles_of(int i, __global const float* normal,
  * material_a, material_b (P), blend (P); per object its texture (height, width, offset)
  * in object_texture (objects·3); per material glossy_base, diffuse_row (int) and kd,
  * rho_s (materials·3). */
-inline void triple_lookups_of(int i, __global const float* frame_coords,
+PRT_INLINE void triple_lookups_of(int i, __global const float* frame_coords,
                               __global const float* view_coords,
                               __global const float* texel_xy, __global const int* object,
                               __global const int* material_a, __global const int* material_b,
