@@ -62,22 +62,22 @@ typedef struct {
     int channels;  /* values per entry: 1 (grey) or 3 (RGB) */
 } sw_source;
 
-/* A source over rows[0 .. count-1] of the table (start, index, value with `channels`
- * values per entry) with RGB weights. */
-PRT_INLINE sw_source sw_open(__global const uint* start, __global const ushort* index,
-                         __global const float* value, int channels, const uint* rows,
-                         const float3* weight, int count) {
-    sw_source s;
-    s.index = index;
-    s.value = value;
-    s.count = count;
-    s.channels = channels;
+/* *s made a source over rows[0 .. count-1] of the table (start, index, value with
+ * `channels` values per entry) with RGB weights. (Filled through the pointer, not
+ * returned: a struct returned by value, inlined, leaves LLVM noalias-scope intrinsics
+ * that Oclgrind cannot run.) */
+PRT_INLINE void sw_open(sw_source* s, __global const uint* start,
+                        __global const ushort* index, __global const float* value,
+                        int channels, const uint* rows, const float3* weight, int count) {
+    s->index = index;
+    s->value = value;
+    s->count = count;
+    s->channels = channels;
     for (int r = 0; r < count; ++r) {
-        s.head[r] = start[rows[r]];
-        s.end[r] = start[rows[r] + 1];
-        s.weight[r] = weight[r];
+        s->head[r] = start[rows[r]];
+        s->end[r] = start[rows[r] + 1];
+        s->weight[r] = weight[r];
     }
-    return s;
 }
 
 /* Lowers (*key, *index) to the smallest key at the heads of the source's rows. */

@@ -112,7 +112,7 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
         rows[k] = light_rows[TRIPLE_LIGHT_ROWS * i + r];
         w[k++] = (float3)(x);
     }
-    src[0] = sw_open(light_start, light_index, light_value, 3, rows, w, k);
+    sw_open(&src[0], light_start, light_index, light_value, 3, rows, w, k);
     k = 0;
     for (int r = 0; r < TRIPLE_VIS_ROWS; ++r) {
         float x = vis_weight[TRIPLE_VIS_ROWS * i + r];
@@ -120,7 +120,7 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
         rows[k] = vis_rows[TRIPLE_VIS_ROWS * i + r];
         w[k++] = (float3)(x);
     }
-    src[1] = sw_open(vis_start, vis_index, vis_value, 1, rows, w, k);
+    sw_open(&src[1], vis_start, vis_index, vis_value, 1, rows, w, k);
     k = 0;
     for (int r = 0; r < TRIPLE_BRDF_ROWS; ++r) {
         float3 x = vload3(TRIPLE_BRDF_ROWS * i + r, brdf_weight);
@@ -128,7 +128,7 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
         rows[k] = brdf_rows[TRIPLE_BRDF_ROWS * i + r];
         w[k++] = x;
     }
-    src[2] = sw_open(brdf_start, brdf_index, brdf_value, 1, rows, w, k);
+    sw_open(&src[2], brdf_start, brdf_index, brdf_value, 1, rows, w, k);
     vstore3(sw_triple(src, root_area, wavelet, tensor), i, out);
 }
 

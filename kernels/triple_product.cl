@@ -37,7 +37,7 @@ __kernel void triple_products(__global const uint* start0, __global const ushort
             r[j] = rows[(3 * i + f) * SW_ROWS + j];
             w[j] = vload3((3 * i + f) * SW_ROWS + j, weight);
         }
-        src[f] = sw_open(starts[f], indices[f], values[f], ch[f], r, w, k);
+        sw_open(&src[f], starts[f], indices[f], values[f], ch[f], r, w, k);
     }
     vstore3(sw_triple(src, root_area, wavelet, tensor), i, out);
 }

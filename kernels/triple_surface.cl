@@ -14,8 +14,15 @@
 
 /* Written for PoCL's loop vectorizer (POCL_VECTORIZER_REMARKS=1 reports "vectorized
  * loop (vectorization width: 4)"): no early return, scalar loads, selects instead of
- * branches, __builtin_sqrtf (PoCL's sqrt is an out-of-line call, which stops the
- * vectorizer; this is the same IEEE sqrt). 0.6× the CPU time of the float3 version. */
+ * branches, and on PoCL clang's __builtin_sqrtf (PoCL's sqrt is an out-of-line call,
+ * which stops the vectorizer; this is the same IEEE sqrt). 0.6× the CPU time of the
+ * float3 version. The builtin is not OpenCL C (Oclgrind cannot run the LLVM intrinsic it
+ * becomes), so elsewhere it is sqrt: pipeline/cl.py defines PRT_POCL on PoCL. */
+#ifdef PRT_POCL
+#define SURFACE_SQRT __builtin_sqrtf
+#else
+#define SURFACE_SQRT sqrt
+#endif
 
 /* Gram–Schmidt fails below this length of t − (t·n) n for a unit t (float32: 1e-6 is
  * ~10 ulp of 1; the host twin's 1e-8 is for a float64 t of any length). */
@@ -43,7 +50,7 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
     float nx = w * vertex_normal[a] + u * vertex_normal[b] + v * vertex_normal[c];
     float ny = w * vertex_normal[a + 1] + u * vertex_normal[b + 1] + v * vertex_normal[c + 1];
     float nz = w * vertex_normal[a + 2] + u * vertex_normal[b + 2] + v * vertex_normal[c + 2];
-    float len = __builtin_sqrtf(nx * nx + ny * ny + nz * nz);
+    float len = SURFACE_SQRT(nx * nx + ny * ny + nz * nz);
     float s = (face_normal[3 * f] * dx + face_normal[3 * f + 1] * dy
                + face_normal[3 * f + 2] * dz) > 0.0f ? -1.0f : 1.0f;
     float scale = s / (len > 1e-30f ? len : 1e-30f);
@@ -51,7 +58,7 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
     float fx = face_tangent[3 * f], fy = face_tangent[3 * f + 1], fz = face_tangent[3 * f + 2];
     float k = fx * nx + fy * ny + fz * nz;
     float tx = fx - k * nx, ty = fy - k * ny, tz = fz - k * nz;
-    float tl = __builtin_sqrtf(tx * tx + ty * ty + tz * tz);
+    float tl = SURFACE_SQRT(tx * tx + ty * ty + tz * tz);
     int ok = tl > TANGENT_MIN_LENGTH;
     float inv = 1.0f / (ok ? tl : 1.0f);
     float sign = nz >= 0.0f ? 1.0f : -1.0f;

@@ -3,8 +3,8 @@
 Kernels live in ``kernels/`` (and in folders that plug-ins add, pipeline/searchpath.py)
 and are loaded by file name, built with ``-I`` for every kernel folder and sorted ``-D``
 defines, and cached per (source hash of the folders' .cl/.h files, options, device).
-The device is PoCL's CPU device by default; ``PRT_CL_DEVICE`` selects another:
-``cpu``, ``gpu``, or ``PLATFORM_SUBSTRING[:DEVICE_INDEX]`` (e.g. ``NVIDIA:0``).
+The device is chosen by pipeline/devices.py (``PRT_CL_DEVICE``, else the first GPU,
+else the first CPU implementation, each proved by a probe first).
 """
 
 from __future__ import annotations
@@ -28,25 +28,10 @@ def kernel_dir() -> Path:
 
 @cache
 def device() -> Any:
-    """The selected OpenCL device (see module docstring)."""
-    import pyopencl as cl
+    """The OpenCL device of this process (pipeline/devices.py ``choose``)."""
+    from pipeline.devices import choose
 
-    choice = os.environ.get("PRT_CL_DEVICE", "cpu")
-    platforms = cl.get_platforms()
-    if choice in ("cpu", "gpu"):
-        kind = cl.device_type.CPU if choice == "cpu" else cl.device_type.GPU
-        found = [d for p in platforms for d in p.get_devices() if d.type & kind]
-        # Prefer PoCL for the CPU: it is the device the project ships with.
-        found.sort(key=lambda d: "Portable" not in d.platform.name)
-    else:
-        name, _, index = choice.partition(":")
-        found = [d for p in platforms if name.lower() in p.name.lower()
-                 for d in p.get_devices()]
-        found = found[int(index or 0):]
-    if not found:
-        names = ", ".join(f"{p.name}: {[d.name for d in p.get_devices()]}" for p in platforms)
-        raise PrtError(None, f"PRT_CL_DEVICE={choice!r}: no such OpenCL device (have {names})")
-    return found[0]
+    return choose().device
 
 
 @cache
@@ -119,8 +104,9 @@ def program(name: str, defines: dict[str, Any] | None = None) -> Any:
     if path is None:
         raise PrtError(folders[0] / name, "kernel source not found")
     includes = [arg for folder in folders for arg in ("-I", str(folder))]
-    options = (*includes, *(f"-D{k}={v}" for k, v in sorted((defines or {}).items())))
     dev = device()
+    options = (*includes, *(f"-D{k}={v}" for k, v in sorted(
+        {**device_defines(dev), **(defines or {})}.items())))
     key = (name, _source_hash(folders), options,
            f"{dev.platform.name}|{dev.name}|{dev.driver_version}")
     if key not in _PROGRAMS:
@@ -131,6 +117,14 @@ def program(name: str, defines: dict[str, Any] | None = None) -> Any:
             raise PrtError(path, f"OpenCL build failed: {exc}") from None
     _RECENT[recent_key] = (now, _PROGRAMS[key])
     return _PROGRAMS[key]
+
+
+def device_defines(dev: Any) -> dict[str, int]:
+    """Defines that tell a kernel which implementation builds it: ``PRT_POCL`` on PoCL
+    (kernels/triple_surface.cl uses a clang builtin there that is not OpenCL C)."""
+    from pipeline.devices import implementation
+
+    return {"PRT_POCL": 1} if implementation(dev) == "pocl" else {}
 
 
 _KERNELS: dict[tuple, Any] = {}

@@ -45,7 +45,7 @@ THREADS = click.option(
 def cores_option(jobs: int | None, threads: int | None) -> Cores:
     """The Cores setting of a command's --jobs and --threads (see pipeline/executors.py
     ``Cores.resolve``), applied to this process (its frames use as many threads, and
-    PoCL's CPU device no more, when fewer than the cores)."""
+    the OpenCL CPU device no more, when fewer than the cores)."""
     cores = Cores.resolve(jobs, threads)
     use_cores(cores)
     return cores
@@ -439,6 +439,49 @@ def methods_cmd(as_json) -> None:
             click.echo(f"  --option {o.name}={o.default!r} ({o.type.__name__}): {o.help}")
         if m.main_sequences:
             click.echo(f"  sequences (--frames), e.g. {', '.join(m.main_sequences)}")
+
+
+@cli.command("devices")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+def devices_cmd(as_json) -> None:
+    """List the OpenCL devices: versions, each one's probe, which one is used and why.
+
+    The device is PRT_CL_DEVICE's if set (cpu, gpu or PLATFORM[:INDEX]), else the first
+    GPU, else the first CPU implementation (Intel's CPU runtime, then PoCL) that builds
+    and runs a probe kernel right; probe results are cached per machine. Exits with
+    status 2 when no device works."""
+    from pipeline.devices import report
+
+    info = report()
+    if as_json:
+        click.echo(json.dumps(info, indent=1))
+    else:
+        for line in devices_text(info):
+            click.echo(line)
+    if "error" in info["chosen"]:
+        raise PrtError(None, info["chosen"]["error"])
+
+
+def devices_text(info: dict) -> list[str]:
+    """``prt devices``' report (pipeline/devices.py ``report``) as lines."""
+    lines = [f"CPU: {info['cpu']}"]
+    if info["registration"]["note"]:
+        lines.append(info["registration"]["note"])
+    for d in info["devices"]:
+        probe = d["probe"]
+        verdict = "passed" if probe["ok"] else f"FAILED: {probe['reason']}"
+        lines += [f"{d['implementation']}: {d['device']} ({d['kind']}, {d['compute_units']} "
+                  f"compute units) on {d['platform']}",
+                  f"  versions: {d['versions']['platform']}; driver {d['versions']['driver']}",
+                  f"  probe: {verdict}{' (cached)' if probe['cached'] else ''}"]
+    if not info["devices"]:
+        lines.append("no OpenCL device found")
+    chosen = info["chosen"]
+    if "device" in chosen:
+        lines.append(f"using: {chosen['implementation']} ({chosen['device']}): "
+                     f"{chosen['reason']}")
+    lines.append(f"probe results cached in {info['cache']}")
+    return lines
 
 
 @cli.command("render")

@@ -18,7 +18,7 @@ Workers must see the work directory, the scene's meshes and maps at the same abs
 paths as the client, and run the same prt installation (the chunk keys hold the client's
 code version). A worker process is prepared on its first task as a local pool's is
 (pipeline/executors.py ``prepare_worker``): the client's kernel and schema folders, one
-BLAS thread, PoCL's CPU device capped to the process's share; and glibc's malloc
+BLAS thread, the OpenCL CPU device capped to the process's share; and glibc's malloc
 thresholds, which a nanny's MALLOC_TRIM_THRESHOLD_ pinned, set back
 (``heap_as_glibc_default``). On a cluster of one thread per worker process (``dask
 worker ADDRESS --nthreads 1``, the tested setting) each chunk gets ``threads`` threads

@@ -25,10 +25,12 @@ from typing import Any, Protocol
 ENV_WORKERS = "PRT_JOBS"      # overrides the automatic number of worker processes
 ENV_THREADS = "PRT_THREADS"   # overrides the automatic number of threads per task
 THREADS_PER_WORKER = 2        # threads per task of the automatic choice above 3 cores
-# PoCL's CPU device: its worker threads (compute units), read when OpenCL first starts in
-# a process. POCL_CPU_MAX_CU_COUNT since PoCL 4 (the old name still works there);
-# the PoCL 3.0 that pyopencl's wheel bundles reads only POCL_MAX_PTHREAD_COUNT.
-POCL_THREAD_VARIABLES = ("POCL_CPU_MAX_CU_COUNT", "POCL_MAX_PTHREAD_COUNT")
+# The OpenCL CPU devices' worker threads, read when OpenCL first starts in a process.
+# PoCL: POCL_CPU_MAX_CU_COUNT since PoCL 4 (the old name still works there), the PoCL 3.0
+# that pyopencl's wheel bundles reads only POCL_MAX_PTHREAD_COUNT; Intel's CPU runtime:
+# its TBB pool's workers (measured: 1 worker, 0.9 cores busy in a kernel on 2 cores).
+OPENCL_THREAD_VARIABLES = ("POCL_CPU_MAX_CU_COUNT", "POCL_MAX_PTHREAD_COUNT",
+                           "CL_CONFIG_CPU_TBB_NUM_WORKERS")
 
 
 def available_cpus() -> int:
@@ -45,7 +47,7 @@ def available_cpus() -> int:
 class Cores:
     """How a run uses the cores: ``workers`` chunk tasks at once (worker processes; 1:
     in this process) × ``threads`` threads per task (``map_slices``, Embree's ray
-    batches and PoCL's CPU device within each task). BLAS runs on one thread whatever
+    batches and the OpenCL CPU device within each task). BLAS runs on one thread whatever
     these are (``one_blas_thread``). Results do not depend on either number."""
 
     workers: int
@@ -151,10 +153,10 @@ def threads_per_task(threads: int | None) -> Iterator[None]:
 
 
 def cap_opencl_threads(threads: int, replace: bool = True) -> None:
-    """Limit PoCL's CPU device to ``threads`` worker threads in this process. Takes effect
-    only if OpenCL has not started yet here (PoCL reads its environment once); with
+    """Limit the OpenCL CPU device to ``threads`` worker threads in this process. Takes effect
+    only if OpenCL has not started yet here (it reads its environment once); with
     ``replace`` False, a limit already in the environment (the user's) is kept."""
-    for name in POCL_THREAD_VARIABLES:
+    for name in OPENCL_THREAD_VARIABLES:
         if replace or name not in os.environ:
             os.environ[name] = str(threads)
 
@@ -162,7 +164,7 @@ def cap_opencl_threads(threads: int, replace: bool = True) -> None:
 def use_cores(cores: Cores) -> None:
     """Set this process's share for the rest of its life (the CLI, once per command):
     its thread pools use ``cores.total`` threads (tasks that run here, the frames) and,
-    if fewer than the available CPUs, PoCL's CPU device is limited to as many (unless the
+    if fewer than the available CPUs, the OpenCL CPU device is limited to as many (unless the
     environment already limits it), when OpenCL has not started yet."""
     global _task_threads
     _task_threads = cores.total
@@ -220,7 +222,7 @@ def prepare_worker(threads: int, search: tuple[list[str], list[str]],
     """Make this (worker) process ready for chunk tasks: find kernels and schemas where
     the run's process does (``search``: the plug-ins' folders, which a worker would
     otherwise only learn by importing the plug-ins); ``threads`` threads per task for
-    ``map_slices`` and Embree; PoCL's CPU device limited to ``opencl_threads`` (default
+    ``map_slices`` and Embree; the OpenCL CPU device limited to ``opencl_threads`` (default
     ``threads``; set before any OpenCL context exists here); BLAS and OpenMP at one
     thread."""
     from pathlib import Path
