@@ -54,7 +54,7 @@
 #define BRDF_MODEL_OF(mat) ((int)(mat)[0])
 #endif
 
-PRT_INLINE float schlick_fresnel(float f0, float v_dot_h) {
+inline float schlick_fresnel(float f0, float v_dot_h) {
     float m = 1.0f - clamp(v_dot_h, 0.0f, 1.0f);
     float m2 = m * m;
     return f0 + (1.0f - f0) * m2 * m2 * m;

@@ -8,9 +8,11 @@
  * it: `__attribute__((noinline)) float3 f(float x) { return (float3)(x, 2*x, 3*x); }`
  * called from a kernel that stores f(a[i]) gives lane 1 (0, 1, 2) for (1, 2, 3). A call
  * that is inlined is compiled right, and `inline` alone lets the compiler decide (it
- * declined for functions called from two kernels of one program). So nothing in a
- * kernel is called out of line; tests/test_kernel_sources.py checks every function
- * definition of every kernel folder for this macro. */
+ * declined for functions called from two kernels of one program). So every function
+ * that takes or returns a 3-component vector by value is declared PRT_INLINE
+ * (tests/test_kernel_sources.py checks every kernel folder). Not every function: forced
+ * inlining of the radix select's 2 KB private histograms (kernels/wavelet_select.cl)
+ * overflowed a PoCL thread's stack, so the others keep `inline`. */
 #ifndef PRT_INLINE_H
 #define PRT_INLINE_H
 

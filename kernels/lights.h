@@ -23,7 +23,7 @@ PRT_INLINE float3 light_vec(__global const float* row, int at) {
     return (float3)(row[at], row[at + 1], row[at + 2]);
 }
 
-PRT_INLINE float smoothstep_f(float e0, float e1, float x) {
+inline float smoothstep_f(float e0, float e1, float x) {
     float t = clamp((x - e0) / (e1 - e0), 0.0f, 1.0f);
     return t * t * (3.0f - 2.0f * t);
 }

@@ -22,12 +22,12 @@ PRT_INLINE float sg_eval(float3 w, float3 mu, float lam) {
 }
 
 /* (1 - e^{-2 lam}) / lam = -expm1(-2 lam) / lam, 2 at lam = 0. */
-PRT_INLINE float sg_integral_factor(float lam) {
+inline float sg_integral_factor(float lam) {
     return lam > 0.0f ? -expm1(-2.0f * lam) / lam : 2.0f;
 }
 
 /* Integral of G over the sphere: 2 pi (1 - e^{-2 lam}) / lam (sr). */
-PRT_INLINE float sg_integral(float lam) { return SG_TWO_PI * sg_integral_factor(lam); }
+inline float sg_integral(float lam) { return SG_TWO_PI * sg_integral_factor(lam); }
 
 /* G_a G_b = scale * G(w; *mu, *lam): u = la mu_a + lb mu_b, r = |u|, mean u/r, sharpness
  * r, scale = exp(-la lb |mu_a - mu_b|^2 / (r + la + lb)) (= e^{r - la - lb}). Returns

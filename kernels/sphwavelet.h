@@ -33,16 +33,16 @@
 #define SW_END 0xffffffffu
 
 /* First index of the wavelets of level l: 20·4^l. */
-PRT_INLINE uint sw_level_start(uint l) { return (uint)SW_ROOTS << (2 * l); }
+inline uint sw_level_start(uint l) { return (uint)SW_ROOTS << (2 * l); }
 
 /* First triangle of level l in the wavelet and tensor tables: 20·(4^l − 1)/3. */
-PRT_INLINE uint sw_node_base(uint l) { return (uint)SW_ROOTS * ((1u << (2 * l)) - 1u) / 3u; }
+inline uint sw_node_base(uint l) { return (uint)SW_ROOTS * ((1u << (2 * l)) - 1u) / 3u; }
 
 /* Level of a wavelet index (≥ 20): index ∈ [20·4^l, 20·4^(l+1)). */
-PRT_INLINE uint sw_level(uint index) { return (31u - clz(index / SW_ROOTS)) / 2u; }
+inline uint sw_level(uint index) { return (31u - clz(index / SW_ROOTS)) / 2u; }
 
 /* The depth-first sort key of a coefficient index (pipeline.math.sphwavelet.depth_first_keys). */
-PRT_INLINE uint sw_key(uint index) {
+inline uint sw_key(uint index) {
     const uint shift = 2u * (SW_LEVELS - 1u);
     if (index < SW_ROOTS) return (index << shift) << 6;
     uint l = sw_level(index);
@@ -66,7 +66,7 @@ typedef struct {
  * `channels` values per entry) with RGB weights. (Filled through the pointer, not
  * returned: a struct returned by value, inlined, leaves LLVM noalias-scope intrinsics
  * that Oclgrind cannot run.) */
-PRT_INLINE void sw_open(sw_source* s, __global const uint* start,
+inline void sw_open(sw_source* s, __global const uint* start,
                         __global const ushort* index, __global const float* value,
                         int channels, const uint* rows, const float3* weight, int count) {
     s->index = index;
@@ -81,7 +81,7 @@ PRT_INLINE void sw_open(sw_source* s, __global const uint* start,
 }
 
 /* Lowers (*key, *index) to the smallest key at the heads of the source's rows. */
-PRT_INLINE void sw_peek(const sw_source* s, uint* key, uint* index) {
+inline void sw_peek(const sw_source* s, uint* key, uint* index) {
     for (int r = 0; r < s->count; ++r) {
         if (s->head[r] >= s->end[r]) continue;
         uint i = s->index[s->head[r]];
@@ -95,7 +95,7 @@ PRT_INLINE void sw_peek(const sw_source* s, uint* key, uint* index) {
 
 /* Takes the entries with indices in [first, first + n) from every row, summing
  * weight × value into c[index − first]. */
-PRT_INLINE void sw_take(sw_source* s, uint first, uint n, float3* c) {
+inline void sw_take(sw_source* s, uint first, uint n, float3* c) {
     for (uint k = 0; k < n; ++k) c[k] = (float3)(0.0f);
     for (int r = 0; r < s->count; ++r) {
         while (s->head[r] < s->end[r]) {

@@ -18,7 +18,6 @@
 #ifndef TRIPLE_W
 #define TRIPLE_W 4
 #endif
-#include "inline.h"
 #include "sphwavelet.h"
 #include "triple_lookup.h"
 #include "envmap.h"
@@ -143,14 +142,14 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
 #if TRIPLE_W == 8
 typedef float8 triple_vec;
 #define TRIPLE_VLOAD vload8
-PRT_INLINE float triple_hsum(float8 x) {
+inline float triple_hsum(float8 x) {
     float4 a = x.lo + x.hi;
     return a.x + a.y + a.z + a.w;
 }
 #else
 typedef float4 triple_vec;
 #define TRIPLE_VLOAD vload4
-PRT_INLINE float triple_hsum(float4 x) { return x.x + x.y + x.z + x.w; }
+inline float triple_hsum(float4 x) { return x.x + x.y + x.z + x.w; }
 #endif
 
 __kernel void triple_shade_dense(__global const float* light, __global const float* vis,

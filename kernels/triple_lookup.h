@@ -49,7 +49,7 @@ typedef struct {
 } triple_lookup;
 
 /* frame_grids._linear: lower, upper index and upper weight of grid coordinate x. */
-PRT_INLINE void triple_linear(float x, int count, int wrap, int* lo, int* hi, float* frac) {
+inline void triple_linear(float x, int count, int wrap, int* lo, int* hi, float* frac) {
     if (wrap) {
         float f = floor(x);
         *frac = x - f;
@@ -67,7 +67,7 @@ PRT_INLINE void triple_linear(float x, int count, int wrap, int* lo, int* hi, fl
 }
 
 /* φ mod 2π in [0, 2π). */
-PRT_INLINE float triple_wrap_angle(float a) {
+inline float triple_wrap_angle(float a) {
     a -= TRIPLE_TWO_PI * floor(a / TRIPLE_TWO_PI);
     return a >= TRIPLE_TWO_PI ? 0.0f : a;
 }
@@ -122,7 +122,7 @@ PRT_INLINE float2 triple_view_coords(float3 wo, const triple_grids* g) {
 
 /* ViewGrid.weights from the view grid coordinates: entries j·n_θ + i and bilinear
  * weights. */
-PRT_INLINE void triple_view_rows(float2 x, const triple_grids* g, int* entries, float* weight) {
+inline void triple_view_rows(float2 x, const triple_grids* g, int* entries, float* weight) {
     int j[2], i[2];
     float wj, wi;
     triple_linear(x.x, g->view_phi, 1, &j[0], &j[1], &wj);
@@ -138,7 +138,7 @@ PRT_INLINE void triple_view_rows(float2 x, const triple_grids* g, int* entries, 
 /* texel_lookups at continuous texel coordinates xy of a texture (height, width) whose
  * texel (i, j) is flat texel offset + i·width + j; texel_row[flat] its visibility row
  * (−1: empty). */
-PRT_INLINE void triple_texel_weights(float2 xy, int height, int width, int offset,
+inline void triple_texel_weights(float2 xy, int height, int width, int offset,
                                  __global const int* texel_row, uint* rows, float* weight) {
     float x = clamp(xy.x - 0.5f, 0.0f, (float)(width - 1));
     float y = clamp(xy.y - 0.5f, 0.0f, (float)(height - 1));
@@ -161,7 +161,7 @@ PRT_INLINE void triple_texel_weights(float2 xy, int height, int width, int offse
 /* The camera's part of pixel i's lookups (kernel triple_angles, once per camera): the
  * grid coordinates of its shading frame and of its local view ω_o in (t, n × t, n), as
  * brdf.to_local. G-buffer arrays as triple_gbuffer.py's GBuffer. */
-PRT_INLINE void triple_angles_of(int i, __global const float* normal,
+inline void triple_angles_of(int i, __global const float* normal,
                              __global const float* tangent, __global const float* view,
                              const triple_grids* g, float3* frame, float2* view_coords) {
     float3 n = vload3(i, normal), t = vload3(i, tangent), v = vload3(i, view);
@@ -174,7 +174,7 @@ PRT_INLINE void triple_angles_of(int i, __global const float* normal,
  * material_a, material_b (P), blend (P); per object its texture (height, width, offset)
  * in object_texture (objects·3); per material glossy_base, diffuse_row (int) and kd,
  * rho_s (materials·3). */
-PRT_INLINE void triple_lookups_of(int i, __global const float* frame_coords,
+inline void triple_lookups_of(int i, __global const float* frame_coords,
                               __global const float* view_coords,
                               __global const float* texel_xy, __global const int* object,
                               __global const int* material_a, __global const int* material_b,

@@ -28,14 +28,12 @@
  * stored instead (pipeline/math/wavelet_rows.py to_half, the same float32 division and
  * round-to-nearest-even): value / scale as half, and scale (R,) = the row's largest
  * kept |value| (1 if none). */
-#include "inline.h"
-
 #pragma OPENCL FP_CONTRACT OFF
 
 #define INF_BITS 0x7f800000u
 
 /* The sum of e[from .. n), in 8 float32 lanes. */
-PRT_INLINE float tail_sum(__global const float* e, int from, int n) {
+inline float tail_sum(__global const float* e, int from, int n) {
     float8 s8 = (float8)(0.0f);
     int i = from;
     for (; i + 8 <= n; i += 8) s8 += vload8(0, e + i);
@@ -49,7 +47,7 @@ PRT_INLINE float tail_sum(__global const float* e, int from, int n) {
 /* Histogram (count, sum) by digit (b >> shift) & (bins - 1) of the entries v of
  * src[from .. n) whose bits b match prefix under mask; with compact != 0, those entries
  * are also copied, in order, to out[0 ..) (their number is returned). */
-PRT_INLINE int digit_histogram(__global const float* src, int from, int n, uint mask,
+inline int digit_histogram(__global const float* src, int from, int n, uint mask,
                            uint prefix, int shift, uint bins, int* count, float* sum,
                            int compact, __global float* out) {
     for (uint d = 0; d < bins; ++d) {
@@ -85,7 +83,7 @@ PRT_INLINE int digit_histogram(__global const float* src, int from, int n, uint 
  * (the entries of the first digit: one binade) to cand, in order, and the last two
  * read only those (measured 1.43x less CPU for the BRDF table's 8192 rows, the same
  * thresholds, counts and residuals). */
-PRT_INLINE uint radix_threshold(__global const float* e, int from, int n, float limit, int cap,
+inline uint radix_threshold(__global const float* e, int from, int n, float limit, int cap,
                             __global float* cand, float* dropped, int* kept) {
     uint prefix = 0u, mask = 0u;
     float s_below = 0.0f;

@@ -252,8 +252,8 @@ def run_probe(device: Any) -> Probe:
                           cl.LocalMemory(4 * PROBE_GROUP))
         cl.enqueue_copy(queue, out, target)
         queue.finish()
-    except cl.Error as exc:
-        return Probe(False, f"run failed: {' '.join(str(exc).split())[:200]}")
+    except cl.Error as exc:  # no context, or the launch failed
+        return Probe(False, " ".join(str(exc).split())[:200])
     wrong = int(np.count_nonzero(out != expected))
     if wrong:
         return Probe(False, f"wrong answer: {wrong} of {out.size} values")
@@ -407,7 +407,8 @@ def no_device_message(choice: str, tried: list[Candidate], everything: list[Cand
     failures = "; ".join(f"{c.label()}: {c.probe.reason}" for c in tried if c.probe) \
         or "no OpenCL device found"
     fix = f"`{INSTALL_HINT}` (Intel's CPU runtime, any x86-64 CPU)" \
-        if intel_cpu_library() is None else "a newer OpenCL driver for this machine"
+        if intel_cpu_library() is None else \
+        "an OpenCL driver that builds for this machine (a GPU's, or PoCL 5 or newer)"
     what = f" for {ENV_DEVICE}={choice}" if choice else ""
     return f"no working OpenCL device{what}: {failures}; fix: {fix}"
 

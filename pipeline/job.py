@@ -195,6 +195,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     check_method_scene(m, scene)
     check_writable(out)
     options = m.option_values({}) | (options or {})
+    check_device()
     if baked is None:
         baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
@@ -384,6 +385,14 @@ def main_frame_path(scene: Scene, method: Method, frames: Path) -> Path:
     return frames / f"{scene.name}_{method.name}{view}.exr"
 
 
+def check_device() -> None:
+    """Choose the OpenCL device now (pipeline/devices.py): where none works, one error
+    line says so before any bake, not a traceback from the first kernel's chunk."""
+    from pipeline import cl
+
+    cl.device()
+
+
 def main_job(scene: Scene, workdir: Workdir, frames: Path,
              until: str | tuple[str, ...] | None,
              force: tuple[str, ...], jobs: int | None, quiet: bool,
@@ -399,6 +408,7 @@ def main_job(scene: Scene, workdir: Workdir, frames: Path,
     (``bake``); frames are rendered here."""
     from pipeline.method import NotApplicable
 
+    check_device()
     report = bake(scene, workdir, until=until, force=force,
                   jobs=None if scheduler else jobs, quiet=quiet, stagefile=stagefile,
                   threads=threads, scheduler=scheduler)

@@ -1,8 +1,9 @@
 """Rules every kernel source follows, checked on the text of every kernel folder.
 
-The one rule so far: every helper function is declared ``PRT_INLINE`` (kernels/inline.h:
-a call left out of line that passes or returns a float3 is miscompiled by Intel's CPU
-runtime; the rule keeps every kernel clear of it whatever the compiler decides).
+The one rule so far: every function that takes or returns a 3-component vector (float3,
+int3, ...) by value is declared ``PRT_INLINE`` (kernels/inline.h: such a call left out of
+line is miscompiled by Intel's CPU runtime; the rule keeps every kernel clear of it
+whatever the compiler decides).
 """
 
 from __future__ import annotations
@@ -38,10 +39,16 @@ def function_heads(source: str) -> list[str]:
     return heads
 
 
+# a 3-component vector type by value (not a pointer to one)
+VECTOR3 = re.compile(r"\b(?:float|double|half|u?char|u?short|u?int|u?long)3\b(?!\s*\*)")
+
+
 def helper_heads_not_inlined(source: str) -> list[str]:
-    """Heads of functions that are neither kernels nor declared ``PRT_INLINE``."""
+    """Heads of functions, not kernels, that take or return a 3-component vector by value
+    and are not declared ``PRT_INLINE``."""
     return [h for h in function_heads(source)
-            if not re.search(r"\b(__kernel|kernel)\b", h) and not h.startswith("PRT_INLINE ")]
+            if not re.search(r"\b(__kernel|kernel)\b", h) and VECTOR3.search(h)
+            and not h.startswith("PRT_INLINE ")]
 
 
 def kernel_files() -> list[Path]:
@@ -55,19 +62,22 @@ def test_the_parser_finds_helpers_kernels_and_skips_macros_and_comments():
     /* inline float3 commented(float x) { } */
     PRT_INLINE float3 ok(float x) { if (x) { return (float3)(x); } return 0; }
     inline float3 bare(float3 v) { return v; }
-    __attribute__((noinline)) float also_bare(float x) { return x; }
+    __attribute__((noinline)) float also_bare(uint3 x) { return x.x; }
+    inline void by_pointer(float3* v, int n) { }
+    inline float scalar(float x) { return x; }
     typedef struct { float a; } pair;
     __kernel void k(__global float* out) { out[0] = ok(1.0f).x; }
     """
     def name(head: str) -> str:  # the identifier before the parameter list
         return re.search(r"(\w+)\s*\([^()]*\)$", head).group(1)
 
-    assert [name(h) for h in function_heads(source)] == ["ok", "bare", "also_bare", "k"]
+    assert [name(h) for h in function_heads(source)] == [
+        "ok", "bare", "also_bare", "by_pointer", "scalar", "k"]
     assert [name(h) for h in helper_heads_not_inlined(source)] == ["bare", "also_bare"]
 
 
 @pytest.mark.parametrize("path", kernel_files(), ids=lambda p: p.name)
-def test_every_helper_function_is_force_inlined(path):
+def test_every_function_passing_a_vector3_is_force_inlined(path):
     assert helper_heads_not_inlined(path.read_text()) == []
 
 
