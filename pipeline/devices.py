@@ -31,7 +31,7 @@ import json
 import os
 import platform
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -326,12 +326,10 @@ class Candidate:
 
 @dataclass
 class Choice:
-    """The device the project uses, why, and every candidate found (in order of
-    preference)."""
+    """The device the project uses, and why."""
 
     device: Any
     reason: str
-    candidates: list[Candidate] = field(default_factory=list)
 
 
 def platforms() -> list[Any]:
@@ -395,7 +393,7 @@ def choose(found: list[Candidate] | None = None) -> Choice:
                 f"the first CPU implementation that passed the probe (order: " \
                 f"{', '.join(CPU_ORDER)}, then any other)" if c.kind == "cpu" else \
                 "named"
-            return Choice(c.device, rule + why, everything)
+            return Choice(c.device, rule + why)
     raise PrtError(None, no_device_message(choice, wanted, everything))
 
 
