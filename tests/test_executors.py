@@ -13,6 +13,7 @@ from click.testing import CliRunner
 
 from pipeline.errors import PrtError
 from pipeline.executors import (
+    OPENCL_THREAD_VARIABLES,
     Cores,
     InProcessExecutor,
     LocalPoolExecutor,
@@ -90,12 +91,14 @@ def worker_state(_task: int) -> dict:
     return {"pid": os.getpid(), "threads": task_threads(),
             "pocl_units": cpu[0].max_compute_units if cpu else None,
             "blas": [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"],
-            "env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}}
+            "env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
+            "opencl_env": {k: os.environ.get(k) for k in OPENCL_THREAD_VARIABLES}}
 
 
 def test_pool_workers_get_the_per_task_share():
     """Two workers × one thread: each task's pools have one thread, PoCL's CPU device
-    one compute unit, BLAS and OpenMP one thread. A stage of a single task runs in this
+    one compute unit and Intel's runtime one TBB worker (their variables set before
+    OpenCL starts there), BLAS and OpenMP one thread. A stage of a single task runs in this
     process, with every thread of the pool (2 × 1)."""
     with LocalPoolExecutor(2, 1) as executor:
         states = list(executor.map_unordered(worker_state, range(4)))
@@ -106,6 +109,7 @@ def test_pool_workers_get_the_per_task_share():
         assert state["pocl_units"] in (1, None)
         assert set(state["blas"]) <= {1}
         assert state["env"] == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+        assert state["opencl_env"] == dict.fromkeys(OPENCL_THREAD_VARIABLES, "1")
     assert len({s["pid"] for s in states}) <= 2  # one pool for both calls' workers
     assert single[0]["pid"] == os.getpid() and single[0]["threads"] == 2
 
