@@ -10,8 +10,8 @@ else the first CPU implementation, each proved by a probe first).
 from __future__ import annotations
 
 import hashlib
-import os
 import time
+import warnings
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -110,9 +110,11 @@ def program(name: str, defines: dict[str, Any] | None = None) -> Any:
     key = (name, _source_hash(folders), options,
            f"{dev.platform.name}|{dev.name}|{dev.driver_version}")
     if key not in _PROGRAMS:
-        os.environ.setdefault("PYOPENCL_COMPILER_OUTPUT", "0")
         try:
-            _PROGRAMS[key] = cl.Program(context(), path.read_text()).build(options=list(options))
+            with warnings.catch_warnings():  # a compiler's log of a build that succeeded
+                warnings.simplefilter("ignore", cl.CompilerWarning)
+                _PROGRAMS[key] = cl.Program(context(), path.read_text()).build(
+                    options=list(options))
         except cl.RuntimeError as exc:
             raise PrtError(path, f"OpenCL build failed: {exc}") from None
     _RECENT[recent_key] = (now, _PROGRAMS[key])
