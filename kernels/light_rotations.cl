@@ -30,6 +30,7 @@
  * weight * radiance (weights normalised per leaf).
  * The map comes as float4 texels (RGB and an unused fourth) so that a texel is one
  * aligned load; the lookup is kernels/envmap.h's (bilinear, columns wrapping). */
+#include "vectorize.h"
 #include "envmap.h"
 
 __kernel void light_sample_coords(__global const float* frames,  /* n_frames * 9 */
@@ -48,6 +49,7 @@ __kernel void light_sample_coords(__global const float* frames,  /* n_frames * 9
     coords[(size_t)b * n_fine + q] = envmap_texel_coords(d, width, height);
 }
 
+PRT_SCALAR_ITEMS
 __kernel void light_leaf_means(__global const float2* coords,  /* n_frames * n_leaves * SAMPLES */
                                __global const float* weight,   /* n_leaves * SAMPLES */
                                __global const float4* map,     /* phi-major, RGB_ */

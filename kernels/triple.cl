@@ -18,6 +18,7 @@
 #ifndef TRIPLE_W
 #define TRIPLE_W 4
 #endif
+#include "vectorize.h"
 #include "sphwavelet.h"
 #include "triple_lookup.h"
 #include "envmap.h"
@@ -81,6 +82,7 @@ __kernel void triple_lookups(TRIPLE_GBUFFER_ARGS, const int n,
 }
 
 /* General path: sparse rows of any selection and budget, merged on the fly. */
+PRT_SCALAR_ITEMS
 __kernel void triple_shade(__global const uint* light_start, __global const ushort* light_index,
                            __global const float* light_value,
                            __global const uint* vis_start, __global const ushort* vis_index,

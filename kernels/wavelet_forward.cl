@@ -13,6 +13,9 @@
  * Scalar loads and sums (no vload4 / dot: PoCL calls those out of line) and no bounds
  * test (the launcher's global size is exact): measured 1.4x less CPU than with them. */
 
+#include "vectorize.h"
+
+PRT_SCALAR_ITEMS
 __kernel void wavelet_forward_level(__global const float* fine,
                                     __global const float* child_area,
                                     __global const float* wavelet,

@@ -28,6 +28,8 @@
  * stored instead (pipeline/math/wavelet_rows.py to_half, the same float32 division and
  * round-to-nearest-even): value / scale as half, and scale (R,) = the row's largest
  * kept |value| (1 if none). */
+#include "vectorize.h"
+
 #pragma OPENCL FP_CONTRACT OFF
 
 #define INF_BITS 0x7f800000u
@@ -118,6 +120,7 @@ inline uint radix_threshold(__global const float* e, int from, int n, float limi
     return prefix;
 }
 
+PRT_SCALAR_ITEMS
 __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNELS, n) */
                                __global const float* weight,   /* CHANNELS */
                                const int first_row, const int rows, const int n,
@@ -166,6 +169,7 @@ __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNEL
     residual[r] = total > 0.0f ? sqrt(dropped / total) : 0.0f;
 }
 
+PRT_SCALAR_ITEMS
 __kernel void select_write(__global const float* coeffs,     /* (rows, CHANNELS, n) */
                            const int first_row, const int rows, const int n,
                            const int keep_first,

@@ -447,7 +447,7 @@ def devices_cmd(as_json) -> None:
     """List the OpenCL devices: versions, each one's probe, which one is used and why.
 
     The device is PRT_CL_DEVICE's if set (cpu, gpu or PLATFORM[:INDEX]), else the first
-    GPU, else the first CPU implementation (PoCL, then Intel's CPU runtime) that builds
+    GPU, else the first CPU implementation (Intel's CPU runtime, then PoCL) that builds
     and runs a probe kernel right; probe results are cached per machine. Exits with
     status 2 when no device works."""
     from pipeline.devices import report

@@ -5,7 +5,7 @@ The device is chosen by proof, not by name (DESIGN §6). In order:
 1. ``PRT_CL_DEVICE``, if set: ``cpu`` (the CPU implementations below), ``gpu`` (the GPUs),
    or ``PLATFORM_SUBSTRING[:DEVICE_INDEX]`` (e.g. ``NVIDIA:0``, ``Intel``, ``Oclgrind``);
 2. else the first GPU that passes the probe;
-3. else the CPU implementations in ``CPU_ORDER`` (PoCL, then Intel's CPU runtime: the
+3. else the CPU implementations in ``CPU_ORDER`` (Intel's CPU runtime, then PoCL: the
    faster first, benchmarks/bench_opencl_cpus.py), then any other CPU device.
 
 Every candidate is proved before it is used: :data:`PROBE_SOURCE` built and run on it,
@@ -41,9 +41,10 @@ from pipeline.errors import PrtError
 ENV_DEVICE = "PRT_CL_DEVICE"
 # CPU implementations, the faster first. benchmarks/bench_opencl_cpus.py on an AMD EPYC
 # (Zen 4, 2 cores), each method's default scene at 64², PoCL's time over Intel's: frames
-# d2i 0.93, triple 0.20 (Intel's runtime runs triple's sparse product 5x slower), sg 1.34;
-# bakes 1.06, 0.64, 0.99. Intel's runtime is the fallback where PoCL cannot build.
-CPU_ORDER = ("pocl", "intel-cpu")
+# d2i 0.93, triple 1.62, sg 1.34; bakes 1.06, 0.95, 0.99 (triple's were 0.20 and 0.64
+# before kernels/vectorize.h). PoCL is the fallback where Intel's runtime is missing
+# (not x86-64 Linux) or fails.
+CPU_ORDER = ("intel-cpu", "pocl")
 # Never chosen unless PRT_CL_DEVICE names them.
 SIMULATORS = ("oclgrind",)
 SYSTEM_VENDORS = Path("/etc/OpenCL/vendors")
