@@ -76,6 +76,7 @@ class StagePlan:
     seeds: dict[str, int] = field(default_factory=dict)
     key_parts: dict[str, Any] = field(default_factory=dict)
     sections: dict[str, dict[str, Any]] = field(default_factory=dict)
+    stage_sections: dict[str, Any] = field(default_factory=dict)  # unbound: every object
     state: str = "missing"
     reason: str = ""
 
@@ -257,7 +258,14 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
                                      "schema_version": schema_version, "coords": c.coords})
         p.chunk_parts[c.id] = chunk_key_parts(code, schema_version, params, sections, inputs,
                                               c)
+    p.stage_sections = resolve_sections(spec, scene, None)
     p.key = digest({"stage": spec.name, "chunks": p.chunk_keys})
+    if not chunks:
+        # nothing to cut (no glossy pixel in view, say): the stage's artifact still holds
+        # what its finalize derives from the params, scene and inputs, so they key it
+        p.key = digest({"stage": spec.name, "chunks": {}, "params": params, "code": code,
+                        "schema_version": schema_version, "scene": p.stage_sections,
+                        "inputs": {dep: records[dep].get("digest") for dep in spec.inputs}})
     scene_digests = {path: digest(value) for s in p.sections.values()
                      for path, value in s.items()}
     # What each input contributes over all chunks, as a set: an input every chunk reads
@@ -508,8 +516,8 @@ def _all_fresh(scene: Scene, stagefile: StageFile, workdir: Workdir,
 
 def stage_context(p: StagePlan, stagefile: StageFile, workdir: Workdir) -> AssembleContext:
     """What a stage's ``layout`` and ``finalize`` see: params, every chunk's scene
-    sections, inputs."""
-    sections: dict[str, Any] = {}
+    sections (a stage cut into no chunks: its declared sections, unbound), inputs."""
+    sections: dict[str, Any] = {} if p.sections else dict(p.stage_sections)
     for s in p.sections.values():
         sections.update(s)
     inputs: dict[str, Artifact] = {

@@ -4,6 +4,8 @@ reference renderer's d2i transport."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -354,6 +356,37 @@ def test_the_gpu_layout_renders_the_cpu_layout_s_frames(baked):
         assert metrics.relative_rmse(a.rgb, b.rgb) < 1e-5
     with pytest.raises(PrtError, match="layout="):
         D2iRenderer(scene, d2i_artifacts(workdir), layout="tpu")
+
+
+def test_a_scene_with_no_glossy_pixel_renders_and_its_empty_stages_follow_the_camera(
+        tmp_path):
+    """The shipped Lambertian Cornell box: d2i's glossy stages have no chunk (no glossy
+    pixel), yet their artifacts are finalized from the stage's own scene sections (a
+    KeyError 'camera' before), the frame equals the direct frame plus indirect light,
+    a second bake runs nothing, and a camera change re-runs the chunkless stages (their
+    key holds the camera, params and inputs: nothing else would)."""
+    from helpers import PROJECT
+
+    scene = load_scene(PROJECT / "scenes" / "cornell_box_lambert.yaml").with_image_size(
+        16, 16).with_settings({"gather.count": GATHERS})
+    workdir = job.workdir_for(scene, tmp_path)
+    d2i = [get_method("d2i")]
+    first = {r.name: r.action for r in job.bake(scene, workdir, quiet=True, methods=d2i)}
+    assert first["d2i.transfer_t"] == "ran"
+    assert open_artifact(workdir.artifact("d2i.truncate_t")).attrs["width"] == 16
+    rgb = job.render_frame(scene, workdir, "d2i").rgb
+    direct = job.render_frame(scene, workdir, "direct").rgb
+    assert np.isfinite(rgb).all() and np.all(rgb >= direct - 1e-6 * direct.max())
+    assert rgb.sum() > 1.05 * direct.sum()  # the walls' colour bleeding
+    again = job.bake(scene, workdir, quiet=True, methods=d2i)
+    assert {r.action for r in again} == {"skipped"}
+    position = [278.0, 273.0, -760.0]
+    moved = dataclasses.replace(
+        scene, camera=dataclasses.replace(scene.camera, position=position),
+        raw={**scene.raw, "camera": {**scene.raw["camera"], "position": position}})
+    rerun = {r.name for r in job.bake(moved, workdir, quiet=True, methods=d2i)
+             if r.action == "ran"}
+    assert {"d2i.transfer_t", "d2i.truncate_t"} <= rerun
 
 
 @pytest.mark.parametrize("layout", ["cpu", "gpu"])
