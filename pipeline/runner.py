@@ -126,7 +126,30 @@ def stage_params(stagefile: StageFile, scene: Scene) -> dict[str, Any]:
     if unknown:
         raise PrtError(scene.path, f"settings.{unknown[0]}: unknown parameter (known: "
                        f"{', '.join(sorted(stagefile.params))})")
+    for name, value in scene.settings.items():
+        expected = _setting_kind(stagefile.params[name], value)
+        if expected:
+            raise PrtError(scene.path, f"settings.{name}: {value!r} is not {expected} (the "
+                           f"default is {stagefile.params[name]!r})")
     return {**stagefile.params, **scene.settings}
+
+
+def _setting_kind(default: Any, value: Any) -> str | None:
+    """What ``value`` should be to replace ``default`` (a stage parameter's), or None if
+    it is of the default's kind: a boolean for a boolean, an integer for an integer, a
+    number for a float, a list for a list, text for text."""
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else "true or false"
+    if isinstance(default, int):
+        return None if number and isinstance(value, int) else "an integer"
+    if isinstance(default, float):
+        return None if number else "a number"
+    if isinstance(default, list):
+        return None if isinstance(value, list) else "a list"
+    if isinstance(default, str):
+        return None if isinstance(value, str) else "text"
+    return None
 
 
 def resolve_sections(spec: StageSpec, scene: Scene, chunk: Chunk | None) -> dict[str, Any]:

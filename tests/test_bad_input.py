@@ -134,6 +134,25 @@ def test_unknown_key(case: tuple[Path, Path]) -> None:
     assert snapshot(workdir) == before
 
 
+@pytest.mark.parametrize(("name", "value", "expected"), [
+    ("gather.count", "many", "is not an integer"), ("gather.count", "1e12", "is not an integer"),
+    ("gather.count", 4096.0, "is not an integer"), ("brdf_basis.tolerance", "low", "a number"),
+    ("sg.fit_match_integral", 1, "true or false"), ("sg.fit_grid", 55, "a list")])
+def test_a_setting_of_the_wrong_kind(case: tuple[Path, Path], name: str, value: object,
+                                     expected: str) -> None:
+    """A stage parameter given as text, or a float where the default is an integer, is one
+    error line naming the file, the setting and the default's kind (a traceback, or a
+    7.8 TiB allocation for gather.count: 1e12, before)."""
+    scene, workdir = case
+    before = snapshot(workdir)
+    doc = load(scene)
+    doc["settings"] = {**doc.get("settings", {}), name: value}
+    bad = dump(doc, scene.with_name("bad_setting.yaml"))
+    message = error_line(run_scene(bad, workdir))
+    assert names(message, bad) and f"settings.{name}: " in message and expected in message
+    assert snapshot(workdir) == before
+
+
 def test_missing_mesh_file(case: tuple[Path, Path]) -> None:
     """A mesh path that does not exist names the scene, the mesh path and 'not found'."""
     scene, workdir = case
