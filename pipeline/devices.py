@@ -21,7 +21,8 @@ runs on AMD CPUs as well). pip puts it in the environment's ``lib/``, where no O
 loader looks: :func:`register_runtimes` gives the loader a vendors folder naming it
 (beside the system's own ICD files) before OpenCL first starts in the process, so no one
 sets a variable. Oclgrind (a simulator that claims to be every kind of device) is used
-only when ``PRT_CL_DEVICE`` names it.
+only when ``PRT_CL_DEVICE`` names it. Why so, and the measurements:
+docs/decisions/0002-opencl-device-choice.md.
 """
 
 from __future__ import annotations
