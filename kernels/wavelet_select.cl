@@ -9,7 +9,10 @@
  *   t = max(t_tol, t_cap), t_tol = the largest tail value v with S(v) <= tol^2 E,
  *   t_cap = the cap-th largest tail value (cap = budget - head count), where
  *   S(v) = sum of the tail e < v and C(v) = #{tail e >= v};
- * t = +inf (no tail kept) when the whole tail is droppable or cap <= 0.
+ * t = +inf (no tail kept) when the whole tail is droppable or cap <= 0. The tail keeps
+ * every e > t and, of the e = t, the first in depth-first order while the tail holds
+ * fewer than cap (ties never take a row past its budget; an e = +inf, a map beyond
+ * float32's range, is kept only below a finite t, so no row writes more than count).
  * Non-negative floats order as their bit patterns (uint), so t is the largest bit
  * pattern u with P(u) = S(u) <= tol^2 E or C(u) >= cap (both parts hold for small u,
  * so P is true then false): a radix select on u, 8 bits at a time from the top
@@ -20,8 +23,8 @@
  * coefficient whose energy sits within rounding of the tolerance may go either way.
  *
  * select_threshold, work-item r = row r (the row stays in cache): writes energy (R, n)
- * (scratch for select_write), the threshold bits, count and residual
- * sqrt(dropped / E) of each row; candidates (R, n) is radix_threshold's scratch.
+ * (scratch for select_write), the threshold bits, the ties at it to keep, count and
+ * residual sqrt(dropped / E) of each row; candidates (R, n) is radix_threshold's scratch.
  * select_write, work-item r = row r: the kept entries in depth-first order
  * (order[p] = the coefficient at depth-first position p), at the row's offset:
  * index (nnz,) ushort and value (nnz, CHANNELS) float; built with HALF, the values as
@@ -80,13 +83,14 @@ inline int digit_histogram(__global const float* src, int from, int n, uint mask
  * S_below + sum of bins < d <= limit or C_above + count of bins >= d >= cap, true for
  * d = 0 (the range's lower edge, where P held), so the digit is the last d where it
  * holds. After the last digit t is the largest such pattern, *dropped = S(t) and
- * *kept = C_above + the entries equal to t (if t > 0) = the tail entries e > 0 with
- * bits >= t. Four passes instead of a bisection's ~14; the second copies its range
+ * *kept = C_above = the tail entries with bits > t and *equal_to_t = those equal to t
+ * (0 for t = 0: e = 0 is never kept). Four passes instead of a bisection's ~14; the second copies its range
  * (the entries of the first digit: one binade) to cand, in order, and the last two
  * read only those (measured 1.43x less CPU for the BRDF table's 8192 rows, the same
  * thresholds, counts and residuals). */
 inline uint radix_threshold(__global const float* e, int from, int n, float limit, int cap,
-                            __global float* cand, float* dropped, int* kept) {
+                            __global float* cand, float* dropped, int* kept,
+                            int* equal_to_t) {
     uint prefix = 0u, mask = 0u;
     float s_below = 0.0f;
     int c_above = 0, equal = 0, candidates = 0;
@@ -116,7 +120,8 @@ inline uint radix_threshold(__global const float* e, int from, int n, float limi
         equal = count[digit];
     }
     *dropped = s_below;
-    *kept = c_above + (prefix != 0u ? equal : 0);  /* e = 0 (bits 0) is never kept */
+    *equal_to_t = prefix != 0u ? equal : 0;  /* e = 0 (bits 0) is never kept */
+    *kept = c_above;
     return prefix;
 }
 
@@ -129,6 +134,7 @@ __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNEL
                                __global float* energy,         /* (R, n) out */
                                __global float* candidates,     /* (R, n) scratch */
                                __global uint* threshold,       /* (R,) bits */
+                               __global int* ties,             /* (R,) of e = t, kept */
                                __global int* count,            /* (R,) */
                                __global float* residual)       /* (R,) */
 {
@@ -145,6 +151,7 @@ __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNEL
             float sq = x * x;
             v = v + weight[ch] * sq;
         }
+        v = isnan(v) ? INFINITY : v;  /* counted and kept alike (bits > every finite t) */
         e[i] = v;
         if (i < keep_first) {
             head_sum += v;
@@ -158,15 +165,29 @@ __kernel void select_threshold(__global const float* coeffs,   /* (rows, CHANNEL
     bool none = tail <= limit || cap <= 0;  /* P(+inf) */
     uint t = INF_BITS;
     float dropped = tail;
+    int tied = 0;
     if (!none) {
-        int kept;
+        int above, equal;
         t = radix_threshold(e, keep_first, n, limit, cap, candidates + (size_t)r * n,
-                            &dropped, &kept);
-        head += kept;
+                            &dropped, &above, &equal);
+        tied = min(equal, cap - above);  /* above < cap: P fails just past t */
+        dropped += (float)(equal - tied) * as_float(t);
+        head += above + tied;
     }
     threshold[r] = t;
+    ties[r] = tied;
     count[r] = head;
     residual[r] = total > 0.0f ? sqrt(dropped / total) : 0.0f;
+}
+
+/* Whether entry i (energy v) is kept, visited in depth-first order; *tied counts down
+ * the ties at t still to keep. */
+inline bool kept_entry(int i, float v, int keep_first, uint t, int* tied) {
+    if (!(v > 0.0f)) return false;  /* zero or NaN */
+    if (i < keep_first || as_uint(v) > t) return true;
+    if (as_uint(v) != t || *tied <= 0) return false;
+    *tied -= 1;
+    return true;
 }
 
 PRT_SCALAR_ITEMS
@@ -175,6 +196,7 @@ __kernel void select_write(__global const float* coeffs,     /* (rows, CHANNELS,
                            const int keep_first,
                            __global const float* energy,     /* (R, n) */
                            __global const uint* threshold,   /* (R,) */
+                           __global const int* ties,         /* (R,) */
                            __global const uint* offset,      /* (R,) first entry of each row */
                            __global const int* order,        /* (n,) depth-first order */
                            __global ushort* index,           /* (nnz,) out */
@@ -194,18 +216,19 @@ __kernel void select_write(__global const float* coeffs,     /* (rows, CHANNELS,
 #ifdef HALF
     /* the row's scale: its largest kept |value| (1 for a row with none or only zeros) */
     float peak = 0.0f;
-    for (int i = 0; i < n; ++i) {
-        float v = e[i];
-        if (v > 0.0f && (i < keep_first || as_uint(v) >= t))
+    int tied = ties[r];
+    for (int p = 0; p < n; ++p) {
+        int i = order[p];
+        if (kept_entry(i, e[i], keep_first, t, &tied))
             for (int ch = 0; ch < CHANNELS; ++ch) peak = fmax(peak, fabs(c[ch * n + i]));
     }
     float row_scale = peak > 0.0f ? peak : 1.0f;
     scale[r] = row_scale;
 #endif
+    int ties_left = ties[r];
     for (int p = 0; p < n; ++p) {
         int i = order[p];
-        float v = e[i];
-        if (v > 0.0f && (i < keep_first || as_uint(v) >= t)) {
+        if (kept_entry(i, e[i], keep_first, t, &ties_left)) {
             index[at] = (ushort)i;
             for (int ch = 0; ch < CHANNELS; ++ch)
 #ifdef HALF

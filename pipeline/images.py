@@ -158,9 +158,16 @@ def read_image(path: str | Path) -> np.ndarray:
     return read_exr(path)
 
 
+LARGEST_RADIANCE = 1e18
+"""The largest environment texel accepted. Method triple selects a map's wavelet
+coefficients by their float32 energies, whose sum is ∫ f² dω ≤ 4π M² for texels ≤ M:
+finite only for M ≤ √(3.4e38 / 4π) ≈ 5e18; above that every row's energy is +inf."""
+
+
 def read_environment(path: str | Path) -> np.ndarray:
     """An environment map: a latitude-longitude image (width = 2 × height), (height,
-    width, 3) float32 linear radiance, every texel finite and non-negative. Raise
+    width, 3) float32 linear radiance, every texel finite, non-negative and at most
+    :data:`LARGEST_RADIANCE`. Raise
     PrtError naming the file and the first offending texel otherwise: a NaN, Inf or
     negative texel would light a whole scene with garbage."""
     rgb = read_image(path)
@@ -168,12 +175,16 @@ def read_environment(path: str | Path) -> np.ndarray:
     if width != 2 * height:
         raise PrtError(path, f"environment map is {width}x{height}: a latitude-longitude "
                        "map is twice as wide as it is high")
-    for bad, what in ((~np.isfinite(rgb), "not finite"), (rgb < 0, "negative")):
+    for bad, what, hint in (
+            (~np.isfinite(rgb), "not finite", ""), (rgb < 0, "negative", ""),
+            (rgb > LARGEST_RADIANCE, f"above {LARGEST_RADIANCE:g}",
+             ": beyond what float32 transport holds; scale the map down (and the preview up "
+             "with --exposure)")):
         if bad.any():
             y, x, c = (int(i) for i in np.argwhere(bad)[0])
             raise PrtError(path, f"environment map texel (x {x}, y {y}) is {what} "
-                           f"({rgb[y, x, c]} in channel {'RGB'[c]}; {int(bad.sum())} values "
-                           "in all)")
+                           f"({rgb[y, x, c]:g} in channel {'RGB'[c]}; {int(bad.sum())} values "
+                           f"in all){hint}")
     return rgb
 
 

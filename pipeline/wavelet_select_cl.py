@@ -39,6 +39,7 @@ def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: i
     energy = cl_.Buffer(ctx, flags, max(rows * size, 1) * 4)
     candidates = cl_.Buffer(ctx, flags, max(rows * size, 1) * 4)  # its scratch
     threshold = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
+    ties = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
     count_buf = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
     residual_buf = cl_.Buffer(ctx, flags, max(rows, 1) * 4)
     count = np.zeros(rows, np.int32)
@@ -48,10 +49,14 @@ def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: i
             queue, (rows,), None, coefficients,
             cl.read_only_buffer(np.asarray(weights, np.float32)), np.int32(first_row),
             np.int32(rows), np.int32(size), np.int32(min(keep_first, size)), np.int32(budget),
-            np.float32(tolerance ** 2), energy, candidates, threshold, count_buf,
+            np.float32(tolerance ** 2), energy, candidates, threshold, ties, count_buf,
             residual_buf)
         cl_.enqueue_copy(queue, count, count_buf)
         cl_.enqueue_copy(queue, residual, residual_buf)
+    most = max(budget, min(keep_first, size))  # the head's entries, then the budget
+    if rows and not 0 <= count.min() <= count.max() <= most:
+        raise RuntimeError(f"select_threshold counted {count.min()}..{count.max()} entries "
+                           f"in a row of {size} with a budget of {most}: refusing to write")
     offset = np.concatenate([[0], np.cumsum(count, dtype=np.int64)])
     entries = int(offset[-1])
     index = np.empty(entries, np.uint16)
@@ -65,7 +70,8 @@ def select_rows_buffer(coefficients: Any, first_row: int, rows: int, channels: i
             outputs.append(cl_.Buffer(ctx, flags, rows * 4))
         cl.kernel("wavelet_select.cl", "select_write", write_defines)(
             queue, (rows,), None, coefficients, np.int32(first_row),
-            np.int32(rows), np.int32(size), np.int32(min(keep_first, size)), energy, threshold,
+            np.int32(rows), np.int32(size), np.int32(min(keep_first, size)), energy,
+            threshold, ties,
             cl.read_only_buffer(offset[:-1].astype(np.uint32)),
             cl.read_only_buffer(depth_first_order(leaf_level).astype(np.int32)), *outputs)
         cl_.enqueue_copy(queue, index, index_buf)

@@ -218,3 +218,22 @@ def test_evaluate_triple_charts_what_each_cut_reads(tmp_path):
         < records[0]["storage_bytes"]
     assert len({r["artifact_bytes"] for r in records.values()}) == 1
     assert all(0 < r["rel_rmse_surfaces"] < 1 for r in records.values())
+
+
+def test_a_sun_twelve_orders_brighter_than_the_sky_gives_no_negative_pixel(tmp_path):
+    """Issue 40: a 1e12 sun texel over a sky of 0.5 made triple write pixels of −43000.
+    The truncated wavelet product dips below 0 by ~1e-7 of the sun's part (float32
+    rounding and the cut rows) where the sun is hidden; radiance is never negative, so
+    the frame is clamped at 0 (kernels/image.cl), never shown negative."""
+    rgb = np.full((32, 64, 3), 0.5, np.float32)
+    rgb[20:] = 0.1
+    rgb[6, 40] = 1e12
+    env = tmp_path / "sun.exr"
+    write_exr(env, rgb)
+    doc = small_scene_dict(32)  # 3 negative pixels before the clamp (16² had none)
+    doc["methods"] = ["triple"]
+    doc["settings"] = {"triple.leaf_level": 3, "triple.store_budget": 320}
+    doc["lights"] = [{"type": "environment", "file": str(env)}]
+    frame = render(load_scene(write_scene(tmp_path, doc)), tmp_path / "w", tmp_path / "o.exr")
+    assert np.isfinite(frame.rgb).all() and frame.rgb.min() >= 0.0
+    assert frame.rgb.max() > 1e6  # the sun's light is there

@@ -20,15 +20,18 @@ def _map(path, problem: str):
     """An 8 × 16 map of ones with texel (x 5, y 3) spoiled, or an 8 × 8 one."""
     rgb = np.ones((8, 8 if problem == "shape" else 16, 3), np.float32)
     if problem != "shape":
-        rgb[3, 5, 1] = {"nan": np.nan, "inf": np.inf, "negative": -1.0}[problem]
+        rgb[3, 5, 1] = {"nan": np.nan, "inf": np.inf, "negative": -1.0, "huge": 1e30}[problem]
     write_exr(path, rgb)
     return path
 
 
 @pytest.mark.parametrize(("command", "problem"), [("run", "nan"), ("run", "shape"),
                                                   ("render --env", "negative"),
-                                                  ("render --env", "inf")])
+                                                  ("render --env", "inf"),
+                                                  ("run", "huge")])
 def test_a_bad_map_is_refused_before_any_bake(tmp_path, command, problem):
+    """"huge" is issue 40's case 2: a finite 1e30 texel squared to +inf energies and the
+    lighting stage wrote past its buffer (a segfault under PoCL)."""
     good = tmp_path / "good.exr"
     write_exr(good, np.ones((8, 16, 3), np.float32))
     bad = _map(tmp_path / "bad.exr", problem)

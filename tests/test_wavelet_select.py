@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.chunk import make_chunk
 from pipeline.math.envmap import LUMINANCE
-from pipeline.math.wavelet_rows import from_half, select_rows, to_half
+from pipeline.math.wavelet_rows import depth_first_order, from_half, select_rows, to_half
 from pipeline.sphwavelet_cl import forward
 from pipeline.stages import ChunkContext
 from pipeline.stages import brdf_tables as brdf_stage
@@ -55,6 +55,39 @@ def test_device_selection_matches_numpy_twin(channels, budget, tolerance, keep_f
     np.testing.assert_array_equal(got["value"], expected["value"])
     np.testing.assert_allclose(got["residual"], expected["residual"], rtol=0, atol=1e-6)
 
+
+
+@pytest.mark.parametrize("select", [select_rows, select_rows_cl], ids=["numpy", "device"])
+def test_ties_at_the_threshold_never_take_a_row_past_its_budget(select):
+    """Issue 40: "coefficients = 1281, capped at 1280" — every tie at the threshold was
+    kept. A row of 1280 equal coefficients under a budget of 100 keeps exactly 100, the
+    first in depth-first order, and its residual counts the 1180 dropped."""
+    c = np.ones((2, 1, 20 * 4 ** LEVEL), np.float32)
+    c[1, :, ::2] = 2.0
+    got = select(c, LEVEL, 100, 0.0, 0)
+    assert got["count"].tolist() == [100, 100]
+    first = np.sort(got["index"][:100])
+    position = np.argsort(depth_first_order(LEVEL))  # of each coefficient
+    assert np.all(position[first] < 100)  # the first 100 in depth-first order
+    assert got["residual"][0] == pytest.approx(np.sqrt(1180 / 1280), rel=1e-6)
+    assert np.all(got["index"][100:] % 2 == 0)  # row 1: of its 2.0s only
+
+
+def test_energies_beyond_float32_write_no_more_entries_than_counted():
+    """Issue 40: a map of 1e30 texels squares to +inf energies; the write kernel kept
+    every +inf entry while the count kept none (t = +inf) and wrote past the end of the
+    buffer (a segfault in triple.light_rotations under PoCL). Now count = what is written,
+    whatever the energies."""
+    c = _rows(3)
+    c[:, :, :200] *= np.float32(1e30)
+    got = select_rows_cl(c, LEVEL, 400, 0.01, 80, LUMINANCE)
+    assert got["count"].max() <= 400
+    assert got["count"].sum() == len(got["index"]) == len(got["value"])
+    starts = np.concatenate([[0], np.cumsum(got["count"])[:-1]])
+    for row, (start, n) in enumerate(zip(starts, got["count"], strict=True)):
+        index = got["index"][start:start + n].astype(int)
+        assert len(set(index)) == n and index.max(initial=0) < c.shape[2]
+        np.testing.assert_array_equal(got["value"][start:start + n], c[row, :, index])
 
 def test_half_storage_is_within_float16_rounding_of_each_value_and_never_overflows():
     rng = np.random.default_rng(2)

@@ -20,7 +20,8 @@ keeps
    and at most ``budget`` − (the count of step 1) of them.
 
 Ordering by e_i is the L2-optimal choice for the orthonormal basis (it keeps the
-fewest coefficients for a tolerance); ties at the threshold are all kept. Energies are
+fewest coefficients for a tolerance); ties at the threshold are kept in depth-first
+order while the row holds fewer than its budget (never more). Energies are
 float32 (the stored precision), sorted per row, and the dropped energy is summed from
 the smallest entry up, so that rounding stays small against the tolerance. Entries are
 sorted by :func:`pipeline.math.sphwavelet.depth_first_keys`, what the triple-product
@@ -95,8 +96,15 @@ def select_rows(coefficients: np.ndarray, leaf_level: int, budget: int, toleranc
     at = np.clip(tail.shape[1] - need, 0, max(tail.shape[1] - 1, 0))
     threshold = (np.where(need > 0, ascending[np.arange(rows), at], np.inf)
                  if tail.shape[1] else np.full(rows, np.inf))  # keep_first = N: no tail
-    keep = np.concatenate([head, (tail >= threshold[:, None]) & (tail > 0.0)], axis=1)
+    above = tail > threshold[:, None]
+    tied = (tail == threshold[:, None]) & (tail > 0.0)
+    cap = np.maximum(budget - head.sum(axis=1), 0)
+    ties_kept = np.where(need > 0, np.minimum(tied.sum(axis=1), cap - above.sum(axis=1)), 0)
     order = depth_first_order(leaf_level)
+    tied_full = np.concatenate([np.zeros_like(head), tied], axis=1)
+    tie_rank = np.empty(tied_full.shape, np.int64)  # ties before it in depth-first order
+    tie_rank[:, order] = np.cumsum(tied_full[:, order], axis=1) - tied_full[:, order]
+    keep = np.concatenate([head, above], axis=1) | (tied_full & (tie_rank < ties_kept[:, None]))
     row_of, position = np.nonzero(keep[:, order])
     index = order[position]
     lost = np.where(keep, 0.0, energy).sum(axis=1, dtype=np.float64)

@@ -78,8 +78,10 @@ class DeviceImage:
         self.image = cl.scratch_buffer(self.buffers, "image", 12 * pixels)
 
     def scatter(self, values: Any, pixel: Any, count: int, scale: float = 1.0) -> float:
-        """``image[pixel[i]] = scale · values[i]`` for the ``count`` (P) rows of device
-        buffers ``values`` (P, 3) float32 and ``pixel`` (P,) int32; kernel ms."""
+        """``image[pixel[i]] = max(scale · values[i], 0)`` (radiance is never negative;
+        kernels/image.cl says where a truncated basis dips below 0) for the ``count`` (P)
+        rows of device buffers ``values`` (P, 3) float32 and ``pixel`` (P,) int32; kernel
+        ms."""
         if count == 0:
             return 0.0
         return cl.run(cl.kernel("image.cl", "scatter_rgb"), count, values, pixel,
