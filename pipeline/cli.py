@@ -109,6 +109,10 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
     if scheduler is not None and jobs is not None:
         raise PrtError("--jobs", "does not apply with --scheduler (the cluster's workers "
                        "run the chunks; local:N sets their number)")
+    if scheduler is not None:
+        from pipeline.dask_executor import parse_scheduler
+
+        parse_scheduler(scheduler)
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
     sc = job.open_scene(scene, parse_size(size))

@@ -34,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import sys
 import uuid
 from collections.abc import Callable, Iterable, Iterator
@@ -128,10 +129,18 @@ def parse_scheduler(text: str) -> tuple[str | None, int]:
             raise PrtError("--scheduler", f"{text!r}: expected local:N with N a positive "
                            "number of worker processes")
         return None, int(count)
-    if not text.strip():
-        raise PrtError("--scheduler", "empty address: expected HOST:PORT (a running dask "
+    match = ADDRESS.fullmatch(text.strip())
+    port = int(match["port"]) if match else 0
+    if not match or not 0 < port < 65536:
+        raise PrtError("--scheduler", f"{text!r}: expected [tcp://]HOST:PORT (a running dask "
                        "scheduler, e.g. tcp://10.0.0.5:8786) or local:N")
-    return text, 0
+    return text.strip(), 0
+
+
+ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?(?P<host>\[[0-9a-fA-F:]+\]|[^\s:/\[\]]+)"
+                     r":(?P<port>\d{1,5})")
+"""A dask scheduler's address as ``Client`` takes it: an optional protocol, a host (a
+name, IPv4 or bracketed IPv6) and a port."""
 
 
 class DaskExecutor:
@@ -156,7 +165,11 @@ class DaskExecutor:
         self._client: Any = None
         self._cluster: Any = None
         self._starting: Future | None = None  # (client, cluster) of a LocalCluster
-        if self.local_workers:
+        if not self.local_workers:
+            # reached now, before any stage is touched: an unreachable scheduler is one
+            # error line, not a stage left half done
+            self._client, self._cluster = self._connect()
+        else:
             # Its start (about a second: N processes import dask) overlaps the run's
             # planning and any stage of one chunk, which run here.
             starter = ThreadPoolExecutor(1, thread_name_prefix="prt-dask-start")
@@ -171,7 +184,7 @@ class DaskExecutor:
         if not self.local_workers:
             try:
                 return Client(self.address, timeout=CONNECT_TIMEOUT), None
-            except OSError as exc:
+            except (OSError, ValueError) as exc:  # refused, timed out, a bad address
                 raise PrtError("--scheduler", f"cannot reach the dask scheduler at "
                                f"{self.address}: {exc}") from None
         with dask.config.set(LEAN_WORKERS):  # the nannies hand it to the workers
@@ -181,20 +194,16 @@ class DaskExecutor:
         return Client(cluster), cluster
 
     def client(self) -> Any:
-        """The dask client, connected (the LocalCluster's start waited for) on first
-        use."""
-        if self._client is None:
-            if self._starting is not None:
-                starting, self._starting = self._starting, None
-                self._client, self._cluster = starting.result()
-            else:
-                self._client, self._cluster = self._connect()
-            if self.announce:
-                workers = self._client.scheduler_info().get("workers", {})
-                link = self._client.dashboard_link or "none (install bokeh)"
-                self.announce(f"dask: {self._client.scheduler.address}, {len(workers)} "
-                              f"worker(s), {self.threads} thread(s) per chunk; dashboard "
-                              f"{link}")
+        """The dask client (a LocalCluster's start waited for on first use)."""
+        if self._starting is not None:
+            starting, self._starting = self._starting, None
+            self._client, self._cluster = starting.result()
+        if self.announce:
+            announce, self.announce = self.announce, None  # once
+            workers = self._client.scheduler_info().get("workers", {})
+            link = self._client.dashboard_link or "none (install bokeh)"
+            announce(f"dask: {self._client.scheduler.address}, {len(workers)} "
+                     f"worker(s), {self.threads} thread(s) per chunk; dashboard {link}")
         return self._client
 
     def map_unordered(self, fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Any]:

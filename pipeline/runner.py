@@ -32,6 +32,7 @@ from __future__ import annotations
 import datetime
 import hashlib
 import importlib
+import math
 import os
 import shutil
 import socket
@@ -131,7 +132,22 @@ def stage_params(stagefile: StageFile, scene: Scene) -> dict[str, Any]:
         if expected:
             raise PrtError(scene.path, f"settings.{name}: {value!r} is not {expected} (the "
                            f"default is {stagefile.params[name]!r})")
+        low, high = stagefile.limits.get(name, (0.0, math.inf))
+        numbers = value if isinstance(value, list) else [value]
+        for x in numbers:
+            if isinstance(x, (int, float)) and not isinstance(x, bool) \
+                    and not (math.isfinite(x) and low <= x <= high):
+                raise PrtError(scene.path, f"settings.{name}: {x!r} is outside "
+                               f"{_bounds(low, high)} (the default is "
+                               f"{stagefile.params[name]!r})")
     return {**stagefile.params, **scene.settings}
+
+
+def _bounds(low: float, high: float) -> str:
+    """``[low, high]`` as a reader writes it (``≥ 0`` without an upper bound)."""
+    def text(x: float) -> str:
+        return str(int(x)) if float(x).is_integer() else f"{x:g}"
+    return f"≥ {text(low)}" if math.isinf(high) else f"{text(low)}..{text(high)}"
 
 
 def _setting_kind(default: Any, value: Any) -> str | None:

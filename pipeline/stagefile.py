@@ -5,6 +5,9 @@ Format ``prt-stages/2``::
     format: prt-stages/2
     params:                      # every parameter key with its default; a scene's
       gbuffer.tile: 64           # ``settings`` may override any of them
+    limits:                      # [least, most] a scene's setting may give a number (or
+      gbuffer.tile: [1, 4096]    # each number of a list); numbers without limits must
+                                 # still be finite and not negative
     stages:
       NAME:                      # shared stages have plain names; a method's stages are
                                  # namespaced by it: ``d2i.transfer``
@@ -103,6 +106,7 @@ class StageFile:
     path: Path
     params: dict[str, Any]
     stages: dict[str, StageSpec]
+    limits: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------- the file's model
@@ -160,6 +164,7 @@ class _File(BaseModel):
     model_config = ConfigDict(extra="forbid")
     format: Literal["prt-stages/2"]
     params: dict[str, Any] = {}
+    limits: dict[str, tuple[float, float]] = {}
     stages: dict[str, _Stage] = {}
 
 
@@ -228,6 +233,7 @@ def load_stagefile(path: str | Path | None = None,
     ``fragments``; raise PrtError naming the file and the key."""
     path = Path(path) if path else default_stagefile_path()
     params: dict[str, Any] = {}
+    limits: dict[str, tuple[float, float]] = {}
     stages: dict[str, StageSpec] = {}
     owner: dict[str, Path] = {}
     for file in (path, *fragments):
@@ -236,6 +242,12 @@ def load_stagefile(path: str | Path | None = None,
             if key in params:
                 raise PrtError(file, f"params.{key}: already declared in {owner[key]}")
             params[key], owner[key] = value, file
+        for key, (low, high) in doc.limits.items():
+            if key not in params or key in limits or not low <= high:
+                raise PrtError(file, f"limits.{key}: " + (
+                    "not a declared parameter" if key not in params else
+                    "already limited" if key in limits else f"{low} > {high}"))
+            limits[key] = (low, high)
         for name, s in doc.stages.items():
             if name in stages:
                 raise PrtError(file, f"stages.{name}: already declared in {owner[name]}")
@@ -245,7 +257,7 @@ def load_stagefile(path: str | Path | None = None,
             stages[name], owner[name] = spec, file
     for spec in stages.values():
         _check(spec, params, stages, owner[spec.name])
-    return StageFile(path, params, stages)
+    return StageFile(path, params, stages, limits)
 
 
 def _check(spec: StageSpec, params: dict[str, Any], stages: dict[str, StageSpec],

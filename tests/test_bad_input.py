@@ -137,12 +137,19 @@ def test_unknown_key(case: tuple[Path, Path]) -> None:
 @pytest.mark.parametrize(("name", "value", "expected"), [
     ("gather.count", "many", "is not an integer"), ("gather.count", "1e12", "is not an integer"),
     ("gather.count", 4096.0, "is not an integer"), ("brdf_basis.tolerance", "low", "a number"),
-    ("sg.fit_match_integral", 1, "true or false"), ("sg.fit_grid", 55, "a list")])
+    ("sg.fit_match_integral", 1, "true or false"), ("sg.fit_grid", 55, "a list"),
+    # issue 40 items 4 and 6: sizes that asked for 7.8 TiB, and an error without FILE
+    ("gather.count", 10 ** 12, "1000000000000 is outside 1..1048576"),
+    ("sg.fit_max_lobes", 0, "0 is outside 1..3"), ("gather.area_samples", -5, "outside"),
+    ("triple.frame_grid", [64, 0, 32], "0 is outside 2..512"),
+    ("sg.fit_spatial_weight", -0.5, "-0.5 is outside ≥ 0"),
+    ("brdf_basis.tolerance", float("nan"), "nan is outside 0..1")])
 def test_a_setting_of_the_wrong_kind(case: tuple[Path, Path], name: str, value: object,
                                      expected: str) -> None:
-    """A stage parameter given as text, or a float where the default is an integer, is one
-    error line naming the file, the setting and the default's kind (a traceback, or a
-    7.8 TiB allocation for gather.count: 1e12, before)."""
+    """A stage parameter given as text, or a float where the default is an integer, or a
+    number outside the parameter's limits (stages.yaml ``limits``; else finite and not
+    negative) is one error line naming the file, the setting and what it should be (a
+    traceback, or a 7.8 TiB allocation for gather.count: 10^12, before)."""
     scene, workdir = case
     before = snapshot(workdir)
     doc = load(scene)
@@ -293,3 +300,17 @@ def test_truncated_chunk(case: tuple[Path, Path]) -> None:
     before.pop(corrupted)
     after.pop(corrupted, None)
     assert after == before
+
+
+@pytest.mark.parametrize("address", ["bogus", "tcp://host", "host:99999", "local:0"])
+def test_a_malformed_scheduler_address_touches_nothing(case: tuple[Path, Path],
+                                                       address: str) -> None:
+    """Issue 40 item 4: ``--scheduler bogus`` was a traceback (dask's "missing port
+    number", exit 1) that left the ``--force``d stage partial. Now the address is read
+    before anything (and a remote scheduler reached before any stage is touched)."""
+    scene, workdir = case
+    before = snapshot(workdir)
+    message = error_line(prt("run", scene, "--workdir", workdir, "--force", "gbuffer",
+                             "--scheduler", address, "-q", cwd=scene.parent))
+    assert message.startswith("error: --scheduler: ") and repr(address) in message
+    assert snapshot(workdir) == before

@@ -193,14 +193,14 @@ def test_bad_scheduler_values_are_refused(text):
 
 
 def test_unreachable_scheduler_is_one_line(monkeypatch):
-    """A scheduler address nobody listens on: a one-line PrtError naming it."""
+    """A scheduler address nobody listens on: a one-line PrtError naming it, as the
+    executor is made (before a run touches any stage)."""
     import pipeline.dask_executor as dask_executor
 
     monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT", "2s")
-    with DaskExecutor("tcp://127.0.0.1:9") as executor, \
-            pytest.raises(PrtError, match="cannot reach the dask scheduler at "
-                                          "tcp://127.0.0.1:9") as info:
-        executor.client()
+    with pytest.raises(PrtError, match="cannot reach the dask scheduler at "
+                                       "tcp://127.0.0.1:9") as info:
+        DaskExecutor("tcp://127.0.0.1:9")
     assert "\n" not in str(info.value)
 
 
