@@ -40,14 +40,14 @@ def with_upstream(stagefile: StageFile, targets: list[str]) -> set[str]:
     return seen
 
 
-def camera_dependent(stagefile: StageFile) -> set[str]:
-    """The stages whose artifacts depend on the camera: those that read the scene's
-    ``camera`` section, and every stage downstream of one (their artifacts have the
-    image's size)."""
+def dependent_on(stagefile: StageFile, section: str) -> set[str]:
+    """The stages whose artifacts depend on the scene's ``section`` (``camera``,
+    ``environment``): those that read it or a key under it, and every stage downstream
+    of one."""
     out: set[str] = set()
     for name in topological_order(stagefile):
         spec = stagefile.stages[name]
-        if any(s == "camera" or s.startswith("camera.") for s in spec.scene) or \
+        if any(s == section or s.startswith(f"{section}.") for s in spec.scene) or \
                 any(dep in out for dep in spec.inputs):
             out.add(name)
     return out

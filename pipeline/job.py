@@ -39,14 +39,20 @@ def workdir_for(scene: Scene, workdir: str | Path | None,
                 stagefile: str | Path | None = None) -> Workdir:
     """``workdir`` or the default ``./.prt/<scene name>``. A scene resized at run time
     (``--size``, :attr:`Scene.view`) keeps its camera-dependent artifacts (those of the
-    stage graph, ``stagefile`` or the project's) under ``views/<W>x<H>/`` there, so that
-    they never replace the bake at the scene file's own size."""
-    from pipeline.graph import camera_dependent
+    stage graph, ``stagefile`` or the project's) under ``views/<W>x<H>/`` there, and one
+    lit by another map (``--env``, :attr:`Scene.environment_view`) its
+    environment-dependent ones under ``views/env-<map>/``, so that a preview never
+    replaces the bake of the scene file."""
+    from pipeline.graph import dependent_on
 
     root = workdir or Path(".prt") / scene.name
-    if scene.view is None:
+    views = [(name, section) for name, section in ((scene.view, "camera"),
+                                                   (scene.environment_view, "environment"))
+             if name is not None]
+    if not views:
         return Workdir(root)
-    return Workdir(root, scene.view, camera_dependent(stages(stagefile)))
+    graph = stages(stagefile)
+    return Workdir(root, [(name, dependent_on(graph, section)) for name, section in views])
 
 
 def stages(stagefile: str | Path | None = None) -> StageFile:

@@ -9,7 +9,9 @@ what stage keys hash. Run-time edits of a loaded scene are in :mod:`pipeline.sce
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -135,6 +137,7 @@ class Scene:
     raw: dict[str, Any]
     methods: tuple[str, ...] | None = None
     resized_from: tuple[int, int] | None = None
+    relit_from: Path | None = None  # the file's own map, when --env lit it by another
 
     def with_image_size(self, width: int, height: int) -> Scene:
         """The same scene rendered at ``width`` × ``height`` pixels."""
@@ -159,6 +162,19 @@ class Scene:
         if self.resized_from is None:
             return None
         return f"{self.camera.width}x{self.camera.height}"
+
+    @property
+    def environment_view(self) -> str | None:
+        """``"env-<stem>-<digest>"`` (the new map's file name and 8 hex digits of its
+        path) when the scene is lit at run time by another map than its file's
+        (``--env``), else None: the environment-dependent artifacts of such a view are
+        kept apart as :attr:`view`'s are."""
+        file = self.environment_file()
+        if self.relit_from is None or file is None or file == self.relit_from:
+            return None
+        digest = hashlib.sha256(str(file).encode()).hexdigest()[:8]
+        stem = re.sub(r"[^A-Za-z0-9_.-]", "_", file.stem)[:40]
+        return f"env-{stem}-{digest}"
 
     def with_settings(self, overrides: dict[str, Any]) -> Scene:
         """The same scene with stage-parameter ``overrides`` added to its settings."""

@@ -107,8 +107,8 @@ def with_camera_position(scene: Scene, position: tuple[float, float, float]) -> 
 
 def with_environment_file(scene: Scene, path: str | Path) -> Scene:
     """The scene lit by the map ``path`` instead of its environment lights' files (its
-    rotation and scale kept). A method that bakes the map (triple) re-bakes its lighting
-    for the new file's content."""
+    rotation and scale kept). A method that bakes the map (triple, sg) bakes its lighting
+    for the new file apart (:attr:`Scene.environment_view`), never over the file's own."""
     if not any(light.type == "environment" for light in scene.lights):
         raise PrtError(scene.path, "the scene has no environment light to give a map")
     file = Path(path).resolve()
@@ -118,4 +118,5 @@ def with_environment_file(scene: Scene, path: str | Path) -> Scene:
               if light.type == "environment" else light for light in scene.lights]
     raw = [{**r, "file": str(file)} if r["type"] == "environment" else r
            for r in scene.raw["lights"]]
-    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw},
+                   relit_from=scene.relit_from or scene.environment_file())

@@ -9,6 +9,9 @@ Layout of a work directory (default ``./.prt/<scene name>/``)::
                              (same layout) of the scene resized at run time to W × H
                              (``--size``); the stages that do not read the camera
                              (geometry, brdf_basis) are shared with the file's own size
+    views/env-<map>/         likewise the environment-dependent stages' of a scene lit
+                             at run time by another map (``--env``); a stage that
+                             depends on both goes under views/<W>x<H>+env-<map>/
     .tmp/                    whole writes in progress (references), renamed into place
     .lock                    held by the one run that may write here
 
@@ -42,22 +45,23 @@ RECORD_FORMAT = 1
 class Workdir:
     """A work directory holding one scene's artifacts.
 
-    ``view`` (``"WxH"``, see :attr:`pipeline.scene.Scene.view`) with ``view_stages``
-    (the stages that depend on the camera) places those stages' artifacts and chunk
-    records under ``views/<view>/``: bakes at several image sizes coexist in one work
-    directory, sharing what does not depend on the camera, under one lock."""
+    ``views``: (name, stages) pairs, e.g. (``"64x48"``, the camera-dependent stages) for
+    a scene resized at run time (:attr:`pipeline.scene.Scene.view`) or (``"env-NAME"``,
+    the environment-dependent stages) for one lit by another map
+    (:attr:`pipeline.scene.Scene.environment_view`). A stage in some of them keeps its
+    artifact and chunk records under ``views/<their names joined by +>/``: previews at
+    other sizes or under other maps coexist with the file's own bake in one work
+    directory, sharing what they do not change, under one lock."""
 
-    def __init__(self, root: str | Path, view: str | None = None,
-                 view_stages: Iterable[str] = ()) -> None:
+    def __init__(self, root: str | Path,
+                 views: Iterable[tuple[str, Iterable[str]]] = ()) -> None:
         self.root = Path(root).absolute()
-        self.view = view
-        self.view_stages = frozenset(view_stages) if view else frozenset()
+        self.views = tuple((name, frozenset(stages)) for name, stages in views)
 
     def folder(self, stage: str) -> Path:
         """Where ``stage``'s artifact and chunk records live."""
-        if stage in self.view_stages:
-            return self.root / "views" / str(self.view)
-        return self.root
+        names = [name for name, stages in self.views if stage in stages]
+        return self.root / "views" / "+".join(names) if names else self.root
 
     def artifact(self, name: str) -> Path:
         return self.folder(name) / f"{name}.zarr"

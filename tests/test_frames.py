@@ -15,7 +15,7 @@ import pytest
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.graph import camera_dependent, with_upstream
+from pipeline.graph import dependent_on, with_upstream
 from pipeline.images import read_exr
 from pipeline.render.emitters import EmitterOverlay, moved_quads
 from pipeline.scene import Camera, load_scene
@@ -63,7 +63,7 @@ def test_camera_dependent_stages():
     downstream; geometry and the BRDF bases are shared. triple.atlas sizes textures by
     the objects' size on screen, so it and the visibility read from it are kept per
     size too."""
-    assert camera_dependent(load_stagefile()) == {
+    assert dependent_on(load_stagefile(), "camera") == {
         "gbuffer", "d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce",
         "d2i.truncate", "d2i.truncate_t", "d2i.truncate_ms", "triple.atlas",
         "triple.visibility"}
@@ -71,7 +71,7 @@ def test_camera_dependent_stages():
 
 def test_workdir_places_a_resized_scenes_camera_artifacts_apart(tmp_path):
     scene = load_scene(write_scene(tmp_path, small_scene_dict(size=16)))
-    assert scene.view is None and job.workdir_for(scene, tmp_path).view is None
+    assert scene.view is None and job.workdir_for(scene, tmp_path).views == ()
     small = scene.with_image_size(8, 4)
     wd = job.workdir_for(small, tmp_path / "w")
     assert small.view == "8x4"
@@ -97,7 +97,7 @@ def test_size_preview_keeps_the_files_bake(baked, tmp_path):
     graph = load_stagefile()
     baked_here = with_upstream(graph, sorted(job.baked_stages(load_scene(scene))))
     assert sorted(p.name for p in view.glob("*.zarr")) == sorted(
-        f"{s}.zarr" for s in camera_dependent(graph) & baked_here)
+        f"{s}.zarr" for s in dependent_on(graph, "camera") & baked_here)
     assert _records(workdir) == before  # same keys, not rewritten
     status = _status(scene, workdir, frames)
     assert {s["state"] for s in status["stages"]} == {"fresh"}

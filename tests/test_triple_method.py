@@ -237,3 +237,48 @@ def test_a_sun_twelve_orders_brighter_than_the_sky_gives_no_negative_pixel(tmp_p
     frame = render(load_scene(write_scene(tmp_path, doc)), tmp_path / "w", tmp_path / "o.exr")
     assert np.isfinite(frame.rgb).all() and frame.rgb.min() >= 0.0
     assert frame.rgb.max() > 1e6  # the sun's light is there
+
+
+@pytest.mark.parametrize("method", ["triple", "sg"])
+def test_an_env_preview_keeps_its_own_lighting(tmp_path, method):
+    """Issue 40 item 5: ``prt render --env B`` re-baked the scene's lighting for B in
+    place, so ``prt status`` blamed "environment.file changed" and the next plain
+    render baked A's again (40–65 s). Now B's environment-dependent artifacts go under
+    ``views/env-b-*/``: the file's own bake is untouched (byte for byte), stays fresh,
+    and a second ``--env B`` preview bakes nothing."""
+    import hashlib
+    import json
+
+    from tiny_scenes import SETTINGS as TINY
+
+    def prt(*args) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "pipeline", *map(str, args)],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=600)
+
+    def files(views: bool = False) -> dict[str, tuple[str, int]]:
+        """(sha256, mtime) of the file's own bake, or of the views' artifacts."""
+        return {str(p.relative_to(work)): (hashlib.sha256(p.read_bytes()).hexdigest(),
+                                           p.stat().st_mtime_ns)
+                for p in sorted(work.rglob("*")) if p.is_file()
+                and (p.relative_to(work).parts[0] == "views") == views
+                and p.relative_to(work).parts[0] not in (".lock", ".tmp")}
+
+    a, b = sky(tmp_path / "a.exr"), sky(tmp_path / "b.exr", roll=5)
+    doc = small_scene_dict(8)
+    doc["methods"], doc["settings"] = [method], TINY[method]
+    doc["lights"] = [{"type": "environment", "file": str(a)}]
+    scene, work = write_scene(tmp_path, doc), tmp_path / "w"
+    assert prt("render", scene, "--workdir", work, "--out", tmp_path / "a.exr.out.exr",
+               "-q").returncode == 0
+    before = files()
+    preview = prt("render", scene, "--env", b, "--workdir", work, "--out",
+                  tmp_path / "b_out.exr", "-q")
+    assert preview.returncode == 0, preview.stderr
+    assert files() == before
+    assert any(p.name.startswith("env-b-") for p in (work / "views").iterdir())
+    status = json.loads(prt("status", scene, "--workdir", work, "--json").stdout)
+    assert all(s["state"] == "fresh" for s in status["stages"]), status["stages"]
+    previewed = files(views=True)
+    again = prt("render", scene, "--env", b, "--workdir", work, "--out",
+                tmp_path / "b_again.exr", "-q")
+    assert again.returncode == 0 and files(views=True) == previewed
