@@ -33,6 +33,11 @@ def check_writable(path: str | Path) -> None:
     (or is made now) and a file can be created in it. Called before any work, so that a
     read-only output folder is reported before a bake, not after."""
     path = Path(path)
+    blocking = next((a for a in path.parents if a.exists() and not a.is_dir()), None)
+    if blocking is not None:
+        raise PrtError(path, f"cannot write an image here: {blocking} is a file, not a folder")
+    if path.is_dir():
+        raise PrtError(path, "cannot write an image here: a folder of that name exists")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         probe = _temporary(path)
@@ -170,6 +175,9 @@ def read_environment(path: str | Path) -> np.ndarray:
     :data:`LARGEST_RADIANCE`. Raise
     PrtError naming the file and the first offending texel otherwise: a NaN, Inf or
     negative texel would light a whole scene with garbage."""
+    if Path(path).suffix.lower() not in (".exr", ".hdr"):
+        raise PrtError(path, "an environment map must be an OpenEXR (.exr) or Radiance "
+                       "(.hdr) file of linear radiance (PNG or JPEG hold display values)")
     rgb = read_image(path)
     height, width = rgb.shape[:2]
     if width != 2 * height:

@@ -53,12 +53,15 @@ class NotApplicable(PrtError):
 @dataclass(frozen=True)
 class Option:
     """A run-time option of a method's renderer (``prt render --option NAME=VALUE``):
-    its name, type (int, float, str), default and one-line help."""
+    its name, type (int, float, str), default and one-line help; a number's ``least``
+    value, a text's ``choices``."""
 
     name: str
     type: type
     default: Any
     help: str
+    least: float | None = None
+    choices: tuple[str, ...] = ()
 
     def parse(self, text: str) -> Any:
         try:
@@ -68,6 +71,12 @@ class Option:
                            f"{self.type.__name__}") from None
         if isinstance(value, float) and not math.isfinite(value):
             raise PrtError("--option", f"{self.name}={text!r}: expected a finite number")
+        if self.least is not None and value < self.least:
+            raise PrtError("--option", f"{self.name}={text!r}: expected a number >= "
+                           f"{self.least:g}")
+        if self.choices and value not in self.choices:
+            raise PrtError("--option", f"{self.name}={text!r}: expected one of "
+                           f"{', '.join(self.choices)}")
         return value
 
 

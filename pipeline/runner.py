@@ -317,6 +317,8 @@ def plan_stage(spec: StageSpec, scene: Scene, stagefile: StageFile, workdir: Wor
                    "scene": dict(sorted(scene_digests.items())),
                    "chunks": digest([[c.id, c.coords] for c in chunks])}  # ids, extents
     p.state, p.reason = _state(workdir.artifact(spec.name), p.key, p.key_parts)
+    if p.reason.startswith("incomplete") and workdir.in_use():
+        p.reason = "incomplete: another prt run is writing it now"
     return p
 
 
@@ -358,7 +360,8 @@ def _state(path: Path, key: str, parts: dict[str, Any]) -> tuple[str, str]:
     if record is None:
         return "missing", "not built yet"
     if record.get("complete") is False:
-        return "stale", "incomplete: an earlier run was interrupted; it resumes"
+        return "stale", ("incomplete: an earlier run stopped before finishing it "
+                         "(interrupted or failed); the next run resumes it")
     if record.get("key") == key:
         return "fresh", ""
     return "stale", explain_change(record.get("key_parts") or {}, parts)
@@ -481,7 +484,7 @@ def _check_finite(task: ChunkTask, arrays: dict[str, Any]) -> None:
         data = value.data if isinstance(value, Block) else np.asarray(value)
         if data.dtype.kind in "fc" and not np.isfinite(data).all():
             count = int(data.size - np.isfinite(data).sum())
-            raise PrtError(task.marker, f"stage {task.stage}, chunk {task.chunk.id}: array "
+            raise PrtError(task.output[0], f"stage {task.stage}, chunk {task.chunk.id}: array "
                            f"{name} has {count} NaN or Inf values; nothing was stored (check "
                            "the stage's inputs, parameters and scene)")
 

@@ -130,15 +130,17 @@ def _is_number(value: Any) -> bool:
 
 
 def _number(value: Any, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
-            at: str = "") -> float:
-    """A finite number in ``[lo, hi]`` (``(lo, hi]`` when ``lo_open``), as float."""
+            at: str = "", hi_open: bool = False) -> float:
+    """A finite number in ``[lo, hi]`` (open at ``lo`` or ``hi`` when ``lo_open``,
+    ``hi_open``), as float."""
     if not _is_number(value):
         raise _problem(f"expected a number, found {value!r}", at)
     x = float(value)
     if not math.isfinite(x):
         raise _problem(f"expected a finite number, found {value!r}", at)
-    if x < lo or x > hi or (lo_open and x == lo):
-        bound = f"> {lo:g}" if lo_open else f"in [{lo:g}, {hi:g}]"
+    if x < lo or x > hi or (lo_open and x == lo) or (hi_open and x == hi):
+        bound = (f"> {lo:g}" if lo_open and math.isinf(hi) else
+                 f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}")
         raise _problem(f"expected a number {bound}, found {value!r}", at)
     return x
 
@@ -359,7 +361,8 @@ class _CameraFile(_Section):
     position: Point
     look_at: Point
     up: Direction = (0.0, 1.0, 0.0)
-    fov: Annotated[float, PlainValidator(lambda v: _number(v, 0.0, 180.0, lo_open=True))]
+    fov: Annotated[float, PlainValidator(lambda v: _number(v, 0.0, 180.0, lo_open=True,
+                                                          hi_open=True))]
     width: Annotated[int, PlainValidator(_image_side)]
     height: Annotated[int, PlainValidator(_image_side)]
 

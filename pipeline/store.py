@@ -96,6 +96,21 @@ class Workdir:
             return False
         return True
 
+    def in_use(self) -> bool:
+        """Whether another process holds this work directory's lock (a run writing
+        here now); False where this process holds it or nothing can be read."""
+        if _HELD.get(self.root):
+            return False
+        try:
+            with open(self.root / ".lock", "rb") as handle:
+                fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                fcntl.flock(handle, fcntl.LOCK_UN)
+        except BlockingIOError:
+            return True
+        except OSError:
+            return False
+        return False
+
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:
         """Hold an exclusive lock for a run; fail clearly if another run holds it."""
@@ -110,10 +125,15 @@ class Workdir:
             # can be writing now, so they are safe to drop.
             for leftover in self.tmp.iterdir():
                 shutil.rmtree(leftover, ignore_errors=True)
+            _HELD[self.root] = _HELD.get(self.root, 0) + 1
             try:
                 yield
             finally:
+                _HELD[self.root] -= 1
                 fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+_HELD: dict[Path, int] = {}  # the work directories whose lock this process holds
 
 
 def software_versions() -> dict[str, str]:

@@ -46,7 +46,7 @@ def load_yaml(path: Path, text: str | None = None) -> Any:
     naming the file for malformed YAML (with line and column), a key repeated within one
     mapping, or a file that is not text."""
     try:
-        text = path.read_text() if text is None else text
+        text = path.read_text(encoding="utf-8") if text is None else text
         return yaml.load(text, Loader=_StrictLoader)
     except _DuplicateKey as exc:
         raise PrtError(path, exc.message) from None
@@ -55,5 +55,11 @@ def load_yaml(path: Path, text: str | None = None) -> Any:
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise PrtError(path, f"malformed YAML: {where}{problem}") from None
-    except UnicodeDecodeError:
-        raise PrtError(path, "not a text file") from None
+    except UnicodeDecodeError as exc:
+        raw = exc.object[:exc.start]
+        line = raw.count(b"\n") + 1
+        column = exc.start - (raw.rfind(b"\n") + 1) + 1
+        binary = b"\0" in exc.object[:4096]
+        raise PrtError(path, "not a text file" if binary else
+                       f"not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at line {line}, "
+                       f"column {column}): save it as UTF-8") from None

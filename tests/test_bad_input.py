@@ -314,3 +314,57 @@ def test_a_malformed_scheduler_address_touches_nothing(case: tuple[Path, Path],
                              "--scheduler", address, "-q", cwd=scene.parent))
     assert message.startswith("error: --scheduler: ") and repr(address) in message
     assert snapshot(workdir) == before
+
+
+# ------------------------------------------------- issue 40 item 6: refused with the right words
+
+
+@pytest.mark.parametrize(("option", "expected"), [
+    ("max_bounces=-1", "max_bounces='-1': expected a number >= 0"),
+    ("bounce_tolerance=-5", "bounce_tolerance='-5': expected a number >= 0"),
+    ("shadows=gpu", "shadows='gpu': expected one of device, embree, auto")])
+def test_a_run_time_option_out_of_range(case: tuple[Path, Path], option: str,
+                                        expected: str) -> None:
+    """``--option max_bounces=-1`` rendered (as 0); now refused before any bake."""
+    scene, workdir = case
+    before = snapshot(workdir)
+    message = error_line(prt("render", scene, "--workdir", workdir, "--option", option,
+                             "--out", scene.parent / "x.exr", "-q", cwd=scene.parent))
+    assert message == f"error: --option: {expected}"
+    assert snapshot(workdir) == before and not (scene.parent / "x.exr").exists()
+
+
+def test_a_scene_file_not_in_utf8(case: tuple[Path, Path]) -> None:
+    """A Latin-1 scene file said "not a text file"; now where and what to do."""
+    scene, workdir = case
+    bad = scene.with_name("latin1.yaml")
+    bad.write_bytes(scene.read_bytes().replace(b"name: ", b"name: caf\xe9", 1))
+    message = error_line(run_scene(bad, workdir))
+    assert message.startswith(f"error: {bad}: not UTF-8 text (byte 0xe9 at line ")
+    assert message.endswith("save it as UTF-8")
+
+
+def test_an_output_path_under_a_file(case: tuple[Path, Path]) -> None:
+    """``--out FILE/x.exr`` said "(File exists)"; now which path is in the way."""
+    scene, workdir = case
+    blocking = scene.parent / "afile"
+    blocking.write_text("")
+    message = error_line(prt("render", scene, "--workdir", workdir, "--out",
+                             blocking / "x.exr", "-q", cwd=scene.parent))
+    assert message == (f"error: {blocking / 'x.exr'}: cannot write an image here: "
+                       f"{blocking} is a file, not a folder")
+
+
+def test_a_png_environment_map(tmp_path: Path) -> None:
+    """A PNG map said "cannot read EXR"; a PNG holds display values, not radiance."""
+    from PIL import Image
+
+    png = tmp_path / "sky.png"
+    Image.new("RGB", (16, 8), (120, 160, 220)).save(png)
+    doc = load(SCENES / "bunny_grace.yaml")
+    doc["lights"] = [{"type": "environment", "file": str(png)}]
+    scene = dump(doc, tmp_path / "png_env.yaml")
+    message = error_line(prt("run", scene, "--workdir", tmp_path / "w", "-q", cwd=tmp_path))
+    assert message.startswith(f"error: {png}: an environment map must be an OpenEXR (.exr) "
+                              "or Radiance (.hdr) file")
+    assert not (tmp_path / "w").exists()

@@ -95,6 +95,14 @@ def test_status_and_inspect_show_partial_progress(tmp_path):
     (row,) = summary["artifacts"]
     assert (row["state"], row["chunks_done"], row["chunks"]) == ("partial", 2, 3)
     assert "partial  2/3 chunks" in prt("inspect", wd.root).stdout
+    # issue 40 item 6: while another run holds the work directory, the partial stage
+    # is being written, not "interrupted"
+    reason = {r["name"]: r["reason"] for r in rows}["brdf_basis"]
+    assert "stopped before finishing it (interrupted or failed)" in reason
+    with wd.lock():  # as a run writing it now holds it (prt status: another process)
+        rows = json.loads(prt("status", scene, "--workdir", wd.root, "--json").stdout)
+    reason = {r["name"]: r["reason"] for r in rows["stages"]}["brdf_basis"]
+    assert reason == "incomplete: another prt run is writing it now", reason
 
 
 def test_inspect_refuses_a_folder_without_artifacts(tmp_path):

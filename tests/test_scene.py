@@ -172,7 +172,13 @@ def _set(path: str, value):
     (_set("format", "prt-scene/2"), "format: expected 'prt-scene/1', found 'prt-scene/2'"),
     (_set("name", "a b"), "name: expected a name of letters, digits, '_' or '-', found 'a b'"),
     (_set("camera", [1]), "camera: expected a mapping, found list"),
-    (_set("camera.fov", 0), "camera.fov: expected a number > 0, found 0"),
+    (_set("camera.fov", 0), "camera.fov: expected a number in (0, 180), found 0"),
+    # issue 40 item 6: 180 was accepted (nothing renders at 180); a spot's 100 was
+    # refused as "expected a number > 0"
+    (_set("camera.fov", 180), "camera.fov: expected a number in (0, 180), found 180"),
+    (_set("lights", [{"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0],
+                      "intensity": [1, 1, 1], "angle": 100}]),
+     "lights[0].angle: expected a number in (0, 90], found 100"),
     (_set("camera.fov", "x"), "camera.fov: expected a number, found 'x'"),
     (_set("camera.fov", float("nan")), "camera.fov: expected a finite number, found nan"),
     (_set("camera.width", 2.5), "camera.width: expected an integer, found 2.5"),

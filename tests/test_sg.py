@@ -236,3 +236,27 @@ def test_env_kernel_matches_numpy(prefiltered):
            cl.read_only_buffer(lam32), cl.read_only_buffer(w32), np.int32(len(mu)), out=out)
     rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
     assert rel.max() < 1e-4, rel.max()
+
+
+def test_a_lobe_too_sharp_for_the_fit_grid_is_refused_before_any_bake(tmp_path):
+    """Issue 40 item 6: γ 20000 on a [9, 18] fit grid passed validation, then sg.fit
+    divided by a zero norm (NumPy warnings) and failed naming a chunk marker. Now one
+    line names the scene and the material, and says which grid would sample it."""
+    import subprocess
+    import sys
+
+    import yaml
+    from tiny_scenes import tiny_scene
+
+    scene = tiny_scene(tmp_path, "sg").path
+    doc = yaml.safe_load(scene.read_text())
+    doc["materials"]["shiny"].update(gamma=20000, gamma_range=[3, 30000])
+    scene.write_text(yaml.safe_dump(doc))
+    result = subprocess.run([sys.executable, "-m", "pipeline", "render", str(scene), "--out",
+                             str(tmp_path / "x.exr"), "--workdir", str(tmp_path / "w")],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and "Warning" not in result.stderr, result.stderr
+    line = result.stderr.strip()
+    assert line.startswith(f"error: {scene}: materials.shiny: its glossy lobe") and \
+        "sg.fit_grid [9, 18]" in line and "\n" not in line
+    assert not (tmp_path / "w").exists()

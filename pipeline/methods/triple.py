@@ -62,8 +62,10 @@ METHOD = Method(
     reference="env-direct",
     headline="rel_rmse_surfaces",
     options=(
-        Option("budget", int, 0, "coefficients per function at most (0: as stored)"),
-        Option("selection", str, "top-only", "top-only or adaptive: which a budget keeps"),
+        Option("budget", int, 0, "coefficients per function at most (0: as stored)",
+               least=0),
+        Option("selection", str, "top-only", "top-only or adaptive: which a budget keeps",
+               choices=("top-only", "adaptive")),
     ),
     sequences="pipeline.methods.triple:sequence",
     main_sequences=("rotate:8",),
