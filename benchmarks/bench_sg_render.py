@@ -165,6 +165,7 @@ def breakdown(tables: Any, geometry: dict, scene: Any, repeats: int) -> dict[str
     from pipeline.render import sg as render
 
     gbuffer = render.camera_gbuffer(render.RayTracer(geometry["vertices"], geometry["faces"]),
+                                    geometry["vertices"],
                                     np.asarray(geometry["faces"]), scene.camera)
     devices = {n: render.SgDevice(dataclasses.replace(
         tables, count=np.minimum(tables.count, n).astype(np.uint8))) for n in (3, 2, 1, 0)}

@@ -8,6 +8,7 @@ truncated frame.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -80,6 +81,31 @@ def write_png(path: str | Path, rgb: np.ndarray, exposure: float = 1.0) -> None:
     except OSError as exc:
         raise PrtError(path, f"cannot write image ({exc.strerror or exc})") from None
 
+
+PREVIEW_GREY = 0.18  # the display value a preview's mean luminance is brought to
+
+
+def exposure_note(rgb: np.ndarray, exposure: float) -> str | None:
+    """A note when the PNG preview of linear ``rgb`` × 2^``exposure`` is far below the
+    display range — mean luminance under 1/16 of middle grey (:data:`PREVIEW_GREY`), so
+    that an sRGB preview is nearly black — saying which ``--exposure`` brings the mean to
+    middle grey without pushing more than 1 % of the pixels past white; or that the frame
+    is black. None when the preview is readable."""
+    from pipeline.math.envmap import LUMINANCE
+
+    luminance = np.asarray(rgb, np.float64).reshape(-1, 3) @ np.asarray(LUMINANCE)
+    mean = float(luminance.mean()) if luminance.size else 0.0
+    if mean <= 0.0:
+        return "the frame is black (no pixel has any light)"
+    shown = mean * 2.0 ** exposure
+    if shown >= PREVIEW_GREY / 16:
+        return None
+    bright = float(np.percentile(luminance, 99))
+    stops = min(math.log2(PREVIEW_GREY / mean), math.log2(1.0 / bright) if bright > 0
+                else math.inf)
+    better = max(math.floor(stops), math.ceil(exposure) + 1)
+    return (f"the preview is dark (mean luminance {shown:.2g} at {exposure:+g} EV): "
+            f"--exposure {better} shows it")
 
 def read_exr(path: str | Path) -> np.ndarray:
     """Read the RGB channels of an EXR as (height, width, 3) float32."""

@@ -192,7 +192,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     the same ``options``); default: one built for this frame. ``baked``: the report of
     the bake the caller has just run for this method (nothing is planned again); None:
     bake first."""
-    from pipeline.images import check_writable
+    from pipeline.images import check_writable, exposure_note
     from pipeline.method import check_method_scene
 
     m = get_method(method)
@@ -211,6 +211,9 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
     frame = checked_frame(renderer(scene), out)
     write_frame(out, frame.rgb, exposure)
+    dark = exposure_note(frame.rgb, exposure)
+    if dark:
+        frame.notes.append(dark)
     write_output_record(meta, key, [out, png], {"method": method, "exposure": exposure,
                                                 **frame.timings})
     return RenderResult(out, png, frame, baked)

@@ -232,6 +232,7 @@ def test_the_glossy_and_diffuse_components_add_up_to_the_frame_less_its_backgrou
     whole, glossy, diffuse = (frame_of(scene, geometry, tables, small_map, 30.0, c).rgb
                               for c in ("all", "glossy", "diffuse"))
     miss = render.camera_gbuffer(render.RayTracer(geometry["vertices"], geometry["faces"]),
+                                 geometry["vertices"],
                                  np.asarray(geometry["faces"]), scene.camera).miss_pixel
     background = np.zeros(whole.shape[:2], bool).ravel()
     background[miss] = True
@@ -260,7 +261,7 @@ def test_a_constant_lobe_integrates_the_map_as_quadrature_does(sg_scene, small_m
         expected = sg.env_integral_reference(small_map, (mu @ rotation_y(degrees))[None],
                                              np.array([lam]), np.array([weight]))[0]
         hit = frame.rgb.reshape(-1, 3)[render.camera_gbuffer(
-            render.RayTracer(geometry["vertices"], geometry["faces"]),
+            render.RayTracer(geometry["vertices"], geometry["faces"]), geometry["vertices"],
             np.asarray(geometry["faces"]), scene.camera).pixel]
         assert len(hit) > 100
         np.testing.assert_allclose(hit, np.broadcast_to(expected, hit.shape), rtol=0.03)
@@ -305,7 +306,8 @@ class FakeArtifact:
 def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, FakeArtifact]:
     flat, info = sg.pack_stack(tables.stack)
     lv = tables.levels
-    return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "faces")}),
+    return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "faces",
+                                                              "face_object")}),
             "sg.relax": FakeArtifact({"views": view_directions(), "lobes": tables.lobes,
                                     "first": tables.first[:-1], "count": tables.count,
                                     "error": np.zeros((len(tables.count), len(

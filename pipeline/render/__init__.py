@@ -45,6 +45,38 @@ def camera_key(cam) -> tuple:
             cam.height)
 
 
+BACK_FACE_SHARE = 0.01  # the share of an object's shaded pixels that makes a note
+
+
+def sees_back(directions: np.ndarray, face_normal: np.ndarray) -> np.ndarray:
+    """Whether each camera ray of ``directions`` (P, 3) meets the back of its hit face,
+    of normal ``face_normal`` (P, 3) as wound (outward for a closed mesh wound
+    counter-clockwise seen from outside): (P,) bool."""
+    return np.einsum("ij,ij->i", np.asarray(directions, np.float64),
+                     np.asarray(face_normal, np.float64)) > 0.0
+
+
+def back_face_notes(method: str, back: np.ndarray, objects: np.ndarray,
+                    names: list[str]) -> list[str]:
+    """A note naming the objects of which more than :data:`BACK_FACE_SHARE` of the
+    shaded pixels see the back of their face (``back`` (P,) bool, ``objects`` (P,) the
+    pixels' object indices into ``names``). For a method that bakes light on the side a
+    face's normal points to (triple's visibility, sg's transport), such pixels — a mesh
+    wound inward, or the camera inside a closed object — are lit as if seen from the
+    front, where the reference (two-sided for the camera) sees the shadowed or dark
+    side."""
+    seen = np.bincount(objects, minlength=len(names))
+    backs = np.bincount(objects[back], minlength=len(names))
+    objects = [f"{names[i]} {backs[i] / seen[i]:.0%}" for i in np.flatnonzero(seen)
+               if backs[i] > BACK_FACE_SHARE * seen[i]]
+    if not objects:
+        return []
+    return [f"{', '.join(objects)} of the pixels see the back of a face (a mesh wound "
+            f"inward, or the camera inside a closed object): method {method} bakes light "
+            "on the side each face's normal points to, so those pixels are not what the "
+            "reference shows; wind the mesh outward (counter-clockwise seen from "
+            "outside) or move the camera"]
+
 def scatter_pixels(image: np.ndarray, pixel: np.ndarray, values: np.ndarray) -> None:
     """``image`` (H·W, 3) float32 rows ``pixel`` (P,) set to ``values`` (P, 3) float32,
     each row moved as one 12-byte record (≈ 2.3× faster than NumPy's fancy index over

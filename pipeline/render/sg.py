@@ -60,7 +60,7 @@ from pipeline.math.envmap import rotation_y
 from pipeline.math.geodesic import icosahedron
 from pipeline.math.sg_transport import view_directions
 from pipeline.raytrace import RayTracer
-from pipeline.render import DeviceImage, Frame, camera_key
+from pipeline.render import DeviceImage, Frame, back_face_notes, camera_key, sees_back
 from pipeline.render.triple_gbuffer import WORK_GROUP
 from pipeline.scene import Scene
 from pipeline.stages.env_prefilter import read_stack
@@ -355,7 +355,8 @@ class SgGBuffer:
     """One camera's pixels: ``pixel`` (P,) flat indices that hit, their face's vertices
     ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), view triangles ``view`` (P, 3)
     and ``view_weight`` (P, 3); ``miss_pixel``/``miss_direction`` (M, 3) world ray
-    directions of the others; the milliseconds it took."""
+    directions of the others; the milliseconds it took; ``back`` (P,) whether the pixel
+    sees the back of its face and ``face`` (P,) the face."""
 
     pixel: np.ndarray
     corner: np.ndarray
@@ -366,6 +367,8 @@ class SgGBuffer:
     miss_direction: np.ndarray
     trace_ms: float
     view_lookup_ms: float
+    back: np.ndarray
+    face: np.ndarray
     device: dict[str, Any] = field(default_factory=dict)
 
     def buffers(self) -> dict[str, Any]:
@@ -378,7 +381,8 @@ class SgGBuffer:
         return self.device
 
 
-def camera_gbuffer(tracer: RayTracer, faces: np.ndarray, cam: Any) -> SgGBuffer:
+def camera_gbuffer(tracer: RayTracer, vertices: np.ndarray, faces: np.ndarray, cam: Any
+                   ) -> SgGBuffer:
     """Trace camera ``cam``'s rays; hits' faces and barycentrics, view triangles of
     ω_o = −ray direction (kernel ``sg_view_lookup``)."""
     t0 = time.perf_counter()
@@ -392,9 +396,11 @@ def camera_gbuffer(tracer: RayTracer, faces: np.ndarray, cam: Any) -> SgGBuffer:
     bary = np.ascontiguousarray(np.stack([1.0 - u - v, u, v], axis=1), np.float32)
     trace_ms = (time.perf_counter() - t0) * 1e3
     view, view_weight, lookup_ms = device_view_triangles(-directions[hit])
+    a, b, c = (np.asarray(vertices, np.float64)[corner[:, k]] for k in range(3))
+    back = sees_back(directions[hit], np.cross(b - a, c - a))
     return SgGBuffer(np.flatnonzero(hit), corner, bary, view, view_weight,
                      np.flatnonzero(~hit), np.ascontiguousarray(directions[~hit]),
-                     trace_ms, lookup_ms)
+                     trace_ms, lookup_ms, back, hits.prim[hit])
 
 
 def environment_light(scene: Scene) -> dict[str, Any]:
@@ -403,14 +409,16 @@ def environment_light(scene: Scene) -> dict[str, Any]:
 
 
 def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
-              env_map: np.ndarray, lambda_blend: str = "log", component: str = "all"
-              ) -> Callable[[Scene], Frame]:
+              env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
+              face_object: np.ndarray | None = None) -> Callable[[Scene], Frame]:
     """The frame function over loaded tables: each call traces its scene's camera (kept
     while the camera stays), reads the environment's rotation and scale, and shades
     (timings: gbuffer (trace + view lookup), sh (SH rotation and the vertices' diffuse
     radiance), shade, background). ``component`` (one of :data:`COMPONENTS`): ``all``,
     or the reflected light of one part, ``glossy`` (the lobes) or ``diffuse`` (the SH
-    term), without the background (as ``prt reference --lobe``)."""
+    term), without the background (as ``prt reference --lobe``). With ``face_object``
+    (F,), a frame notes the objects whose pixels see the backs of faces
+    (:func:`pipeline.render.back_face_notes`)."""
     if lambda_blend not in LAMBDA_BLENDS:
         raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
                        f"{', '.join(LAMBDA_BLENDS)}")
@@ -437,7 +445,7 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
         was_cached = key in cached
         if not was_cached:
             cached.clear()
-            cached[key] = camera_gbuffer(tracer, faces, cam)
+            cached[key] = camera_gbuffer(tracer, vertices, faces, cam)
         gbuffer = cached[key]
         pixels = gbuffer.buffers()
         t1 = time.perf_counter()
@@ -479,7 +487,9 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                    "kernel_ms": shade_ms + background_ms + scatter_ms,
                    "counted_kernel_ms": shade_ms, "setup_ms": (t2 - t0) * 1e3,
                    "total_ms": (t3 - t0) * 1e3}
-        return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, [],
+        notes = [] if face_object is None else back_face_notes(
+            "sg", gbuffer.back, face_object[gbuffer.face], list(scene.objects))
+        return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, notes,
                      kernel_bytes=kernel_bytes(tables, gbuffer.corner))
 
     return frame
@@ -494,4 +504,5 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
     vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
     tables = load_tables(artifacts, len(vertices))
     env_map = read_environment(environment_light(scene)["file"])
-    return sg_frames(tables, vertices, faces, env_map, lambda_blend, component)
+    return sg_frames(tables, vertices, faces, env_map, lambda_blend, component,
+                     np.asarray(geo.read("face_object")))

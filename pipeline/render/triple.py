@@ -62,7 +62,7 @@ from pipeline.math.sphwavelet import (
 )
 from pipeline.math.wavelet_rows import from_half
 from pipeline.raytrace import Mesh, RayTracer, Surface, surface_at
-from pipeline.render import DeviceImage, Frame, camera_key
+from pipeline.render import DeviceImage, Frame, back_face_notes, camera_key, sees_back
 from pipeline.render.triple_dense import DenseTables, dense_level
 from pipeline.render.triple_gbuffer import (
     WORK_GROUP,
@@ -421,9 +421,10 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
                                        normal_dtype=np.float32))
         s["normal"][which], s["tangent"][which] = shading.normal, shading.tangent
         material_b[which], blend[which] = shading.material_b, shading.blend
+    back = sees_back(directions[pixel], mesh.face_normal[hits.prim[pixel]])
     return GBuffer(cam.width, cam.height, pixel, s["normal"], s["tangent"], s["view"],
                    s["texel_xy"], s["object"], material, material_b, blend,
-                   np.flatnonzero(~hit), directions[~hit])
+                   np.flatnonzero(~hit), directions[~hit], back)
 
 
 def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
@@ -617,7 +618,8 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
                    "kernel_ms": shading_ms + background_ms + scatter_ms,
                    "counted_kernel_ms": shading_ms,
                    "setup_ms": (t_resample - t0) * 1e3, "total_ms": (t3 - t0) * 1e3}
-        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, [], moved,
+        notes = back_face_notes("triple", gbuffer.back, gbuffer.object, list(scene.objects))
+        return Frame("triple", rgb.reshape(cam.height, cam.width, 3), timings, notes, moved,
                      read_bytes=frame_tables.nbytes + atlas.nbytes)
 
     return frame

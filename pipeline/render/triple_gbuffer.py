@@ -62,6 +62,7 @@ class GBuffer:
     blend: np.ndarray
     miss_pixel: np.ndarray
     miss: np.ndarray
+    back: np.ndarray | None = None  # (P,) bool: the pixel sees the back of its face
     _angles: dict[tuple[FrameGrid, ViewGrid], list[Any]] = field(
         init=False, default_factory=dict, repr=False, compare=False)
 
