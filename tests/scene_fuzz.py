@@ -303,7 +303,7 @@ def settings_mutation(draw, case: Case) -> str:
 
     params = job.stages().params
     name = draw(st.sampled_from(sorted(params)))
-    default = case.doc["settings"].get(name, params[name])
+    default = SETTINGS.get(case.method, {}).get(name, params[name])
     if isinstance(default, bool):
         value = draw(st.one_of(st.booleans(), junk()))
     elif isinstance(default, int):

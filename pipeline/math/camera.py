@@ -15,7 +15,9 @@ def camera_frame(position, look_at, up) -> tuple[np.ndarray, np.ndarray, np.ndar
     """Unit (right, true_up, forward) vectors, float64."""
     forward = np.asarray(look_at, float) - np.asarray(position, float)
     forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(up, float))
+    up = np.asarray(up, float)
+    up = up / np.abs(up).max()  # exact scaling first: an up of 1e-300 keeps its digits
+    right = np.cross(forward, up / np.linalg.norm(up))
     norm = np.linalg.norm(right)
     if norm < 1e-12:
         raise ValueError("camera up is parallel to the view direction")
