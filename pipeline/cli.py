@@ -429,6 +429,7 @@ def methods_cmd(as_json) -> None:
             "description": m.description, "reads": list(m.reads), "reference": m.reference,
             "options": {o.name: {"type": o.type.__name__, "default": o.default,
                                  "help": o.help} for o in m.options},
+            "sequence_forms": list(m.sequence_forms),
             "main_sequences": list(m.main_sequences), "lights": list(m.lights),
             "materials": list(m.materials), "features": list(m.features)}
             for name, m in methods.items()}))
@@ -441,8 +442,10 @@ def methods_cmd(as_json) -> None:
                    f"{', '.join(m.features) or 'none'}")
         for o in m.options:
             click.echo(f"  --option {o.name}={o.default!r} ({o.type.__name__}): {o.help}")
-        if m.main_sequences:
-            click.echo(f"  sequences (--frames), e.g. {', '.join(m.main_sequences)}")
+        if m.sequence_forms:
+            runs = f" (prt run writes {', '.join(m.main_sequences)})" if m.main_sequences \
+                else ""
+            click.echo(f"  sequences (--frames): {', '.join(m.sequence_forms)}{runs}")
 
 
 @cli.command("devices")
@@ -498,8 +501,10 @@ def devices_text(info: dict) -> list[str]:
 @click.option("--frames", "sequence", metavar="SPEC", default=None,
               help="Also render a sequence of edits beside OUT (OUT_<kind>_0000.exr, ...), "
                    "as the method reads SPEC (d2i: light[:LIGHT]:N, LIGHT an index into "
-                   "lights or a quad light's object, moved around a horizontal circle; "
-                   "or gamma[:MATERIAL]:N). The path is printed.")
+                   "lights or a quad light's object, moved around a horizontal circle, "
+                   "or gamma[:MATERIAL]:N; triple: rotate:N (the map turns about +y), "
+                   "orbit:N (the camera circles its look_at) or gamma[:MATERIAL]:N; sg: "
+                   "rotate:N or orbit:N; `prt methods` lists them). The path is printed.")
 @click.option("--option", "options", metavar="NAME=VALUE", multiple=True,
               help="A run-time option of the method (repeatable; `prt methods` lists "
                    "them, e.g. d2i's max_bounces=4).")

@@ -116,6 +116,8 @@ class Method:
     item, a sentence describing the edit's path (printed, and kept in the sequence's
     record); it raises PrtError for a bad spec, :class:`NotApplicable` when the scene
     has nothing to edit.
+    ``sequence_forms``: every ``--frames`` spec form the sequences function reads
+    (``prt methods`` and ``prt render --help`` list them).
     ``main_sequences``: the sequences ``prt run`` renders beside the frame.
     ``evaluate_sweep``, ``evaluate_size``, ``evaluate_reference_spp``: what ``prt
     evaluate`` runs without options (bounded: a few minutes on two cores): the sweep, on
@@ -144,6 +146,7 @@ class Method:
     components: dict[str, Component] = field(default_factory=dict)
     options: tuple[Option, ...] = ()
     sequences: str | None = None
+    sequence_forms: tuple[str, ...] = ()
     main_sequences: tuple[str, ...] = ()
     evaluate_sweep: dict[str, list[Any]] = field(default_factory=dict)
     evaluate_size: int | None = None

@@ -66,6 +66,7 @@ METHOD = Method(
                choices=("gpu", "cpu", "auto")),
     ),
     sequences="pipeline.methods.d2i:sequence",
+    sequence_forms=("light[:LIGHT]:N", "gamma[:MATERIAL]:N"),
     main_sequences=("light:8", "gamma:8"),
     evaluate_sweep={"gather.count": [4096, 16384]},
     evaluate_size=96,

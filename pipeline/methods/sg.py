@@ -52,6 +52,7 @@ METHOD = Method(
                     "the lobes or by the SH term alone (no background)",
                     choices=("all", "glossy", "diffuse"))),
     sequences="pipeline.methods.sg:sequence",
+    sequence_forms=("rotate:N", "orbit:N"),
     main_sequences=("rotate:8", "orbit:8"),
     # paper 003 models direct and indirect glossy at the first vertex and diffuse light
     # with shadows and interreflection after it: the first-glossy transport (full BRDF

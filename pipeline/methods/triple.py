@@ -68,6 +68,7 @@ METHOD = Method(
                choices=("top-only", "adaptive")),
     ),
     sequences="pipeline.methods.triple:sequence",
+    sequence_forms=("rotate:N", "orbit:N", "gamma[:MATERIAL]:N"),
     main_sequences=("rotate:8",),
     # issue 16: 20, 80, 320 coefficients top-only and adaptive, and the default (as
     # stored) added by prt evaluate; run-time cuts of one bake. At 64² (1024-spp
