@@ -127,5 +127,5 @@ def occluded(bvh: Bvh, origins: np.ndarray, directions: np.ndarray,
     defines = {**light_defines(), "BVH_LEAF": LEAF}
     ms = cl.run(cl.kernel("shadow_rays.cl", "occluded_rays", defines), n,
                 *bvh.device, np.int32(bvh.leaves), cl.read_only_buffer(rays), np.int32(n),
-                out=out, local=64)
+                out=out, writes=n, local=64)  # a byte per ray
     return out.astype(bool), ms

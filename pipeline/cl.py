@@ -143,19 +143,34 @@ def kernel(file: str, name: str, defines: dict[str, Any] | None = None) -> Any:
     return _KERNELS[key]
 
 
-def run(kernel: Any, size: int, *args: Any, out: Any, out_buffer: Any | None = None,
-        local: int | None = None) -> float:
+def run(kernel: Any, size: int, *args: Any, out: Any, writes: int | None = None,
+        out_buffer: Any | None = None, local: int | None = None) -> float:
     """One launch of ``kernel`` over ``size`` work-items with ``args`` and, last, the
     output buffer (``out_buffer``, or a new write-only one of ``out``'s size); the output
     is copied into the host array ``out`` (``out=None``: it stays in ``out_buffer``, for
     a later kernel). Returns the kernel's milliseconds. With ``local``, work-groups of
     that size (the global size rounded up: the kernel skips the extra items): PoCL
     builds a kernel once per work-group size, so a size that changes from frame to frame
-    (pixels seen) would otherwise re-build it (seconds)."""
+    (pixels seen) would otherwise re-build it (seconds).
+
+    ``writes``: the bytes the kernel writes into the output buffer, as its caller
+    computes them from the kernel's contract (records × record size; default, ``out``
+    whole); the launch is refused when the buffer (or ``out``) is smaller, so that no
+    kernel writes past what the host allocated (the device side: every kernel replayed
+    under Oclgrind, tests/test_oclgrind.py)."""
     import pyopencl as cl
 
+    if writes is None:
+        if out is None:
+            raise TypeError("cl.run: a launch into out_buffer alone states its writes=")
+        writes = out.nbytes
+
     if out_buffer is None:
-        out_buffer = cl.Buffer(context(), cl.mem_flags.WRITE_ONLY, out.nbytes)
+        out_buffer = cl.Buffer(context(), cl.mem_flags.WRITE_ONLY, max(out.nbytes, 1))
+    held = out_buffer.size if out is None else min(out_buffer.size, out.nbytes)
+    if writes > held:
+        raise RuntimeError(f"kernel {kernel.function_name} would write {writes} bytes into "
+                           f"a buffer of {held}: refusing to launch it")
     event = enqueue(kernel, size, *args, out_buffer, local=local)
     if out is not None:
         cl.enqueue_copy(queue(), out, out_buffer, wait_for=[event])

@@ -34,3 +34,20 @@ def test_kernel_source_hash_follows_file_changes(tmp_path, monkeypatch):
     assert cl._source_hash([tmp_path]) == first  # within RESTAT_S: not looked at
     monkeypatch.setattr(cl, "RESTAT_S", 0.0)
     assert cl._source_hash([tmp_path]) != first
+
+
+def test_a_launch_that_would_write_past_its_buffer_is_refused():
+    """Issue 40 (host-side size checks): ``cl.run`` states what a kernel writes; a buffer
+    smaller than that is refused before the launch, and nothing is written."""
+    import numpy as np
+
+    kernel = cl.kernel("d2i.cl", "add_scaled")  # total[i] += factor · bounce[i], float4
+    bounce = cl.read_only_buffer(np.ones((8, 4), np.float32))
+    small = pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, 16 * 4)
+    with pytest.raises(RuntimeError, match="add_scaled would write 128 bytes into a "
+                                           "buffer of 64"):
+        cl.run(kernel, 8, bounce, np.ones(4, np.float32), np.int32(8), out=None,
+               writes=16 * 8, out_buffer=small)
+    with pytest.raises(TypeError, match="states its writes="):
+        cl.run(kernel, 8, bounce, np.ones(4, np.float32), np.int32(8), out=None,
+               out_buffer=small)

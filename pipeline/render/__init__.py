@@ -116,8 +116,12 @@ class DeviceImage:
         ms."""
         if count == 0:
             return 0.0
+        if count > self.pixels or values.size < 12 * count:
+            raise RuntimeError(f"scatter_rgb: {count} values into an image of {self.pixels} "
+                               f"pixels from a buffer of {values.size} bytes")
         return cl.run(cl.kernel("image.cl", "scatter_rgb"), count, values, pixel,
-                      np.float32(scale), np.int32(count), out=None, out_buffer=self.image)
+                      np.float32(scale), np.int32(count), out=None,
+                      writes=12 * self.pixels, out_buffer=self.image)
 
     def clear(self) -> None:
         """Every pixel black (for frames that do not write every pixel)."""

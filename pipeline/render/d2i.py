@@ -226,10 +226,11 @@ class D2iRenderer:
         if self.grouped_products:
             ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows_grouped", defines),
                         rows.count * self.sparse_group, *args, out=out,
-                        out_buffer=buf["out"], local=self.sparse_group)
+                        writes=16 * rows.count, out_buffer=buf["out"],
+                        local=self.sparse_group)  # a float4 per row
         else:
             ms = cl.run(cl.kernel("sparse_rows.cl", "sparse_rows", defines), rows.count,
-                        *args, out=out, out_buffer=buf["out"])
+                        *args, out=out, writes=16 * rows.count, out_buffer=buf["out"])
         self.counted_ms += ms
         self.counted_bytes += rows.nbytes + 16 * self.size + 16 * rows.count
         return out, ms
@@ -275,7 +276,7 @@ class D2iRenderer:
                       cl.read_only_buffer(lambert), cl.read_only_buffer(packed),
                       np.int32(len(packed)), self.gather_visibility,
                       np.int32(max(total_samples(packed), 1)), np.int32(g), out=None,
-                      out_buffer=out)
+                      writes=16 * g, out_buffer=out)  # a float4 per gather
 
     def gather_radiance(self, albedo: np.ndarray) -> dict[str, float]:
         """L = Σ_n L_n from the irradiance and per-material albedos ``albedo``
@@ -307,8 +308,8 @@ class D2iRenderer:
             kernel_ms += ms
             kernel_ms += cl.run(step, g, per_gather, self.gather_buffers["material"],
                                 albedo_buffer, self.gather_buffers["area"], np.int32(g), bounce,
-                                total, out=partial, out_buffer=partial_buffer,
-                                local=BOUNCE_GROUP)
+                                total, out=partial, writes=partial.nbytes,
+                                out_buffer=partial_buffer, local=BOUNCE_GROUP)
             sums = partial.astype(np.float64).sum(axis=0)
             power_now, norm_now = sums[0, :3], np.sqrt(sums[0, 3])
             power_before, norm_total = sums[1, :3], np.sqrt(sums[1, 3])
@@ -322,7 +323,7 @@ class D2iRenderer:
                 factor = np.zeros(4, np.float32)
                 factor[:3] = ratio / (1.0 - ratio)
                 kernel_ms += cl.run(cl.kernel("d2i.cl", "add_scaled"), g, bounce, factor,
-                                    np.int32(g), out=None, out_buffer=total)
+                                    np.int32(g), out=None, writes=16 * g, out_buffer=total)
                 break
         kernel_ms += self.radiance_vector(total)
         return {"bounce_ms": (time.perf_counter() - t0) * 1e3,
@@ -390,7 +391,8 @@ class D2iRenderer:
         out = cl.scratch_buffer(self.work, key, 16 * max(len(block_of), 1))
         ms = cl.run(cl.kernel("d2i.cl", "unblock"), len(block_of), block_products,
                     transform_buffer, np.int32(len(transform)), block_buffer, slot_buffer,
-                    np.int32(len(block_of)), out=None, out_buffer=out)
+                    np.int32(len(block_of)), out=None, writes=16 * len(block_of),
+                    out_buffer=out)
         return out, ms
 
     def coefficients(self, scene: Scene) -> np.ndarray:
@@ -458,7 +460,8 @@ class D2iRenderer:
                     self.static["material_id"], cl.read_only_buffer(materials),
                     *self.static[key], tl,
                     cl.read_only_buffer(np.ascontiguousarray(coefficients, np.float32)),
-                    np.int32(coefficients.shape[1]), np.int32(npix), out=out)
+                    np.int32(coefficients.shape[1]), np.int32(npix), out=out,
+                    writes=12 * npix)
         return out, ms
 
     # ------------------------------------------------------------------------ frames

@@ -119,7 +119,7 @@ class DirectShader:
                     cl.read_only_buffer(rows), np.int32(len(self.lights)),
                     self.visibility_buffer, np.int32(self.visibility_stride),
                     np.array([*camera, 0.0], np.float32), np.int32(n), out=out,
-                    out_buffer=out_buffer)
+                    writes=12 * n, out_buffer=out_buffer)
         moved = sum(a.nbytes for a in (self.position, self.normal, self.tangent,
                                        self.object_id, self.material_id, materials, rows)) \
             + n * self.visibility_stride + 12 * n

@@ -321,7 +321,7 @@ class SgDevice:
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),
                     np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
                     np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
-                    out_buffer=out_buffer, local=WORK_GROUP)
+                    writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
         return out, ms
 
 
@@ -475,7 +475,8 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                                    pixels["miss_direction"], np.float32(np.cos(a)),
                                    np.float32(np.sin(a)), np.float32(scale),
                                    np.int32(len(gbuffer.miss_pixel)), out=None,
-                                   out_buffer=miss, local=WORK_GROUP)
+                                   writes=12 * len(gbuffer.miss_pixel), out_buffer=miss,
+                                   local=WORK_GROUP)
             scatter_ms += image.scatter(miss, pixels["miss_pixel"], len(gbuffer.miss_pixel))
         rgb = image.read()
         t3 = time.perf_counter()

@@ -99,5 +99,5 @@ class DeviceShadows:
                     np.int32(len(packed)), np.int32(stride),
                     np.float32(SHADOW_EPSILON * scene_diagonal),
                     np.float32(4.0 * scene_diagonal), np.int32(count), out=None,
-                    out_buffer=out, local=64)
+                    writes=count * stride, out_buffer=out, local=64)  # a byte per sample
         return out, ms

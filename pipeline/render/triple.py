@@ -276,7 +276,7 @@ def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, floa
                                               basis["wavelet"], basis["tensor"])]
     kernel = cl.kernel("triple.cl", "triple_shade", {"SW_LEVELS": tables.basis.leaf_level,
                                                      "SW_ROWS": max(LIGHT_ROWS, BRDF_ROWS)})
-    ms = cl.run(kernel, max(n, 1), *args, np.int32(n), out=out)
+    ms = cl.run(kernel, max(n, 1), *args, np.int32(n), out=out, writes=12 * n)
     moved = sum(a.nbytes for a in (*table_arrays, *lookups.arrays(), out))
     return out[:n], ms, moved
 
@@ -305,7 +305,7 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
                            {"SW_LEVELS": tables.basis.leaf_level,
                             "TRIPLE_T": dense.triangles, "TRIPLE_W": dense.vector_width})
         ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out,
-                    out_buffer=out_buffer, local=WORK_GROUP)
+                    writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
         moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf)) + out_bytes
         return result, {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
     buffers, lookup_ms = device_lookups(gbuffer, tables, lookup, turn, static)
@@ -314,7 +314,8 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
     table_args = [b for t in (tables.light, tables.visibility, tables.brdf) for b in t.device]
     ms = cl.run(kernel, max(n, 1), *table_args, *buffers,
                 *(cl.read_only_buffer(basis[k]) for k in ("root_area", "wavelet", "tensor")),
-                np.int32(n), out=out, out_buffer=out_buffer, local=WORK_GROUP)
+                np.int32(n), out=out, writes=12 * n, out_buffer=out_buffer,
+                local=WORK_GROUP)
     lookup_bytes = n * 4 * (2 * LIGHT_ROWS + 2 * VIS_ROWS + 4 * BRDF_ROWS)
     moved = sum(a.nbytes for t in (tables.light, tables.visibility, tables.brdf)
                 for a in (t.start, t.index, t.value))
@@ -603,7 +604,8 @@ def triple_renderer(scene: Scene, artifacts: Mapping[str, Artifact], budget: int
             background_ms = cl.run(kernel, len(gbuffer.miss_pixel), static["map"],
                                    np.int32(env_map.shape[1]), np.int32(env_map.shape[0]),
                                    gbuffer.miss_uv_device, np.float32(turn), np.float32(scale),
-                                   np.int32(len(gbuffer.miss_pixel)), out=None, out_buffer=miss,
+                                   np.int32(len(gbuffer.miss_pixel)), out=None,
+                                   writes=12 * len(gbuffer.miss_pixel), out_buffer=miss,
                                    local=WORK_GROUP)
             scatter_ms += image.scatter(miss, miss_pixel, len(gbuffer.miss_pixel))
         rgb = image.read()
