@@ -162,7 +162,14 @@ def _setting_kind(default: Any, value: Any) -> str | None:
     if isinstance(default, float):
         return None if number else "a number"
     if isinstance(default, list):
-        return None if isinstance(value, list) else "a list"
+        plural = {"an integer": "integers", "a number": "numbers"}
+        element = plural.get(_setting_kind(default[0], "x") or "", "values") if default \
+            else "values"
+        wanted = f"a list of {len(default)} {element}"  # a grid's sizes: one per axis
+        if not isinstance(value, list) or (default and len(value) != len(default)):
+            return wanted if default else "a list"
+        wrong = default and any(_setting_kind(default[0], x) for x in value)
+        return wanted if wrong else None
     if isinstance(default, str):
         return None if isinstance(value, str) else "text"
     return None

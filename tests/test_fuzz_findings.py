@@ -16,7 +16,15 @@ def _tiny_up(doc: dict[str, Any]) -> None:
     doc["camera"]["up"] = [-2.225073858507e-311, -2.225073858507e-311, 1e-300]
 
 
-FOUND = {"tiny_up": ("triple", _tiny_up, "exit0")}
+def _empty_grid(doc: dict[str, Any]) -> None:
+    """seed 1, case 630: ``triple.frame_grid: []`` was a list as the default is, and
+    Intel's OpenCL compiler crashed on the kernel it defined (exit −11). A list setting
+    now has its default's length and element kind."""
+    doc["settings"]["triple.frame_grid"] = []
+
+
+FOUND = {"tiny_up": ("triple", _tiny_up, "exit0"),
+         "empty_grid": ("triple", _empty_grid, "exit2")}
 
 
 @pytest.mark.parametrize("name", sorted(FOUND))
