@@ -6,7 +6,9 @@
 /* One work-item per pixel. glossy_first[p] is the pixel's first row in tl (-1 for none),
  * glossy_rows[p] its row count; coefficients holds c(gamma) per material (row stride
  * rmax, c_0 = 1 for b0). Negative glossy sums (ringing of the truncated PCA basis) are
- * clamped to 0 per channel. */
+ * clamped to 0 per channel, and so is the pixel (radiance is never negative; the
+ * truncated Haar rows of D L can dip a hair below 0 where little light arrives: −2e-6
+ * on an open triangle 1e4 units wide). */
 __kernel void combine(__global const float* direct, __global const float4* dl,
                       __global const int* material_id, __global const float* materials,
                       __global const int* glossy_first, __global const int* glossy_rows,
@@ -28,7 +30,7 @@ __kernel void combine(__global const float* direct, __global const float4* dl,
             rgb += (float3)(mat[4], mat[5], mat[6]) * fmax(g, (float3)(0.0f));
         }
     }
-    vstore3(rgb, p, out);
+    vstore3(fmax(rgb, (float3)(0.0f)), p, out);
 }
 
 /* Per item (a pixel's D L, a gather sample's Ms product) its own row's product, from the

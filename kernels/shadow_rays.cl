@@ -15,8 +15,9 @@ __kernel void occluded_rays(__global const float4* lo, __global const float4* hi
 /* Visibility of every light sample from n points (build with light_defines() and
  * BVH_LEAF): vis[i · stride + offset + s] = 1 where sample s of a light is unoccluded,
  * as pipeline/render/shadows.py's light_visibility traces it with Embree — rays from
- * the point moved eps along its normal, only towards samples in front (n · (q − o) > 0,
- * else 0), stopping just short of the sample (t < 1 − 1e-4 in units of q − o) or, for
+ * the point moved eps along its normal, only towards samples in front of the point
+ * (n · (q − p) > 0, else 0: judged from p, not the moved origin, which an eps as large
+ * as the near geometry, a scene of objects far apart, would put past the light), stopping just short of the sample (t < 1 − 1e-4 in units of q − o) or, for
  * a directional light, at `far`. Quad samples: sampling.h's stratified_square of
  * (pixel id, light, sample), as lights.h shades them. */
 #include "lights.h"
@@ -31,7 +32,8 @@ __kernel void light_visibility(__global const float4* lo, __global const float4*
     int i = get_global_id(0);
     if (i >= n) return;
     float3 nn = vload3(i, normal);
-    float3 o = vload3(i, position) + eps * nn;
+    float3 p = vload3(i, position);
+    float3 o = p + eps * nn;
     __global uchar* row = vis + (size_t)i * stride;
     for (int l = 0; l < nlights; ++l) {
         __global const float* light = lights + l * LIGHT_FLOATS;
@@ -52,7 +54,7 @@ __kernel void light_visibility(__global const float4* lo, __global const float4*
                 q = corner + uv.x * eu + uv.y * ev;
             }
             float3 d = q - o;
-            row[off + s] = dot(nn, d) > 0.0f
+            row[off + s] = dot(nn, q - p) > 0.0f
                 && !bvh_occluded(lo, hi, tri, leaves, o, d, 1.0f - 1e-4f);
         }
     }

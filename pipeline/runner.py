@@ -116,6 +116,7 @@ class ChunkTask:
     sizes: dict[str, int]  # symbolic zarr chunk sizes of the stage's layout
     parts: dict[str, str]  # what the key is made of, part by part (chunk_key_parts)
     kernels: tuple[str, ...] = ()  # the kernels the stage declares (its code version's)
+    scene_path: str = ""  # the scene file, named by a stage's error that names no file
 
 
 # ------------------------------------------------------------------------------ planning
@@ -456,6 +457,12 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
                            environment=environment)
         arrays = load_impl(task.impl).run_chunk(ctx)
         _check_finite(task, arrays)
+    except PrtError as exc:
+        if exc.path is not None:
+            raise
+        named = PrtError(task.scene_path or task.output[0], f"stage {task.stage}: {exc.problem}")
+        named.nothing_written = True
+        raise named from None
     except Exception as exc:
         exc.nothing_written = True  # the artifact is as it was: see _run_stage
         raise
@@ -611,7 +618,7 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
                        _mesh_sources(spec, scene, c), _environment_source(spec, scene),
                        (str(path), spec.output),
                        str(workdir.marker(name, c.id)), layout.sizes, p.chunk_parts[c.id],
-                       tuple(spec.kernels))
+                       tuple(spec.kernels), str(scene.path))
              for c in todo]
     bar = tqdm(total=len(tasks), desc=name, unit="chunk", disable=not progress,
                file=sys.stderr, leave=False)

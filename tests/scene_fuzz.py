@@ -106,7 +106,7 @@ def obj_text(kind: str, scale: float, offset: float) -> str:
         v = np.vstack([v, v[0]])
     elif kind == "missing_vertex":
         faces = [*faces, (1, 2, 9)]
-    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v]
+    lines = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in v]
     if kind == "nan":
         lines[0] = "v nan 0 0"
     if kind == "cut_short":

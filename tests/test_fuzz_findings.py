@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from scene_fuzz import _base, run_case
+from scene_fuzz import _base, obj_text, run_case
 
 
 def _tiny_up(doc: dict[str, Any]) -> None:
@@ -23,8 +23,28 @@ def _empty_grid(doc: dict[str, Any]) -> None:
     doc["settings"]["triple.frame_grid"] = []
 
 
+def _mesh(kind: str, scale: float, offset: float):
+    def change(doc: dict[str, Any]) -> None:
+        doc["objects"]["box"] = {"mesh": "box.obj", "material": "red"}
+    change.files = {"box.obj": obj_text(kind, scale, offset)}  # type: ignore[attr-defined]
+    return change
+
+
+# A mesh sweep (every OBJ kind of tests/scene_fuzz.py at scales 1e-6 and 1e4 and 1e5
+# from the origin, each method) found, once the fuzzer wrote its OBJ numbers as plain
+# floats:
+# - far_object: a tetrahedron 1e5 units away made the ray offset (1e-4 of the scene's
+#   diagonal) 10 units: d2i's and direct's shadow rays judged "in front of the light"
+#   from the moved origin (black frames where the reference has 0.055), and d2i's
+#   glossy transfer could not reshape zero gathers (exit 1);
+# - huge_open: d2i wrote pixels of −1.8e-6 (truncated Haar rows of D L);
+# - tiny_closed: triple's xatlas dropped every face of a tetrahedron 1e-6 wide.
 FOUND = {"tiny_up": ("triple", _tiny_up, "exit0"),
-         "empty_grid": ("triple", _empty_grid, "exit2")}
+         "empty_grid": ("triple", _empty_grid, "exit2"),
+         "far_object": ("d2i", _mesh("closed", 0.5, 1e5), "exit0"),
+         "far_object_direct": ("direct", _mesh("closed", 0.5, 1e5), "exit0"),
+         "huge_open": ("d2i", _mesh("open", 1e4, 0.0), "exit0"),
+         "tiny_closed": ("triple", _mesh("closed", 1e-6, 0.0), "exit0")}
 
 
 @pytest.mark.parametrize("name", sorted(FOUND))
@@ -32,5 +52,10 @@ def test_a_fuzzer_finding_keeps_the_invariant(tmp_path, name: str) -> None:
     method, change, expected = FOUND[name]
     case = _base(method, 6)
     change(case.doc)
+    case.files.update(getattr(change, "files", {}))
     outcome = run_case(case, tmp_path)
     assert (outcome.kind, outcome.problem) == (expected, ""), outcome
+    if name.startswith("far_object"):  # lit: `prt reference --transport direct` has 0.055
+        from pipeline.images import read_exr
+
+        assert read_exr(tmp_path / "frame.exr").mean() > 0.04

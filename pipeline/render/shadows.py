@@ -59,9 +59,12 @@ def _batch_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarra
             dirs = np.broadcast_to(-row[LightRow.DIRECTION], (len(point), 3))
             dists = np.full(len(point), far, np.float32)
         else:
-            delta = light_sample_points(packed, i, pixel) - origin[:, None, :]
-            # n·(q − o) > 0: the sample is in front (and not at the origin)
-            point, sample = np.nonzero(np.einsum("nk,nsk->ns", normal, delta) > 0)
+            samples = light_sample_points(packed, i, pixel)
+            delta = samples - origin[:, None, :]
+            # n·(q − p) > 0: the sample is in front of the point (judged from p, not the
+            # moved origin: an eps as large as the near geometry would put o past it)
+            facing = np.einsum("nk,nsk->ns", normal, samples - position[:, None, :])
+            point, sample = np.nonzero(facing > 0)
             # direction q − o unnormalised: Embree's t is in its lengths, so t_far just
             # short of 1 stops the ray just short of the sample (no square roots)
             dirs = delta[point, sample]

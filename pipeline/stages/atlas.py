@@ -76,17 +76,24 @@ def _pack(vertices: np.ndarray, faces: np.ndarray, density: float
     units (F, 3, 2) (faces in input order), and the texture's height and width."""
     import xatlas
 
+    # xatlas's tolerances are absolute: the mesh goes in centred and scaled to a unit
+    # extent (an object 1e-6 units wide had every face dropped as degenerate), the
+    # density scaled to match; the texel layout is the same
+    v = np.asarray(vertices, np.float64)
+    extent = float(np.ptp(v, axis=0).max()) if len(v) else 0.0
+    extent = extent if extent > 0 else 1.0
     atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray(vertices, np.float32),
+    atlas.add_mesh(np.ascontiguousarray((v - v.mean(axis=0)) / extent, np.float32),
                    np.ascontiguousarray(faces, np.uint32))
     pack = xatlas.PackOptions()
-    pack.texels_per_unit, pack.padding, pack.bilinear = float(density), PADDING, True
+    pack.texels_per_unit, pack.padding, pack.bilinear = float(density) * extent, PADDING, True
     atlas.generate(xatlas.ChartOptions(), pack)
     _held_atlas[0] = atlas  # frees the previous one, long idle (see _held_atlas)
     mapping, indices, uv = atlas[0]
     if atlas.atlas_count != 1 or not np.array_equal(mapping[indices], faces):
-        raise PrtError(None, f"xatlas returned {atlas.atlas_count} atlases or reordered "
-                       "the faces (expected one atlas, faces in input order)")
+        raise PrtError(None, f"xatlas could not lay out the mesh's {len(faces)} faces "
+                       f"in one atlas ({atlas.atlas_count} atlases; are they degenerate, "
+                       "or collapsed by float32 far from the origin?)")
     width, height = int(atlas.width), int(atlas.height)
     return uv[indices].astype(np.float64) * [width, height], height, width
 
@@ -117,7 +124,10 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     arrays = {n: object_piece(geometry, n, obj) for n in ("vertices", "normals", "uv", "faces")}
     vertices, faces = arrays["vertices"], arrays["faces"]
     pixels = screen_pixels(vertices, faces, ctx.scene["camera"])
-    face_uv, height, width = packed_atlas(vertices, faces, pixels, ctx.params)
+    try:
+        face_uv, height, width = packed_atlas(vertices, faces, pixels, ctx.params)
+    except PrtError as exc:
+        raise PrtError(None, f"objects.{obj}: {exc.problem}") from None
     state, face, bary = texels.rasterize(face_uv, height, width)
 
     filled = face >= 0

@@ -78,7 +78,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
                               tile["tangent"][batch], tile["wo"][batch])
         _, t = kernel(receivers, vis[start:start + PIXEL_BATCH], table)
         rows = t.shape[1]
-        t = t.reshape(-1, t.shape[-1])
+        t = t.reshape(t.shape[0] * rows, t.shape[-1])  # -1 cannot stand for 0 gathers
         t *= disks.inverse_area  # in place: the kernel's fresh array
         parts.append((batch, compress_rows(t, disks.area, keep, cap), rows))
     return {f"t_{k}": v for k, v in rows_by_pixel(pixel, parts).items()}
