@@ -370,9 +370,16 @@ class _CameraFile(_Section):
     def _looks_somewhere(self) -> _CameraFile:
         if self.position == self.look_at:
             raise _problem("must differ from camera.position", ".look_at")
-        forward = np.subtract(self.look_at, self.position)
-        sine = np.linalg.norm(np.cross(forward, self.up)) / (
-            np.linalg.norm(forward) * np.linalg.norm(self.up))
+        with np.errstate(over="ignore"):
+            forward = np.subtract(self.look_at, self.position)
+        if not np.isfinite(forward).all():
+            raise _problem("too far from camera.position (their difference overflows)",
+                           ".look_at")
+        # each scaled exactly by its largest component first: no overflow or underflow
+        forward = forward / np.abs(forward).max()
+        up = np.divide(self.up, np.abs(self.up).max())
+        sine = np.linalg.norm(np.cross(forward, up)) / (
+            np.linalg.norm(forward) * np.linalg.norm(up))
         if sine < 1e-6:  # the image's horizontal axis is forward × up
             raise _problem(f"{list(self.up)} is parallel to the view direction "
                            "(look_at - position): the image has no horizontal axis", ".up")

@@ -432,8 +432,9 @@ def run_case(case: Case, folder: Path, timeout: float = CASE_TIMEOUT) -> Outcome
         return Outcome("else", None, "", timeout, f"no answer in {timeout:.0f} s")
     seconds = time.perf_counter() - start
     if result.returncode == 0:
-        if "Traceback" in result.stderr:
-            return Outcome("else", 0, "", seconds, "exit 0 with a traceback")
+        if "Traceback" in result.stderr or "RuntimeWarning" in result.stderr:
+            return Outcome("else", 0, "", seconds, "exit 0 with a traceback or NumPy "
+                           "warning: " + result.stderr.strip()[-300:])
         try:
             rgb = read_exr(out)
         except Exception as exc:  # noqa: BLE001 - any unreadable frame breaks the invariant

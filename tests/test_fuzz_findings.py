@@ -39,7 +39,22 @@ def _mesh(kind: str, scale: float, offset: float):
 #   glossy transfer could not reshape zero gathers (exit 1);
 # - huge_open: d2i wrote pixels of −1.8e-6 (truncated Haar rows of D L);
 # - tiny_closed: triple's xatlas dropped every face of a tetrahedron 1e-6 wide.
+def _tiny_view(doc: dict[str, Any]) -> None:
+    """seed 1, case 719 and seed 2, case 929: a view direction and an up of subnormal
+    length made the validation's sine 0/0 (a NumPy RuntimeWarning before the error line;
+    here the scene renders)."""
+    doc["camera"].update(position=[0.0, 0.0, 0.0], look_at=[0.0, 0.0, -1e-320],
+                         up=[0.0, 1e-320, 0.0])
+
+
+def _far_look_at(doc: dict[str, Any]) -> None:
+    """A look_at whose difference from the position overflows float64: one line."""
+    doc["camera"].update(position=[1e308, 0.0, 0.0], look_at=[-1e308, 0.0, 0.0])
+
+
 FOUND = {"tiny_up": ("triple", _tiny_up, "exit0"),
+         "tiny_view": ("direct", _tiny_view, "exit0"),
+         "far_look_at": ("direct", _far_look_at, "exit2"),
          "empty_grid": ("triple", _empty_grid, "exit2"),
          "far_object": ("d2i", _mesh("closed", 0.5, 1e5), "exit0"),
          "far_object_direct": ("direct", _mesh("closed", 0.5, 1e5), "exit0"),

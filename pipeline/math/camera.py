@@ -14,6 +14,7 @@ import numpy as np
 def camera_frame(position, look_at, up) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit (right, true_up, forward) vectors, float64."""
     forward = np.asarray(look_at, float) - np.asarray(position, float)
+    forward = forward / np.abs(forward).max()  # exact scaling first, as for up below
     forward /= np.linalg.norm(forward)
     up = np.asarray(up, float)
     up = up / np.abs(up).max()  # exact scaling first: an up of 1e-300 keeps its digits
