@@ -458,6 +458,7 @@ def execute_chunk(task: ChunkTask) -> tuple[str, float]:
         arrays = load_impl(task.impl).run_chunk(ctx)
         _check_finite(task, arrays)
     except PrtError as exc:
+        exc.nothing_written = True  # the artifact is as it was: see _run_stage
         if exc.path is not None:
             raise
         named = PrtError(task.scene_path or task.output[0], f"stage {task.stage}: {exc.problem}")

@@ -52,7 +52,21 @@ def _far_look_at(doc: dict[str, Any]) -> None:
     doc["camera"].update(position=[1e308, 0.0, 0.0], look_at=[-1e308, 0.0, 0.0])
 
 
+def _mirror_ward(alpha: float, low: float):
+    def change(doc: dict[str, Any]) -> None:
+        """seed 3, cases 395–396: a ward_anisotropic roughness of 1e-12 (range from
+        7e-124) fell between every sample of brdf_basis (a NumPy warning, then NaN
+        refused mid-bake); roughness now stays above 5e-4, where the basis still sees
+        the lobe."""
+        doc["materials"]["shiny"] = {"model": "ward_anisotropic", "albedo": [0.4, 0.1, 0.1],
+                                     "specular": 0.05, "gamma": alpha,
+                                     "gamma_range": [low, 0.001]}
+    return change
+
+
 FOUND = {"tiny_up": ("triple", _tiny_up, "exit0"),
+         "mirror_ward": ("d2i", _mirror_ward(1e-12, 7e-124), "exit2"),
+         "sharpest_ward": ("d2i", _mirror_ward(6e-4, 5.5e-4), "exit0"),
          "tiny_view": ("direct", _tiny_view, "exit0"),
          "far_look_at": ("direct", _far_look_at, "exit2"),
          "empty_grid": ("triple", _empty_grid, "exit2"),

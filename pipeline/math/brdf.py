@@ -303,12 +303,22 @@ _FRESNEL = (
 )
 
 
-def _glossy(gamma_doc: str, *own: SceneParam) -> tuple[SceneParam, ...]:
-    """Albedo, γ (described by ``gamma_doc``) with its range, ρs, the model's ``own`` keys
-    and pca_tolerance."""
-    gamma = SceneParam("gamma", "number", gamma_doc, lo=0.0, lo_open=True, required=True,
+def _glossy(gamma_doc: str, *own: SceneParam, least: float = 0.0
+            ) -> tuple[SceneParam, ...]:
+    """Albedo, γ (described by ``gamma_doc``, above ``least``) with its range, ρs, the
+    model's ``own`` keys and pca_tolerance."""
+    gamma = SceneParam("gamma", "number", gamma_doc, lo=least, lo_open=True, required=True,
                        within="gamma_range")
-    return (ALBEDO, _GAMMA_RANGE, gamma, _SPECULAR, *own, _PCA_TOLERANCE)
+    gamma_range = _GAMMA_RANGE if least == 0.0 else SceneParam(
+        _GAMMA_RANGE.name, "range", _GAMMA_RANGE.doc, lo=least)
+    return (ALBEDO, gamma_range, gamma, _SPECULAR, *own, _PCA_TOLERANCE)
+
+
+# A roughness (Ward's α, Beckmann's m) above this: a narrower lobe falls between the
+# samples of the BRDF tables and bases (brdf_basis's δ grid is π/2 / 1024 ≈ 1.5e-3 rad
+# apart, offset by half a step), which then hold only zeros: α = 1e-12 made brdf_basis
+# divide by a zero norm.
+LEAST_ROUGHNESS = 5e-4
 
 
 # Each material model's scene parameters; the order of the models is the order in which
@@ -316,19 +326,19 @@ def _glossy(gamma_doc: str, *own: SceneParam) -> tuple[SceneParam, ...]:
 MATERIAL_PARAMETERS: dict[str, ModelParams] = {
     "lambert": ModelParams((ALBEDO,)),
     "blinn_phong": ModelParams(_glossy("Phong exponent γ (editable)")),
-    "ward": ModelParams(_glossy("roughness α = γ (editable)")),
-    "ward_duer": ModelParams(_glossy("roughness α = γ (editable)")),
+    "ward": ModelParams(_glossy("roughness α = γ (editable)", least=LEAST_ROUGHNESS)),
+    "ward_duer": ModelParams(_glossy("roughness α = γ (editable)", least=LEAST_ROUGHNESS)),
     "ward_anisotropic": ModelParams(_glossy(
         "roughness αx = γ (editable)",
         SceneParam("alpha_ratio", "number", "anisotropy αy/αx", lo=1e-3, hi=1e3,
-                   default=1.0))),
+                   default=1.0), least=LEAST_ROUGHNESS)),
     "lafortune": ModelParams(_glossy(
         "lobe exponent γ (editable)",
         SceneParam("cxy", "number", "lobe coefficient Cxy", lo=-1e3, hi=1e3, default=-1.0),
         SceneParam("cz", "number", "lobe coefficient Cz", lo=-1e3, hi=1e3, default=1.0)),
         rule=_lafortune_lobe),
-    "cook_torrance": ModelParams(_glossy("Beckmann rms slope m = γ (editable)", *_FRESNEL),
-                                 rule=_one_fresnel),
+    "cook_torrance": ModelParams(_glossy("Beckmann rms slope m = γ (editable)", *_FRESNEL,
+                                         least=LEAST_ROUGHNESS), rule=_one_fresnel),
     "ashikhmin_shirley": ModelParams(_glossy("lobe exponent γ (editable)", *_FRESNEL),
                                      rule=_one_fresnel),
 }
