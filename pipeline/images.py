@@ -209,6 +209,9 @@ def read_environment(path: str | Path) -> np.ndarray:
     if width != 2 * height:
         raise PrtError(path, f"environment map is {width}x{height}: a latitude-longitude "
                        "map is twice as wide as it is high")
+    if height < 2:
+        raise PrtError(path, f"environment map is {width}x{height}: a latitude-longitude "
+                       "map has at least 2 rows (its rows run from pole to pole)")
     for bad, what, hint in (
             (~np.isfinite(rgb), "not finite", ""), (rgb < 0, "negative", ""),
             (rgb > LARGEST_RADIANCE, f"above {LARGEST_RADIANCE:g}",

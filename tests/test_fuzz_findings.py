@@ -64,7 +64,17 @@ def _mirror_ward(alpha: float, low: float):
     return change
 
 
+def _one_row_map(doc: dict[str, Any]) -> None:
+    """seed 5, case 964: a 2 × 1 map (its rows at θ = π i/(H − 1)) divided by
+    zero in triple's prefilter (exit 1); a map now has at least 2 rows."""
+    doc["lights"] = [{"type": "environment", "file": "one_row.exr"}]
+
+
+_one_row_map.files = {"one_row.exr": ["map", "plain", 1]}  # type: ignore[attr-defined]
+
+
 FOUND = {"tiny_up": ("triple", _tiny_up, "exit0"),
+         "one_row_map": ("triple", _one_row_map, "exit2"),
          "mirror_ward": ("d2i", _mirror_ward(1e-12, 7e-124), "exit2"),
          "sharpest_ward": ("d2i", _mirror_ward(6e-4, 5.5e-4), "exit0"),
          "tiny_view": ("direct", _tiny_view, "exit0"),
