@@ -177,6 +177,15 @@ def run(kernel: Any, size: int, *args: Any, out: Any, writes: int | None = None,
     return event_ms(event)
 
 
+def check_writes(kernel: str, buffer: Any, writes: int) -> None:
+    """Refuse a launch of ``kernel`` that would write ``writes`` bytes (its contract:
+    records × record size) into a device ``buffer`` smaller than that: the host-side
+    size check that :func:`run` makes, for kernels launched directly."""
+    if writes > buffer.size:
+        raise RuntimeError(f"kernel {kernel} would write {writes} bytes into a buffer of "
+                           f"{buffer.size}: refusing to launch it")
+
+
 def enqueue(kernel: Any, size: int, *args: Any, local: int | None = None) -> Any:
     """One launch of ``kernel`` over ``size`` work-items (rounded up to ``local``, as
     :func:`run`), not waited for: its event. Launches that follow one another on the

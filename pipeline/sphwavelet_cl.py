@@ -38,11 +38,13 @@ def forward_device(leaf_values: Any, rows: int, leaf_level: int) -> Any:
     coeffs = cl_.Buffer(cl.context(), flags, rows * size * 4)
     scratch = [cl_.Buffer(cl.context(), flags, max(rows * size // 4, 1) * 4) for _ in range(2)]
     level_kernel = cl.kernel("wavelet_forward.cl", "wavelet_forward_level")
+    cl.check_writes("wavelet_forward", coeffs, rows * size * 4)  # every coefficient
     fine = leaf_values
     for level in reversed(range(leaf_level)):
         triangles = 20 * 4 ** level
         areas, wavelets = _tables(leaf_level)[level]
         coarse = scratch[level % 2]
+        cl.check_writes("wavelet_forward_level", coarse, rows * triangles * 4)  # its means
         level_kernel(cl.queue(), (triangles, rows), None, fine, areas, wavelets,
                      np.int32(triangles), np.int32(level_start(level)), np.int32(size),
                      coarse, coeffs)

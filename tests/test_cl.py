@@ -51,3 +51,13 @@ def test_a_launch_that_would_write_past_its_buffer_is_refused():
     with pytest.raises(TypeError, match="states its writes="):
         cl.run(kernel, 8, bounce, np.ones(4, np.float32), np.int32(8), out=None,
                out_buffer=small)
+
+
+def test_a_direct_launch_that_would_write_past_its_buffer_is_refused():
+    """The same check for kernels launched directly (the stages' wavelet, lighting and
+    BRDF-table kernels)."""
+    small = pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, 64)
+    cl.check_writes("k", small, 64)  # exactly full: launched
+    with pytest.raises(RuntimeError, match="kernel k would write 65 bytes into a buffer "
+                                           "of 64"):
+        cl.check_writes("k", small, 65)

@@ -96,6 +96,7 @@ def leaf_means_buffer(params: BrdfParams, views: np.ndarray, leaf_level: int,
     material = cl.read_only_buffer(pack_materials([params])[0])
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(views) * leaves * 4)
     cl_.enqueue_fill_buffer(cl.queue(), result, np.float32(0), 0, len(views) * leaves * 4)
+    cl.check_writes("brdf_leaf_means", result, len(views) * leaves * 4)  # (V, N) float
     kernel(cl.queue(), (padded, len(views)), (LOCAL, 1), material,
            cl.read_only_buffer(np.asarray(views, np.float32)), coords, weights, upper,
            np.int32(n_upper), np.int32(padded), np.int32(leaves), result)
@@ -169,6 +170,7 @@ def view_leaf_means_buffer(params: BrdfParams, grid: ViewGrid, leaf_level: int,
     leaves = 20 * 4 ** leaf_level
     source, perm = mirror_sources(grid, leaf_level)
     out = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, grid.size * leaves * 4)
+    cl.check_writes("brdf_mirror_views", out, grid.n_theta * grid.n_phi * leaves * 4)
     cl.kernel("brdf_tables.cl", "brdf_mirror_views", _defines(params, refine))(
         cl.queue(), (grid.n_theta, grid.n_phi), None, base,
         cl.read_only_buffer(source), cl.read_only_buffer(perm), np.int32(grid.n_theta),

@@ -70,6 +70,7 @@ def _sample_coords(grid: FrameGrid, leaf_level: int, refine: int, width: int,
     frames = euler_frame(np.zeros_like(t), t, p)  # (n_theta · psi_given, 3, 3)
     fine, _ = leaf_samples(leaf_level, refine)
     coords = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE, len(frames) * len(fine) * 8)
+    cl.check_writes("light_sample_coords", coords, len(frames) * len(fine) * 8)  # float2
     cl.kernel("light_rotations.cl", "light_sample_coords",
               _defines(refine, width, grid.n_phi))(
         cl.queue(), (len(fine), len(frames)), None,
@@ -101,6 +102,7 @@ def leaf_means_buffer(rgb: np.ndarray, grid: FrameGrid, start: int, end: int,
     partner = cl.read_only_buffer(leaf_permutation(leaf_level, (-1, -1, 1)).astype(np.int32))
     result = cl_.Buffer(cl.context(), cl_.mem_flags.READ_WRITE,
                         (end - start) * 3 * leaves * 4)
+    cl.check_writes("light_leaf_means", result, (end - start) * 3 * leaves * 4)  # the span's
     kernel(cl.queue(), (leaves, frames), None, coords,
            cl.read_only_buffer(weights.astype(np.float32)),
            cl.read_only_buffer(_phi_major(rgb, grid.n_phi)), np.int32(width),

@@ -162,6 +162,10 @@ class TransferKernel:
             receivers_buf = cl.read_only_buffer(packed)
             deferred = np.zeros(len(pairs), np.uint8)
             deferred_buf = cl.shared_output_buffer(deferred)
+            # each pair p · count + g writes d and t at that index: all inside the buffers
+            if int(pairs.max()) >= n * self.count:
+                raise RuntimeError(f"transfer pair {int(pairs.max())} is past the {n} × "
+                                   f"{self.count} outputs: refusing to launch")
             # transfer_points reads its pair unguarded: the list is padded to the groups
             padded = np.zeros(-(-len(pairs) // LAUNCH_GROUP) * LAUNCH_GROUP, np.uint32)
             padded[:len(pairs)] = pairs
