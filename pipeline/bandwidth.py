@@ -39,6 +39,7 @@ def probe(megabytes: int = 256, repeats: int = 7) -> dict[str, float | str]:
     src = pcl.Buffer(ctx, pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR, hostbuf=host)
     dst = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, host.nbytes)
     kernel = cl.kernel("bandwidth.cl", "stream_copy")
+    cl.check_writes("stream_copy", dst, 16 * n)  # a float4 per work-item
     kernel(queue, (n,), None, src, dst).wait()  # warm-up: first touch of the pages
     device_ms = [cl.event_ms(kernel(queue, (n,), None, src, dst)) for _ in range(repeats)]
     moved = 2.0 * host.nbytes
