@@ -339,6 +339,9 @@ class D2iRenderer:
             return 0.0
         a = cl.scratch_buffer(self.work, "haar_a", 16 * n)
         b = cl.scratch_buffer(self.work, "haar_b", 16 * n)
+        # [W ...; |A| ⊙ L]: a float4 per Haar coefficient and per gather, and the blocks
+        cl.check_writes("haar_input", self.radiance_buffer, 16 * (n + g))
+        cl.check_writes("haar_input", a, 16 * n)
         events = [cl.enqueue(cl.kernel("d2i.cl", "haar_input"), n, radiance,
                              self.gather_buffers["area"], np.int32(g), np.int32(n),
                              self.radiance_buffer, a)]
