@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from pipeline.math.brdf import BrdfParams
-from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, build_basis
+from pipeline.methods.d2i.brdf_pca import PAPER_GAMMA_RANGES, build_basis
 
 ROOT = Path(__file__).resolve().parent.parent
 PARAMS = yaml.safe_load((ROOT / "stages.yaml").read_text())["params"]

@@ -47,7 +47,7 @@ from pipeline import cl, job
 from pipeline.bandwidth import probe
 from pipeline.math.brdf import scene_brdfs
 from pipeline.method import get_method
-from pipeline.render.d2i import GATHER_ID_OFFSET, D2iRenderer
+from pipeline.methods.d2i.render import GATHER_ID_OFFSET, D2iRenderer
 from pipeline.rows import Rows
 from pipeline.runner import stage_params
 from pipeline.scene import Light, default_scene_path, load_scene
@@ -64,7 +64,7 @@ GROUP_SWEEP = (8, 16, 32, 64, 128)  # work-items per row of the grouped products
 def transfer_breakdown(scene, workdir) -> dict[str, float]:
     """Seconds of visibility, kernel and compression over a few transfer tiles, run again
     in this process (the stage's own run is not instrumented)."""
-    import pipeline.stages.transfer as stage
+    import pipeline.methods.d2i.stages.transfer as stage
     from pipeline.chunking import plan_chunks
     from pipeline.runner import plan
     from pipeline.stages import ChunkContext

@@ -68,9 +68,9 @@ def median(values: list[float]) -> float:
 def synthetic_tables(geometry: dict, env: np.ndarray) -> tuple[Any, float]:
     """Contract-shaped tables (module docstring) and the prefilter's seconds."""
     from pipeline.math import sg, sh
-    from pipeline.math.sg_prefilter import prefilter
-    from pipeline.math.sg_transport import view_directions
-    from pipeline.render.sg import SgTables
+    from pipeline.methods.sg.prefilter import prefilter
+    from pipeline.methods.sg.render import SgTables
+    from pipeline.methods.sg.transport import view_directions
 
     normals = np.asarray(geometry["normals"], np.float64)
     vertices = len(normals)
@@ -162,7 +162,7 @@ def breakdown(tables: Any, geometry: dict, scene: Any, repeats: int) -> dict[str
     import dataclasses
 
     from pipeline.math import sh
-    from pipeline.render import sg as render
+    from pipeline.methods.sg import render
 
     gbuffer = render.camera_gbuffer(render.RayTracer(geometry["vertices"], geometry["faces"]),
                                     geometry["vertices"],
@@ -182,7 +182,7 @@ def breakdown(tables: Any, geometry: dict, scene: Any, repeats: int) -> dict[str
 def main() -> None:
     from pipeline import bandwidth
     from pipeline.images import read_environment, write_png
-    from pipeline.render import sg as render
+    from pipeline.methods.sg import render
     from pipeline.scene_edits import with_camera_position, with_environment_rotation
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -119,8 +119,8 @@ def kernel_only(tables: Any, dense: Any, gbuffer: Any, lookup: Any, repeats: int
                 ) -> dict[str, Any]:
     """The dense kernel (lookups fused) and, apart, the lookups kernel alone, launched
     back to back on a cached G-buffer: median device ms and process CPU ms."""
-    from pipeline.render.triple import shade_gbuffer
-    from pipeline.render.triple_gbuffer import device_lookups
+    from pipeline.methods.triple.gbuffer import device_lookups
+    from pipeline.methods.triple.render import shade_gbuffer
 
     static: dict[str, Any] = {}
     shade_gbuffer(tables, dense, gbuffer, lookup, 0.3, static)  # warm-up
@@ -147,7 +147,7 @@ def sparse_estimate(tables: Any, gbuffer: Any, lookup: Any, turn: float, stride:
     angles included) and those × shaded / timed pixels (an estimate of the frame)."""
     import dataclasses
 
-    from pipeline.render.triple import shade_gbuffer
+    from pipeline.methods.triple.render import shade_gbuffer
 
     pick = np.arange(0, gbuffer.count, stride)
     sub = dataclasses.replace(
@@ -236,12 +236,12 @@ def main() -> None:
     from pipeline.bandwidth import probe
     from pipeline.math.brdf import scene_brdfs
     from pipeline.method import get_method
+    from pipeline.methods.triple import render
+    from pipeline.methods.triple.dense import DenseTables, dense_level
+    from pipeline.methods.triple.gbuffer import LookupTables, lookups_numpy
     from pipeline.raytrace import Mesh, RayTracer
-    from pipeline.render import triple as render
-    from pipeline.render.triple_dense import DenseTables, dense_level
-    from pipeline.render.triple_gbuffer import LookupTables, lookups_numpy
+    from pipeline.render.surface_detail import SceneDetail
     from pipeline.scene_edits import with_camera_position, with_environment_rotation
-    from pipeline.surface_detail import SceneDetail
 
     scene = job.open_scene(SCENE)
     if args.bake_size:

@@ -43,8 +43,8 @@ def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
                   tables: Any) -> dict[str, float]:
     """Milliseconds of the kernel path's parts (as ``camera_gbuffer`` runs them)."""
     from pipeline.math.camera import camera_rays
-    from pipeline.render import triple as render
-    from pipeline.render.triple_gbuffer import surface_attributes
+    from pipeline.methods.triple import render
+    from pipeline.methods.triple.gbuffer import surface_attributes
 
     t0 = time.perf_counter()
     origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
@@ -110,12 +110,12 @@ def main() -> None:
     from pipeline import job
     from pipeline.math.brdf import scene_brdfs
     from pipeline.method import get_method
+    from pipeline.methods.triple import render
+    from pipeline.methods.triple.dense import DenseTables, dense_level
+    from pipeline.methods.triple.gbuffer import LookupTables
     from pipeline.raytrace import Mesh, RayTracer
-    from pipeline.render import triple as render
-    from pipeline.render.triple_dense import DenseTables, dense_level
-    from pipeline.render.triple_gbuffer import LookupTables
+    from pipeline.render.surface_detail import SceneDetail
     from pipeline.scene_edits import with_camera_position
-    from pipeline.surface_detail import SceneDetail
 
     scene = job.open_scene(SCENE)
     workdir = job.workdir_for(scene, args.workdir)

@@ -44,9 +44,9 @@ def sweep(renderer: Any, scene: Any, offset: float) -> list[dict[str, float]]:
 def parts(scene: Any, attrs: dict[str, Any], repeats: int) -> dict[str, float]:
     """Median milliseconds of one re-sample's kernels, each waited for."""
     from pipeline import cl
+    from pipeline.methods.triple.stages import brdf_tables as stage
+    from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
     from pipeline.sphwavelet_cl import forward_device
-    from pipeline.stages import brdf_tables as stage
-    from pipeline.wavelet_select_cl import select_rows_buffer
 
     material = scene.materials["bunny"]
     level, refine = int(attrs["leaf_level"]), int(attrs["refine"])
@@ -82,7 +82,7 @@ def main() -> None:
 
     from pipeline import job
     from pipeline.method import get_method
-    from pipeline.render import triple as render
+    from pipeline.methods.triple import render
 
     scene = job.open_scene(SCENE, (args.size, args.size))
     workdir = job.workdir_for(scene, args.workdir)

@@ -33,12 +33,12 @@ from pipeline.cli import parse_size
 from pipeline.images import read_environment
 from pipeline.math.camera import camera_rays
 from pipeline.method import get_method
+from pipeline.methods.triple import render as render_triple
+from pipeline.methods.triple.render import WaveletRows
+from pipeline.methods.triple.stages import brdf_tables as brdf_stage
+from pipeline.methods.triple.stages import light_rotations as light_stage
 from pipeline.raytrace import RayTracer
-from pipeline.render import triple as render_triple
-from pipeline.render.triple import WaveletRows
 from pipeline.stages import ChunkContext
-from pipeline.stages import brdf_tables as brdf_stage
-from pipeline.stages import light_rotations as light_stage
 
 ROOT = Path(__file__).resolve().parent.parent
 PARAMS = yaml.safe_load((ROOT / "stages.yaml").read_text())["params"]
@@ -69,7 +69,7 @@ def unrounded_rows(scene: Any, artifacts: dict) -> dict[str, WaveletRows]:
             chunk=make_chunk(n, "material", material=n, index=i)))
             for i, n in enumerate(brdf_art.attrs["material_names"])]
     finally:
-        from pipeline.math.wavelet_rows import to_half
+        from pipeline.methods.triple.wavelet_rows import to_half
         light_stage.to_half = brdf_stage.to_half = to_half
     out = {}
     for name, art, chunks in (("light", light_art, parts), ("brdf", brdf_art, brdf_parts)):

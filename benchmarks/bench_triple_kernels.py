@@ -51,10 +51,10 @@ def _time(fn: Any) -> dict[str, float]:
 def measure() -> dict[str, Any]:
     """Times of the three kernels in this process."""
     from pipeline import cl
-    from pipeline.math.frame_grids import ViewGrid
+    from pipeline.methods.triple.frame_grids import ViewGrid
+    from pipeline.methods.triple.stages import brdf_tables as brdf_stage
+    from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
     from pipeline.sphwavelet_cl import forward_device
-    from pipeline.stages import brdf_tables as brdf_stage
-    from pipeline.wavelet_select_cl import select_rows_buffer
 
     material = brdf_stage.glossy_params("blinn_phong", {"gamma": 60})
     grid, level, refine = ViewGrid(128, 64), 4, 1

@@ -57,16 +57,16 @@ import yaml
 from pipeline import cl
 from pipeline.chunk import make_chunk
 from pipeline.images import read_environment
-from pipeline.math.brdf_tables import glossy_leaf_means
 from pipeline.math.envmap import LUMINANCE
 from pipeline.math.geodesic import geodesic_levels
-from pipeline.math.light_grid import frame_leaf_means
+from pipeline.methods.triple.brdf_tables import glossy_leaf_means
+from pipeline.methods.triple.light_grid import frame_leaf_means
+from pipeline.methods.triple.stages import brdf_tables as brdf_stage
+from pipeline.methods.triple.stages import light_rotations as light_stage
+from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
 from pipeline.scene import load_scene, shared_data_dir
 from pipeline.sphwavelet_cl import forward_device
 from pipeline.stages import ChunkContext
-from pipeline.stages import brdf_tables as brdf_stage
-from pipeline.stages import light_rotations as light_stage
-from pipeline.wavelet_select_cl import select_rows_buffer
 
 ROOT = Path(__file__).resolve().parent.parent
 PARAMS = yaml.safe_load((ROOT / "stages.yaml").read_text())["params"]
@@ -109,7 +109,7 @@ def bilinear_lookups(grid: Any, start: int, end: int, leaves: int, samples: int)
     """Bilinear map lookups (4 float4 texel loads each) of the leaf-mean kernel for grid
     entries [start, end): per φ plane the span touches and frame given (ψ < π for an
     even n_ψ), one per sample of every leaf when the entry or its ψ + π partner is in
-    the span (kernels/light_rotations.cl)."""
+    the span (kernels/triple/light_rotations.cl)."""
     per_phi = grid.n_theta * grid.n_psi
     given = grid.n_psi // 2 if grid.n_psi % 2 == 0 else grid.n_psi
     rows = np.arange(grid.n_theta)[:, None] * grid.n_psi + np.arange(given)[None, :]

@@ -49,7 +49,7 @@ from pipeline.math.sphwavelet import leaf_means, wavelet_basis  # noqa: E402
 from pipeline.runner import run, stage_params  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 from pipeline.stagefile import load_stagefile  # noqa: E402
-from pipeline.stages.visibility import scene_tracer  # noqa: E402
+from pipeline.stages.geometry import traced_geometry  # noqa: E402
 from pipeline.store import Workdir, open_artifact  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -60,7 +60,8 @@ PAIRS = 5
 def plain_embree_rate(geometry, rays: int = PLAIN_RAYS) -> float:
     """Occlusion rays per second from random surface points in random directions of the
     upper hemisphere of their face (one run of ``rays`` rays)."""
-    tracer, face_normal, epsilon = scene_tracer(geometry)
+    traced = traced_geometry(geometry)
+    tracer, face_normal, epsilon = traced.tracer, traced.mesh.face_normal, traced.epsilon
     vertices, faces = geometry.read("vertices").astype(np.float64), geometry.read("faces")
     rng = np.random.default_rng(1)
     face = rng.integers(0, len(faces), rays)
@@ -83,8 +84,8 @@ def plain_embree_rate(geometry, rays: int = PLAIN_RAYS) -> float:
 def paired_rates(geometry, atlas, visibility, params: dict) -> list[dict[str, float]]:
     """PAIRS × (the busiest bunny tile's chunk, then plain rays of the same count)."""
     from pipeline.chunk import make_chunk
+    from pipeline.methods.triple.stages import visibility as stage
     from pipeline.stages import ChunkContext
-    from pipeline.stages import visibility as stage
 
     sizes = atlas.attrs["texture_sizes"]
     tile = visibility.attrs["texel_tile"]
@@ -95,7 +96,7 @@ def paired_rates(geometry, atlas, visibility, params: dict) -> list[dict[str, fl
     _, y, x = max(filled)
     chunk = make_chunk(f"bunny/y{y:05d}_x{x:05d}", "texel_tile", object="bunny",
                        region=(y, min(y + tile, height), x, min(x + tile, width)))
-    tracer = scene_tracer(geometry)[0]
+    tracer = traced_geometry(geometry).tracer
     own = tile_rays(tracer, ChunkContext(params=params, scene={}, chunk=chunk, inputs={
         "geometry": geometry, "triple.atlas": atlas}), stage)
     pairs = []

@@ -38,7 +38,7 @@ from pipeline.math.brdf import (  # noqa: E402
     fixed_term,
     glossy,
 )
-from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, BrdfBasis, build_basis  # noqa: E402
+from pipeline.methods.d2i.brdf_pca import PAPER_GAMMA_RANGES, BrdfBasis, build_basis  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "benchmarks" / "results"

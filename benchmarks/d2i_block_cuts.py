@@ -1,5 +1,5 @@
 """Study: d2i's D and Ms cut per row (paper 000) against cut across blocks of neighbours
-(pipeline/stages/truncate.py cut_blocks: D across b × b pixel blocks, Ms across n
+(pipeline/methods/d2i/stages/truncate.py cut_blocks: D across b × b pixel blocks, Ms across n
 consecutive gather samples), at equal budgets per row. From a baked scene's
 near-lossless rows (the transfer and bounce stages', before any cut) and the radiance
 vector of its full frame (direct light and every bounce, as the renderer's products read
@@ -28,12 +28,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipeline import job  # noqa: E402
-from pipeline.math import blocks, haar  # noqa: E402
+from pipeline.math import haar  # noqa: E402
 from pipeline.method import get_method  # noqa: E402
-from pipeline.render.d2i import D2iRenderer  # noqa: E402
+from pipeline.methods.d2i import blocks  # noqa: E402
+from pipeline.methods.d2i.render import D2iRenderer  # noqa: E402
+from pipeline.methods.d2i.stages.truncate import cut_blocks  # noqa: E402
 from pipeline.rows import expand_values  # noqa: E402
 from pipeline.scene import default_scene_path, load_scene  # noqa: E402
-from pipeline.stages.truncate import cut_blocks  # noqa: E402
 from pipeline.store import open_artifact  # noqa: E402
 
 FIELDS = ("count", "index", "value", "residual")

@@ -34,7 +34,7 @@ import yaml
 from pipeline import job, metrics
 from pipeline.images import write_png
 from pipeline.math.brdf import scene_brdfs
-from pipeline.math.brdf_pca import read_basis
+from pipeline.methods.d2i.brdf_pca import read_basis
 from pipeline.reference import ReferenceSettings
 from pipeline.scene import Scene, default_scene_path, load_scene
 from pipeline.scene_edits import with_material_edits

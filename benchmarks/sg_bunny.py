@@ -1,7 +1,7 @@
 """Shared set-up of the sg fit benchmarks: ``scenes/bunny_sg.yaml`` (the coarse bunny,
 Blinn–Phong γ 60, ρs 0.1, welded; a diffuse ground; Grace) baked up to ``sg.diffuse``
 in a work directory, and the stage's own transport function (direct + indirect glossy,
-pipeline/stages/sg_fit.py ``chunk_transport``) over a connected patch of bunny vertices.
+pipeline/methods/sg/stages/fit.py ``chunk_transport``) over a connected patch of bunny vertices.
 
 Not a benchmark itself: ``sg_fit_flips.py`` and ``sg_fit_stage.py`` import it.
 """
@@ -19,9 +19,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipeline import job  # noqa: E402
+from pipeline.methods.sg.stages import fit as stage  # noqa: E402
 from pipeline.runner import resolve_sections, stage_params  # noqa: E402
 from pipeline.stages import ChunkContext  # noqa: E402
-from pipeline.stages import sg_fit as stage  # noqa: E402
 from pipeline.store import Workdir, open_artifact  # noqa: E402
 
 SCENE = ROOT / "scenes" / "bunny_sg.yaml"

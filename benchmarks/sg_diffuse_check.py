@@ -37,14 +37,15 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipeline.images import read_environment, read_exr, write_png  # noqa: E402
-from pipeline.math import sg_diffuse, sh  # noqa: E402
+from pipeline.math import sh  # noqa: E402
 from pipeline.math.camera import camera_rays  # noqa: E402
 from pipeline.math.envmap import EnvironmentMap  # noqa: E402
+from pipeline.methods.sg import diffuse as sg_diffuse  # noqa: E402
+from pipeline.methods.sg.stages.diffuse import vertex_scene  # noqa: E402
 from pipeline.runner import run, stage_params  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 from pipeline.stagefile import load_stagefile  # noqa: E402
 from pipeline.stages import AssembleContext  # noqa: E402
-from pipeline.stages.sg_diffuse import vertex_scene  # noqa: E402
 from pipeline.store import Workdir, open_artifact  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "results" / "sg_diffuse_check"

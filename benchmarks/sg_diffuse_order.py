@@ -1,5 +1,5 @@
 """Study: how much of the shadowed direct diffuse light the SH order keeps under the
-scene's map (method sg's sg.diffuse, pipeline/math/sg_diffuse.py), on bunny_sg.
+scene's map (method sg's sg.diffuse, pipeline/methods/sg/diffuse.py), on bunny_sg.
 
 Run from the project root:  python benchmarks/sg_diffuse_order.py [--workdir W]
 Writes benchmarks/results/sg_diffuse_order.json.
@@ -26,10 +26,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipeline.images import read_environment  # noqa: E402
-from pipeline.math import sg_diffuse, sh  # noqa: E402
+from pipeline.math import sh  # noqa: E402
 from pipeline.math.brdf import BrdfParams  # noqa: E402
 from pipeline.math.envmap import EnvironmentMap  # noqa: E402
-from pipeline.math.sg_scene import VertexScene  # noqa: E402
+from pipeline.methods.sg import diffuse as sg_diffuse  # noqa: E402
+from pipeline.methods.sg.vertex_scene import VertexScene  # noqa: E402
 from pipeline.runner import run  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 from pipeline.stagefile import load_stagefile  # noqa: E402

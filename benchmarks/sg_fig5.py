@@ -8,7 +8,7 @@ Writes benchmarks/results/sg_fig5.json and sg_fig5.png.
 
 **Transport.** Scene benchmarks/sg_fig5_scene.yaml (the 6.6k-face bunny on a ground
 plane; its ``geometry`` artifact is baked in ``--workdir``). For one vertex and one of
-the 92 view directions of method sg (pipeline/math/sg_transport.py), the direct glossy
+the 92 view directions of method sg (pipeline/methods/sg/transport.py), the direct glossy
 transport T(ωi) = ρs f_F f_E V max(0, n·ωi) (1/sr, RGB), with Embree visibility against
 the whole scene, tabulated at the leaf centroids of the geodesic sphere of level
 ``--leaf-level`` (20·4^L directions; L = 5: 20,480, 1.4° apart; quadrature weights the
@@ -77,12 +77,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.math import sg, sg_fit, sh
+from pipeline.math import sg, sh
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.frames import tangent_from_normal
 from pipeline.math.geodesic import geodesic_levels, locate
-from pipeline.math.sg_transport import direct_glossy, view_directions, visibility
 from pipeline.math.sphwavelet import wavelet_basis
+from pipeline.methods.sg import fit as sg_fit
+from pipeline.methods.sg.transport import direct_glossy, view_directions, visibility
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "benchmarks" / "sg_fig5_scene.yaml"

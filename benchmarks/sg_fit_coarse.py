@@ -1,5 +1,5 @@
 """Benchmark: SG fits on a coarser grid first, then on the full grid from the coarse
-lobes (pipeline/math/sg_fit.py ``fit(..., start=)``), against the direct full-grid fit;
+lobes (pipeline/methods/sg/fit.py ``fit(..., start=)``), against the direct full-grid fit;
 with ``--float32``, instead the direct fit with float32 fields (FitOptions.fields,
 stopping tolerance ``--float32-tolerance``) against float64.
 
@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.executors import one_blas_thread
-from pipeline.math import sg, sg_fit
+from pipeline.math import sg
+from pipeline.methods.sg import fit as sg_fit
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))

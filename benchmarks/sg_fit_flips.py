@@ -1,4 +1,4 @@
-"""Benchmark: the fit stage's batch (pipeline/stages/sg_fit.py ``fit_batch``) on a
+"""Benchmark: the fit stage's batch (pipeline/methods/sg/stages/fit.py ``fit_batch``) on a
 connected patch of bunny_sg's bunny — lobe counts from the tolerance, fit errors, flips
 before and after the relaxation, and the time per vertex, transport (direct + indirect
 glossy, the stage's own function) apart from the fit.
@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from sg_bunny import bunny_patch  # noqa: E402
 
 from pipeline.executors import one_blas_thread  # noqa: E402
-from pipeline.stages import sg_fit as stage  # noqa: E402
+from pipeline.methods.sg.stages import fit as stage  # noqa: E402
 
 
 def main() -> None:

@@ -38,8 +38,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pipeline.math import sg_coherence  # noqa: E402
-from pipeline.stages import sg_fit as stage  # noqa: E402
+from pipeline.methods.sg import coherence as sg_coherence  # noqa: E402
+from pipeline.methods.sg.stages import fit as stage  # noqa: E402
 from pipeline.store import Workdir, open_artifact  # noqa: E402
 
 COS_BINS = np.array([0.0, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9, 1.0])

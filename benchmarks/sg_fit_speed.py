@@ -1,5 +1,5 @@
 """Benchmark: batched Levenberg–Marquardt SG fits against scipy's trust-region-reflective
-path on the same energy (pipeline/math/sg_fit.py; groundwork of issue 17).
+path on the same energy (pipeline/methods/sg/fit.py; groundwork of issue 17).
 
 Run from the project root:  python benchmarks/sg_fit_speed.py [--quick | --small]
 Writes benchmarks/results/sg_fit_speed.json (--small: 184 functions, subset 5; for a
@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.executors import one_blas_thread
-from pipeline.math import sg, sg_fit
+from pipeline.math import sg
+from pipeline.methods.sg import fit as sg_fit
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICK = "--quick" in sys.argv

@@ -1,7 +1,7 @@
 """Benchmark: the fit of method sg on real transport lobes — the fast path (each function
-on its support cap, pipeline/math/sg_support.py) against the whole-grid batched fit of
-the second session and the paper-faithful trf path (pipeline/math/sg_fit.py), same
-functions, same start rule; and the stage's per-vertex cost (pipeline/stages/sg_fit.py:
+on its support cap, pipeline/methods/sg/support.py) against the whole-grid batched fit of
+the second session and the paper-faithful trf path (pipeline/methods/sg/fit.py), same
+functions, same start rule; and the stage's per-vertex cost (pipeline/methods/sg/stages/fit.py:
 N chosen from the tolerance, alignment, coupled refit, view filling).
 
 Run from the project root:
@@ -41,9 +41,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from sg_bunny import bunny_patch  # noqa: E402
 
 from pipeline.executors import one_blas_thread  # noqa: E402
-from pipeline.math import sg_coherence, sg_fit, sg_support  # noqa: E402
-from pipeline.math.sg_transport import view_directions  # noqa: E402
-from pipeline.stages import sg_fit as stage  # noqa: E402
+from pipeline.methods.sg import coherence as sg_coherence  # noqa: E402
+from pipeline.methods.sg import fit as sg_fit  # noqa: E402
+from pipeline.methods.sg import support as sg_support  # noqa: E402
+from pipeline.methods.sg.stages import fit as stage  # noqa: E402
+from pipeline.methods.sg.transport import view_directions  # noqa: E402
 
 
 def timed(fn, repeats: int):

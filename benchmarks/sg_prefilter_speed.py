@@ -1,4 +1,4 @@
-"""Benchmark: the SG-prefiltered environment stack (pipeline/math/sg_prefilter.py, stage
+"""Benchmark: the SG-prefiltered environment stack (pipeline/methods/sg/prefilter.py, stage
 ``sg.env_prefilter`` of method sg) on real maps, against the brute-force reference.
 
 Run from the project root:  python benchmarks/sg_prefilter_speed.py [--repeats N]
@@ -29,7 +29,8 @@ import numpy as np
 
 from pipeline.executors import one_blas_thread
 from pipeline.images import read_environment
-from pipeline.math import sg, sg_prefilter
+from pipeline.math import sg
+from pipeline.methods.sg import prefilter as sg_prefilter
 from pipeline.scene import shared_data_dir
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,7 +1,7 @@
 """Benchmark: what method sg's transport costs per vertex on scenes/bunny_sg.yaml — the
-glossy transport the fit stage computes in its chunks (pipeline/math/sg_transport.py:
+glossy transport the fit stage computes in its chunks (pipeline/methods/sg/transport.py:
 direct visibility rays over the sphere grid, the direct glossy table, the indirect
-glossy paths) and the whole sg.diffuse stage (pipeline/math/sg_diffuse.py: the direct
+glossy paths) and the whole sg.diffuse stage (pipeline/methods/sg/diffuse.py: the direct
 pass with its gather matrix, then the bounces).
 
 Run from the project root:  python benchmarks/sg_transport_cost.py [--workdir W]
@@ -37,18 +37,19 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipeline.images import read_environment  # noqa: E402
-from pipeline.math import sg, sg_diffuse, sh  # noqa: E402
+from pipeline.math import sg, sh  # noqa: E402
 from pipeline.math.brdf import BrdfParams, scene_brdfs  # noqa: E402
 from pipeline.math.envmap import EnvironmentMap  # noqa: E402
 from pipeline.math.frames import tangent_from_normal  # noqa: E402
-from pipeline.math.sg_scene import VertexScene  # noqa: E402
-from pipeline.math.sg_transport import (  # noqa: E402
+from pipeline.methods.sg import diffuse as sg_diffuse  # noqa: E402
+from pipeline.methods.sg.transport import (  # noqa: E402
     direct_glossy,
     indirect_glossy_sh,
     on_grid,
     scene_visibility,
     view_directions,
 )
+from pipeline.methods.sg.vertex_scene import VertexScene  # noqa: E402
 from pipeline.runner import run, stage_params  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 from pipeline.stagefile import load_stagefile  # noqa: E402

@@ -61,9 +61,9 @@ from pipeline.charts import heatmap
 from pipeline.images import write_png
 from pipeline.math.camera import camera_rays
 from pipeline.method import get_method
+from pipeline.methods.triple.render import load_tables
 from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.reference import ReferenceSettings
-from pipeline.render.triple import load_tables
 from pipeline.scene_edits import with_environment_file
 from pipeline.store import Workdir, open_artifact
 
@@ -221,7 +221,7 @@ def rows_bytes(tables) -> dict[str, int]:
 
 
 def _render(scene, artifacts, options: dict[str, Any]) -> tuple[np.ndarray, float]:
-    from pipeline.render.triple import triple_renderer
+    from pipeline.methods.triple.render import triple_renderer
 
     frame = triple_renderer(scene, artifacts, **options)(scene)
     return frame.rgb, frame.timings["total_ms"]

@@ -49,9 +49,9 @@ from pipeline.images import read_environment, write_png
 from pipeline.math.camera import camera_rays
 from pipeline.math.envmap import EnvironmentMap, uv_to_direction
 from pipeline.method import get_method
+from pipeline.methods.triple.render import load_tables, texel_lookups
 from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.reference import ReferenceSettings
-from pipeline.render.triple import load_tables, texel_lookups
 from pipeline.scene import Scene, load_scene, shared_data_dir
 from pipeline.store import open_artifact
 
@@ -357,9 +357,9 @@ def _table_rows(gamma: float, refine: int = 1, level: int = 4) -> list[dict[str,
     (both sampled as the stage does, 4^refine points per leaf) and ``total`` (the truth
     sampled with 4^(refine+2) points: the stage's sampling error added); relative L2
     over the leaves (solid-angle weighted) and the ratio of the integrals (albedo)."""
-    from pipeline.math.frame_grids import ViewGrid
     from pipeline.math.geodesic import geodesic_levels
-    from pipeline.stages.brdf_tables import glossy_params, kernel_leaf_means
+    from pipeline.methods.triple.frame_grids import ViewGrid
+    from pipeline.methods.triple.stages.brdf_tables import glossy_params, kernel_leaf_means
 
     grid = ViewGrid()
     params = glossy_params("blinn_phong", {"gamma": gamma})

@@ -1,7 +1,7 @@
 """Study: the dense top-only path's two ways at 80 coefficients (issue 16, "Rendering").
 
 Rows cut top-only to 80 are functions constant on the 80 level-1 triangles. Either the
-rows are turned into triangle values once (pipeline/render/triple_dense.py, the shipped
+rows are turned into triangle values once (pipeline/methods/triple/dense.py, the shipped
 kernel ``triple_shade_dense``), or every pixel sums the sparse rows' coefficients
 densely and inverts them itself (the kernel below, kept here only for this comparison).
 Both on the same G-buffer, launched interleaved: median device ms and process CPU ms
@@ -104,11 +104,12 @@ def main() -> None:
     from pipeline.math.brdf import scene_brdfs
     from pipeline.math.sphwavelet import kernel_tables
     from pipeline.method import get_method
+    from pipeline.methods.triple import render
+    from pipeline.methods.triple.dense import DenseTables, _level_matrix
+    from pipeline.methods.triple.gbuffer import LookupTables, kernel_arguments
     from pipeline.raytrace import Mesh, RayTracer
-    from pipeline.render import triple as render
-    from pipeline.render.triple_dense import DenseTables, _level_matrix
-    from pipeline.render.triple_gbuffer import WORK_GROUP, LookupTables, kernel_arguments
-    from pipeline.surface_detail import SceneDetail
+    from pipeline.render import WORK_GROUP
+    from pipeline.render.surface_detail import SceneDetail
 
     scene = job.open_scene(ROOT / "scenes" / "bunny_grace.yaml")
     artifacts = job.method_artifacts(get_method("triple"), job.workdir_for(scene, args.workdir))

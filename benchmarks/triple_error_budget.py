@@ -59,18 +59,18 @@ import numpy as np
 from pipeline import job
 from pipeline.images import read_environment
 from pipeline.math.brdf import evaluate, scene_brdfs, to_local
-from pipeline.math.brdf_tables import diffuse_leaf_means, glossy_leaf_means
 from pipeline.math.envmap import EnvironmentMap
-from pipeline.math.frame_grids import FrameGrid, euler_angles, euler_frame
 from pipeline.math.geodesic import geodesic_levels
-from pipeline.math.light_grid import prefilter, sample_spacing
 from pipeline.method import get_method
+from pipeline.methods.triple.brdf_tables import diffuse_leaf_means, glossy_leaf_means
+from pipeline.methods.triple.frame_grids import FrameGrid, euler_angles, euler_frame
+from pipeline.methods.triple.gbuffer import LookupTables, lookups_numpy
+from pipeline.methods.triple.light_grid import prefilter, sample_spacing
+from pipeline.methods.triple.render import camera_gbuffer, load_tables
+from pipeline.methods.triple.stages.visibility import scene_tracer
 from pipeline.raytrace import Mesh, RayTracer, surface_at
-from pipeline.render.triple import camera_gbuffer, load_tables
-from pipeline.render.triple_gbuffer import LookupTables, lookups_numpy
-from pipeline.stages.visibility import scene_tracer
+from pipeline.render.surface_detail import SceneDetail
 from pipeline.store import open_artifact
-from pipeline.surface_detail import SceneDetail
 
 SCENE = "scenes/bunny_grace.yaml"
 STEPS = ["A0 truth", "A1 leaf level", "A2 leaf sampling", "A3 rotation grid",
@@ -397,7 +397,7 @@ def main(workdir, size, pixels, fine, grids, cubic_axis, canonical, reference, o
     report["texture_split_alone"] = {name: rel(v, value["A2 leaf sampling"])
                                      for name, v in texture_split.items()}
     # the method as rendered at these pixels (scale 1, no turn)
-    from pipeline.render.triple import triple_renderer
+    from pipeline.methods.triple.render import triple_renderer
     image = triple_renderer(scene, artifacts)(scene).rgb.reshape(-1, 3)[flat]
     report["render_check"] = rel(image, value["A6 truncation"])
     if reference:

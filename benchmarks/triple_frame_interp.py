@@ -1,6 +1,7 @@
 """Which interpolation of the rotation grid costs method triple how much on bunny_grace.
 
-Method triple bakes the lighting in a grid of local frames F (pipeline/math/frame_grids.py)
+Method triple bakes the lighting in a grid of local frames F
+(pipeline/methods/triple/frame_grids.py)
 and shades a point in frame R with Σ_f w_f L_F_f: since the triple product is linear in
 the lighting, its answer is Σ_f w_f B(F_f), with
 
@@ -45,8 +46,8 @@ from pipeline.images import read_environment
 from pipeline.math.brdf import evaluate, scene_brdfs, to_local
 from pipeline.math.camera import camera_rays
 from pipeline.math.envmap import EnvironmentMap
-from pipeline.math.frame_grids import FrameGrid, euler_angles
 from pipeline.math.geodesic import geodesic_levels
+from pipeline.methods.triple.frame_grids import FrameGrid, euler_angles
 from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.store import open_artifact
 

@@ -6,7 +6,7 @@ benchmarks/triple_accuracy.py) it integrates B = ∫ L(Fω) V(ω) ρ̃(ω, ω_o)
 quadrature over the leaves of geodesic level ``--fine`` (7: 327 680 directions, one per
 leaf centroid weighted by its solid angle, ≈ 0.35°: about a texel of the 1024×512 map),
 with L the raw map (bilinear, EnvironmentMap), V traced with Embree in the method's
-convention (pipeline/stages/visibility.py: above both horizons, from p + 1e-4·diag·g)
+convention (pipeline/methods/triple/stages/visibility.py: above both horizons, from p + 1e-4·diag·g)
 and ρ̃ = (kd/π + ρs f_g) cos⁺θi (pipeline/math/brdf.py ``evaluate``), in the pixel's
 shading frame (the renderer's normal and tangent). Per pixel it also forms, on the
 leaves of level 4 (each the union of 4^(fine − 4) fine leaves):
@@ -50,8 +50,8 @@ from pipeline.images import read_environment
 from pipeline.math.brdf import evaluate, glossy, scene_brdfs, to_local
 from pipeline.math.camera import camera_rays
 from pipeline.math.envmap import EnvironmentMap
-from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.geodesic import geodesic_levels
+from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
 from pipeline.raytrace import Mesh, RayTracer, surface_at
 from pipeline.store import open_artifact
 

@@ -28,7 +28,7 @@ import click
 
 from pipeline import job
 from pipeline.method import get_method
-from pipeline.render.triple import triple_renderer
+from pipeline.methods.triple.render import triple_renderer
 
 SCENE = "scenes/bunny_grace.yaml"
 

@@ -18,10 +18,10 @@ import yaml
 
 from pipeline.chunk import make_chunk
 from pipeline.images import read_environment
+from pipeline.methods.triple.stages import brdf_tables as brdf_stage
+from pipeline.methods.triple.stages import light_rotations as light_stage
 from pipeline.scene import load_scene
 from pipeline.stages import ChunkContext
-from pipeline.stages import brdf_tables as brdf_stage
-from pipeline.stages import light_rotations as light_stage
 
 
 def _timed(fn) -> tuple[float, float]:

@@ -7,7 +7,7 @@ values, and the worst relative reconstruction error against k.
 WORKDIR a work directory holding ``brdf_basis`` (``prt run --until brdf_basis`` bakes it
 for the default Cornell box in a second); NAME a glossy material (default: the first
 with k > 0). The dotted line in the last panel is the material's tolerance; k is the
-smallest count under it (data_schema/brdf_basis.yaml).
+smallest count under it (data_schema/d2i/brdf_basis.yaml).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ WORKDIR a work directory holding ``d2i.transfer_t`` (T) and ``d2i.transfer`` (D)
 d2i.truncate`` shows the rows cut to the renderer's budgets instead, from
 ``d2i.truncate_t`` and ``d2i.truncate`` (no residuals there; D's rows there are rows of
 pixel blocks). A pixel's T rows are consecutive, b0 first
-(data_schema/glossy_transfer.yaml), so a row's basis is its place in its pixel's run.
+(data_schema/d2i/glossy_transfer.yaml), so a row's basis is its place in its pixel's run.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ directory holds bakes at several (default: the only one, or the camera's).
 The fraction is read off the 20 scaling coefficients alone: with the basis orthonormal
 over the sphere, root r's scaling coefficient is c_r = V̄_r √A_r (V̄_r the mean of V
 over root triangle r, A_r its solid angle), so ∫V dω = Σ_r c_r √A_r, and the
-hemisphere's 2π normalises it (data_schema/triple_visibility.yaml; the basis:
+hemisphere's 2π normalises it (data_schema/triple/triple_visibility.yaml; the basis:
 pipeline/math/sphwavelet.py). Empty texels (outside every chart) are grey; a fully
 occluded texel stores no coefficient and reads 0.
 """

@@ -36,7 +36,7 @@
 
 #include "fastmath.h"
 
-/* exp and log1p of the lobes; a program may define them first (kernels/brdf_tables.cl:
+/* exp and log1p of the lobes; a program may define them first (kernels/triple/brdf_tables.cl:
  * kernels/fastmath.h's, which a CPU vectorises). */
 #ifndef BRDF_EXP
 #define BRDF_EXP exp
@@ -46,7 +46,7 @@
 #endif
 
 /* A program built with BRDF_MODEL (a MODEL_* code) fixes the model at build time (no
- * branch on mat[0]; kernels/brdf_tables.cl, one program per model); otherwise the
+ * branch on mat[0]; kernels/triple/brdf_tables.cl, one program per model); otherwise the
  * model is read from the material row. */
 #ifdef BRDF_MODEL
 #define BRDF_MODEL_OF(mat) BRDF_MODEL
@@ -75,7 +75,7 @@ PRT_INLINE float lafortune_one_minus_x(__global const float* mat, float3 wi, flo
 /* The glossy part f_F * f_E of the material's model (without rho_s), in 1/sr. */
 /* Scalar arithmetic (no float3 temporaries, no dot), the material read before any
  * branch, always inlined: a loop calling it then vectorises across work-items on a CPU
- * device (kernels/brdf_tables.cl). */
+ * device (kernels/triple/brdf_tables.cl). */
 PRT_INLINE float brdf_glossy(__global const float* mat, float3 wi, float3 wo) {
     int model = BRDF_MODEL_OF(mat);
     float g = mat[7], ratio = mat[8], f0 = mat[11];  /* loaded before any branch */

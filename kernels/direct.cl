@@ -42,7 +42,7 @@ __kernel void direct_lighting(__global const float* position,    /* npix * 3 */
 }
 
 /* The gather samples' directly lit radiance L_d = kd/π ⊙ E (method d2i: Lambertian at
- * the gathers, pipeline/render/d2i.py; NumPy twin kd/π ⊙ pipeline/math/lights.py
+ * the gathers, pipeline/methods/d2i/render.py; NumPy twin kd/π ⊙ pipeline/math/lights.py
  * shade_direct with a unit BRDF). `materials` holds Lambertian rows of each material's
  * albedo, so that lights.h's light_reflected (its BRDF kd/π, the viewer along the
  * normal) gives kd/π times the geometry and visibility sum; `pixel` the gathers' light

@@ -4,7 +4,7 @@
  * arithmetic, and an out-of-line call stops the vectoriser; so no builtin is called
  * here). Cephes' expf / logf polynomials (S. L. Moshier); relative error a few
  * ulp (tests/test_triple_tables.py: against NumPy's float64, tolerance 4e-7). Used by
- * kernels/brdf_tables.cl through brdf.h's BRDF_EXP / BRDF_LOG1P. */
+ * kernels/triple/brdf_tables.cl through brdf.h's BRDF_EXP / BRDF_LOG1P. */
 #ifndef PRT_FASTMATH_H
 #define PRT_FASTMATH_H
 
@@ -62,7 +62,7 @@ PRT_INLINE float fast_log1p(float x) {
 /* atan2(y, x) in [−π, π] by a minimax polynomial for atan on [0, 1]: within 1e-6 rad
  * of the true angle, relative error ≤ 1e-6 for small angles (tests/test_fastmath.py),
  * several times cheaper than PoCL's atan2/acos (measured: 50 of 124 ns per pair of the
- * transfer kernel); atan2(0, 0) = 0. Used by kernels/triple_lookup.h and brdf.h's PCA
+ * transfer kernel); atan2(0, 0) = 0. Used by kernels/triple/triple_lookup.h and brdf.h's PCA
  * coordinate. */
 PRT_INLINE float fast_atan2(float y, float x) {
     float ax = fabs(x), ay = fabs(y);

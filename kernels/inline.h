@@ -11,7 +11,7 @@
  * declined for functions called from two kernels of one program). So every function
  * that takes or returns a 3-component vector by value is declared PRT_INLINE
  * (tests/test_kernel_sources.py checks every kernel folder). Not every function: forced
- * inlining of the radix select's 2 KB private histograms (kernels/wavelet_select.cl)
+ * inlining of the radix select's 2 KB private histograms (kernels/triple/wavelet_select.cl)
  * overflowed a PoCL thread's stack, so the others keep `inline`
  * (docs/decisions/0001-kernels-under-any-opencl.md). */
 #ifndef PRT_INLINE_H

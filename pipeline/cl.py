@@ -123,7 +123,7 @@ def program(name: str, defines: dict[str, Any] | None = None) -> Any:
 
 def device_defines(dev: Any) -> dict[str, int]:
     """Defines that tell a kernel which implementation builds it: ``PRT_POCL`` on PoCL
-    (kernels/triple_surface.cl uses a clang builtin there that is not OpenCL C)."""
+    (kernels/triple/triple_surface.cl uses a clang builtin there that is not OpenCL C)."""
     from pipeline.devices import implementation
 
     return {"PRT_POCL": 1} if implementation(dev) == "pocl" else {}

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import PrtError
+from pipeline.images import read_environment
 from pipeline.math.brdf import MATERIAL_PARAMETERS, specular_albedo_bound
 from pipeline.scene import Scene
 from pipeline.searchpath import add_kernel_dir, add_schema_dir
@@ -302,3 +303,15 @@ def scene_notes(scene: Scene, methods: list[Method]) -> list[str]:
 def stagefile_fragments() -> tuple[Path, ...]:
     """The stage files of plug-ins that bring their own."""
     return tuple(m.stagefile for m in registry().values() if m.stagefile is not None)
+
+
+def check_one_environment(scene: Scene, method: str) -> None:
+    """PrtError unless ``scene`` has exactly one environment light whose map reads as a
+    valid latitude-longitude map (for the methods lit by a map alone; checked before
+    anything is baked: a lighting stage would refuse the map only after the geometry
+    stage has run)."""
+    count = sum(light.type == "environment" for light in scene.lights)
+    if count != 1:
+        raise PrtError(scene.path, f"lights: method {method} renders exactly one environment "
+                       f"light; the scene has {count}")
+    read_environment(scene.environment_file())

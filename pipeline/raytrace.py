@@ -22,6 +22,9 @@ from pipeline.executors import map_slices, task_threads
 from pipeline.math.frames import face_tangents, orthonormalize
 
 BATCH = 32768
+# Secondary rays leave a surface point this far along its normal, relative to the scene's
+# bounding-box diagonal (every bake stage and the reference use the same offset).
+RAY_EPSILON = 1e-4
 
 
 @dataclass

@@ -34,7 +34,7 @@ Shading frame (``pipeline.raytrace.surface_at``, as in the G-buffer, here in flo
 normal is the barycentric blend of vertex normals turned to face the incoming ray, the
 tangent follows +u of the mesh's uv; a material's bump map turns that frame and its
 blend mixes two BRDFs, (1 − t) f_a + t f_b, sampled as the mixture (material b with
-probability t; pipeline/surface_detail.py). Shadow rays leave from the geometric
+probability t; pipeline/render/surface_detail.py). Shadow rays leave from the geometric
 point along the face normal whatever the bump (the physically bumped reference that
 method triple's approximation is measured against). A direction
 on the shading side of the normal but behind the triangle's plane carries nothing. Ray
@@ -84,9 +84,9 @@ from pipeline.math.brdf import BrdfParams, evaluate, scene_brdfs
 from pipeline.math.camera import pixel_directions
 from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.lights import TYPE_CODES, LightRow, pack_lights, quad_normal, smoothstep
-from pipeline.raytrace import Mesh, RayTracer, surface_at
+from pipeline.raytrace import RAY_EPSILON, Mesh, RayTracer, surface_at
+from pipeline.render.surface_detail import SceneDetail
 from pipeline.scene import Scene
-from pipeline.surface_detail import SceneDetail
 
 TRANSPORTS = ("direct", "env-direct", "first-glossy", "first-glossy-indirect", "full")
 # the part of the BRDF at the first surface a camera path meets (later vertices: as the
@@ -96,7 +96,6 @@ TRANSPORTS = ("direct", "env-direct", "first-glossy", "first-glossy-indirect", "
 # diffuse = all less that, per path (method sg's glossy and diffuse images, apart)
 LOBES = ("all", "glossy", "diffuse")
 PIXEL_FILTERS = ("center", "box")
-RAY_EPSILON = 1e-4  # origin offset, relative to the scene diagonal
 PATHS_PER_PASS = 1 << 17
 
 

@@ -5,7 +5,7 @@ A set of rows is stored as per-row arrays (``count``: entries in the row, ``resi
 the norm the row's compression dropped over the row's norm) and flat entry arrays
 (``index``, ``value``): row r's entries are the next ``count[r]`` entries. Within a row,
 entries come in the order the writer chose (near entries first, then Haar coefficients
-largest first: pipeline/stages/transfer.py). On the device the same rows are
+largest first: pipeline/methods/d2i/stages/transfer.py). On the device the same rows are
 ``offsets`` (rows + 1), ``index`` and ``value`` (:class:`Rows`).
 """
 
@@ -108,7 +108,7 @@ class Rows:
     stream), else int32, ``value`` float32 — or, with a per-row ``scale`` (rows,)
     float32, ``value`` float16 as :func:`quantise_values` stores them (the entry is
     value × scale): the products stream 4 bytes per entry instead of 6 and apply the
-    scale once per row (kernels/sparse_rows.cl, VALUE_HALF)."""
+    scale once per row (kernels/d2i/sparse_rows.cl, VALUE_HALF)."""
 
     offsets: np.ndarray
     index: np.ndarray

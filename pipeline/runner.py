@@ -202,7 +202,7 @@ def resolve_sections(spec: StageSpec, scene: Scene, chunk: Chunk | None) -> dict
 
 
 def impl_target(impl: str) -> str:
-    """``transfer`` -> ``pipeline.stages.transfer``; dotted names stay as they are."""
+    """``gbuffer`` -> ``pipeline.stages.gbuffer``; dotted names stay as they are."""
     return impl if "." in impl.partition(":")[0] else f"{STAGE_PACKAGE}.{impl}"
 
 

@@ -90,7 +90,7 @@ class Material:
     :data:`pipeline.math.brdf.MATERIAL_PARAMETERS`, diffuse RGB ``albedo`` and the model's
     other parameters as validated (the BRDF module interprets them); optionally a
     ``blend`` with a second material and a ``bump`` map (run-time surface detail,
-    pipeline/surface_detail.py)."""
+    pipeline/render/surface_detail.py)."""
 
     name: str
     model: str

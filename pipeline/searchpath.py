@@ -1,4 +1,5 @@
-"""Where kernels and artifact schemas are found: the project's folders first, then the
+"""Where kernels and artifact schemas are found: the project's folders first (``kernels/``,
+then each built-in method's ``kernels/<method>/``; the same for ``data_schema/``), then the
 folders that method plug-ins add (:func:`add_kernel_dir`, :func:`add_schema_dir`), then
 those listed in ``PRT_KERNEL_PATH`` / ``PRT_SCHEMA_PATH`` (``os.pathsep``-separated).
 
@@ -28,9 +29,17 @@ def _project_dir(name: str) -> Path:
     return checkout if checkout.is_dir() else Path(str(files("pipeline").joinpath(name)))
 
 
+@cache
+def _project_dirs(name: str) -> tuple[Path, ...]:
+    """The project's ``name`` folder and its subfolders (one per built-in method that
+    has kernels or schemas of its own), sorted."""
+    top = _project_dir(name)
+    return (top, *sorted(d for d in top.iterdir() if d.is_dir() and d.name.isidentifier()))
+
+
 def _dirs(kind: str) -> list[Path]:
     env = [Path(p) for p in os.environ.get(_ENV[kind], "").split(os.pathsep) if p]
-    return [_project_dir(kind), *_EXTRA[kind], *env]
+    return [*_project_dirs(kind), *_EXTRA[kind], *env]
 
 
 def kernel_dirs() -> list[Path]:

@@ -1,5 +1,6 @@
-"""Transport rows across blocks of neighbours (pipeline/math/blocks.py) and their cut
-(pipeline/stages/truncate.py cut_pixel_blocks): the block transform, its inverse, and the
+"""Transport rows across blocks of neighbours (pipeline/methods/d2i/blocks.py) and their cut
+(pipeline/methods/d2i/stages/truncate.py cut_pixel_blocks): the block transform, its
+inverse, and the
 budgets and tolerances of the cut."""
 
 from __future__ import annotations
@@ -8,7 +9,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pipeline.math import blocks, haar
+from pipeline.math import haar
+from pipeline.methods.d2i import blocks
 
 
 def _dense(rows, columns):
@@ -78,11 +80,12 @@ def test_block_transform_is_orthonormal_and_unblock_inverts_it(block):
 
 
 def test_cut_pixel_blocks_of_one_pixel_cut_as_rows_do_and_wide_budgets_keep_everything():
-    """pipeline/stages/truncate.py cut_pixel_blocks: with blocks of one pixel it keeps exactly
+    """pipeline/methods/d2i/stages/truncate.py cut_pixel_blocks: with blocks of one pixel
+    it keeps exactly
     what cut_to_budget keeps per row (same counts, same entries); with blocks of 4 × 4
     and a budget above every block's entry count, the stored block rows unblock to the
     pixels' rows within float16 rounding (2^-11 of the largest value)."""
-    from pipeline.stages.truncate import cut_pixel_blocks, cut_to_budget
+    from pipeline.methods.d2i.stages.truncate import cut_pixel_blocks, cut_to_budget
 
     width, height, length = 12, 8, 64
     rows = _pixel_rows(np.random.default_rng(7), width, height, length, 60)
@@ -110,7 +113,7 @@ def test_cut_pixel_blocks_keeps_near_entries_and_the_budget(shared):
     min(available, budget × pixels with a row) per block (``block``) or over all the
     blocks (``chunk``: then not per block); the tolerance rule keeps the dropped energy
     within tolerance² of the energy, per block or over the blocks."""
-    from pipeline.stages.truncate import cut_pixel_blocks
+    from pipeline.methods.d2i.stages.truncate import cut_pixel_blocks
 
     width, height, length = 8, 8, 64
     rows = _pixel_rows(np.random.default_rng(3), width, height, length, 60)
@@ -144,7 +147,7 @@ def test_block_sizes_must_be_powers_of_two_within_a_chunk():
     """truncate.d_block and truncate.ms_block: a power of two dividing the chunk's edge or
     length (no block may straddle two chunks), else a one-line refusal naming both."""
     from pipeline.errors import PrtError
-    from pipeline.stages.truncate import block_size
+    from pipeline.methods.d2i.stages.truncate import block_size
 
     params = {"truncate.d_block": 4, "transfer.tile": 32}
     assert block_size(params, "truncate.d_block", "transfer.tile") == 4
@@ -158,7 +161,7 @@ def test_cut_rows_are_stored_by_ascending_index():
     """Every cut row (per row: cut_to_budget; per block: cut_pixel_blocks, both budget
     rules) stores its entries by strictly ascending index — the order zstd packs best
     (truncate.by_index) — and keeps the same entries as the order they were chosen in."""
-    from pipeline.stages.truncate import cut_pixel_blocks, cut_to_budget
+    from pipeline.methods.d2i.stages.truncate import cut_pixel_blocks, cut_to_budget
 
     width, height, length = 8, 8, 64
     rows = _pixel_rows(np.random.default_rng(11), width, height, length, 60)

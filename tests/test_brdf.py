@@ -20,7 +20,7 @@ from pipeline.math.brdf import (
     glossy,
     pack_materials,
 )
-from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES
+from pipeline.methods.d2i.brdf_pca import PAPER_GAMMA_RANGES
 
 RANGES = PAPER_GAMMA_RANGES
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from helpers import small_scene_dict, write_scene
 
+from pipeline import job
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams, edited_term
-from pipeline.math.brdf_pca import PAPER_GAMMA_RANGES, build_basis, read_basis
+from pipeline.methods.d2i.brdf_pca import PAPER_GAMMA_RANGES, build_basis, read_basis
 from pipeline.runner import run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
 
 RANGES = PAPER_GAMMA_RANGES
@@ -109,7 +109,7 @@ def _scene(tmp_path, name="s.yaml", **floor):
 def test_stage_keys_follow_the_edited_family(tmp_path):
     """γ, albedo and ρs edits re-bake no basis; a gamma_range or pca_tolerance edit
     re-bakes only that material's chunk. Lambertian materials get k = 0."""
-    stages, workdir = load_stagefile(), Workdir(tmp_path / "w")
+    stages, workdir = job.stages(), Workdir(tmp_path / "w")
     run(_scene(tmp_path), stages, workdir, until="brdf_basis", progress=False)
     art = open_artifact(workdir.artifact("brdf_basis"))
     names = art.attrs["material_names"]

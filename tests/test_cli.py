@@ -13,12 +13,11 @@ from helpers import small_scene_dict, write_scene
 from pipeline import job
 from pipeline.graph import topological_order, with_upstream
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
 
 
 def needed_stages(scene) -> set[str]:
     """The stages the scene file's methods bake (their reads and everything upstream)."""
-    return with_upstream(load_stagefile(), sorted(job.baked_stages(load_scene(scene))))
+    return with_upstream(job.stages(), sorted(job.baked_stages(load_scene(scene))))
 
 
 def prt(*args, cwd=None) -> subprocess.CompletedProcess:
@@ -66,7 +65,7 @@ def test_status_json(baked):
     needed = needed_stages(scene)
     plans = [row.pop("plan") for row in out["stages"]]
     assert out["stages"] == [{"name": n, "state": "fresh", "reason": "", "partial": None}
-                             for n in topological_order(load_stagefile()) if n in needed]
+                             for n in topological_order(job.stages()) if n in needed]
     assert all(p["rerun"] == 0 and p["chunks"] == [] and p["total"] >= 1 for p in plans)
     assert [(f["name"], f["state"]) for f in out["frames"]] == [
         ("frame", "present"), ("sequence light:8", "present"), ("sequence gamma:8", "present")]

@@ -11,10 +11,10 @@ import pytest
 
 from pipeline import cl, job, metrics
 from pipeline.errors import PrtError
-from pipeline.math.blocks import unblock
 from pipeline.method import get_method
+from pipeline.methods.d2i.blocks import unblock
+from pipeline.methods.d2i.render import D2iRenderer
 from pipeline.reference import ReferenceSettings
-from pipeline.render.d2i import D2iRenderer
 from pipeline.rows import Rows, quantise_values
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.scene_edits import with_light_offset, with_material_edits
@@ -84,7 +84,8 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
 
 
 def test_unblock_kernel_matches_numpy(baked):
-    """kernels/d2i.cl unblock against pipeline.math.blocks.unblock: per item the inverse Haar
+    """kernels/d2i/d2i.cl unblock against pipeline.methods.d2i.blocks.unblock: per item the
+    inverse Haar
     transform of its block's products — D (24² pixels in blocks of 4 × 4, as baked) and
     Ms (gather samples in blocks of 16 consecutive ones). 1e-5 of the largest value:
     float32 sums of 16 terms against float64."""
@@ -206,7 +207,7 @@ def test_bounce_tail_extrapolation_matches_iterating_to_convergence(baked, monke
     """Summing the bounces' geometric tail once their power ratio settles gives the
     frame that explicit bounces give (to 1e-6), within 0.2 % of the indirect image, in
     fewer bounces. Measured: 6 bounces instead of 20, 0.04 % apart."""
-    from pipeline.render import d2i
+    from pipeline.methods.d2i import render as d2i
 
     scene, workdir, _ = baked
     direct = job.render_frame(scene, workdir, "direct").rgb
@@ -298,7 +299,7 @@ def test_device_bounce_loop_equals_its_numpy_twin(baked, monkeypatch):
     bounce steps) against the same three bounces in NumPy (shade_direct, to_haar, a
     float64 sparse product): they agree to float32 rounding of the sums (1e-5 of the
     largest entry)."""
-    from pipeline.render import d2i
+    from pipeline.methods.d2i import render as d2i
 
     scene, _, renderer = baked
     monkeypatch.setattr(d2i, "RATIO_SETTLED", -1.0)  # no closed-form tail
@@ -436,7 +437,7 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     stored rows are byte-identical). Upstream, D's, T's and Ms's near-lossless rows are
     capped by their own parameters (``transfer.d_max_coefficients``,
     ``transfer.max_coefficients``, ``bounce.max_coefficients``)."""
-    from pipeline.math.blocks import pixel_blocks
+    from pipeline.methods.d2i.blocks import pixel_blocks
     from pipeline.store import open_artifact
 
     caps = {"d2i.transfer": 300, "d2i.transfer_t": 100, "d2i.bounce": 200}

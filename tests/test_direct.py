@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 
+from pipeline import job
 from pipeline.job import render_frame
 from pipeline.math.brdf import evaluate_world, scene_brdfs
 from pipeline.math.lights import pack_lights, quad_emission, shade_direct
@@ -17,13 +18,12 @@ from pipeline.raytrace import RayTracer
 from pipeline.render.shadows import light_visibility
 from pipeline.runner import run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
 
 
 def bake_and_render(scene_path, workdir):
     scene = load_scene(scene_path)
-    run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
+    run(scene, job.stages(), workdir, until="gbuffer", progress=False)
     return scene, render_frame(scene, workdir, "direct")
 
 
@@ -141,7 +141,7 @@ def cornell(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cornell")
     scene = load_scene(PROJECT / "scenes" / "cornell_box.yaml").with_image_size(64, 64)
     workdir = Workdir(tmp / "w")
-    run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
+    run(scene, job.stages(), workdir, until="gbuffer", progress=False)
     return scene, workdir, render_frame(scene, workdir, "direct")
 
 

@@ -1,11 +1,11 @@
-"""Grids of local frames and view directions (pipeline/math/frame_grids.py)."""
+"""Grids of local frames and view directions (pipeline/methods/triple/frame_grids.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from pipeline.math.brdf import to_local
-from pipeline.math.frame_grids import FrameGrid, ViewGrid, euler_angles, euler_frame
+from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid, euler_angles, euler_frame
 
 ROUNDING = 1e-12
 

@@ -20,7 +20,6 @@ from pipeline.images import read_exr
 from pipeline.render.emitters import EmitterOverlay, moved_quads
 from pipeline.scene import Camera, load_scene
 from pipeline.scene_edits import with_light_offset
-from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, read_record
 
 
@@ -63,7 +62,7 @@ def test_camera_dependent_stages():
     downstream; geometry and the BRDF bases are shared. triple.atlas sizes textures by
     the objects' size on screen, so it and the visibility read from it are kept per
     size too."""
-    assert dependent_on(load_stagefile(), "camera") == {
+    assert dependent_on(job.stages(), "camera") == {
         "gbuffer", "d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce",
         "d2i.truncate", "d2i.truncate_t", "d2i.truncate_ms", "triple.atlas",
         "triple.visibility"}
@@ -94,7 +93,7 @@ def test_size_preview_keeps_the_files_bake(baked, tmp_path):
     assert out.returncode == 0, out.stderr
     assert read_exr(tmp_path / "p.exr").shape == (8, 8, 3)
     view = workdir / "views" / "8x8"
-    graph = load_stagefile()
+    graph = job.stages()
     baked_here = with_upstream(graph, sorted(job.baked_stages(load_scene(scene))))
     assert sorted(p.name for p in view.glob("*.zarr")) == sorted(
         f"{s}.zarr" for s in dependent_on(graph, "camera") & baked_here)

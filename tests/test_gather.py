@@ -8,7 +8,7 @@ import pytest
 
 from pipeline import job
 from pipeline.math.spacecurve import chart_order, hilbert_index
-from pipeline.math.transfer import disk_pattern, subarea_points
+from pipeline.methods.d2i.transfer import disk_pattern, subarea_points
 from pipeline.scene import default_scene_path, load_scene
 from pipeline.store import open_artifact
 
@@ -169,7 +169,8 @@ def test_subarea_points_lie_on_each_disk(cornell):
 
 
 def test_stratified_surface_samples_cover_each_triangle_and_spread_evenly():
-    """pipeline/stages/gather.py ``_surface_samples``: every face gets a sample, each face
+    """pipeline/methods/d2i/stages/gather.py ``_surface_samples``: every face gets a
+    sample, each face
     ⌊n_f⌋ or ⌈n_f⌉ of its expected share, points inside their triangles, the weights sum
     to the area exactly. The count in a cell (a gather sample's share: here the
     nearest of 400 random sites on a unit square of two triangles, 8 samples per site on
@@ -178,7 +179,7 @@ def test_stratified_surface_samples_cover_each_triangle_and_spread_evenly():
     mean count; Poisson: 1/√8 = 0.35)."""
     from scipy.spatial import cKDTree
 
-    from pipeline.stages.gather import _surface_samples
+    from pipeline.methods.d2i.stages.gather import _surface_samples
 
     corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
     faces = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 1]])  # the last one degenerate, area 0

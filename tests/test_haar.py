@@ -99,8 +99,8 @@ def test_truncate_stage_cut_agrees_with_truncating_from_scratch():
     """The d2i.truncate stage cuts stored rows (kept near-losslessly, with their residual) to a
     tolerance; that gives the same counts as truncating the full rows to that tolerance,
     and its CSR prefix cut keeps exactly those coefficients."""
+    from pipeline.methods.d2i.stages.truncate import kept_counts
     from pipeline.rows import cut_rows
-    from pipeline.stages.truncate import kept_counts
 
     rows = np.cumsum(np.random.default_rng(6).normal(size=(8, 512)), axis=1)
     w = haar.forward(rows)
@@ -118,7 +118,7 @@ def test_cut_keeps_near_entries_and_counts_them_for_no_energy():
     """Rows with leading near entries (gather-domain values, always kept): a row of near
     entries then a smooth tail keeps its near entries and the tail's own prefix; a row
     of near entries alone keeps them; an empty row keeps nothing."""
-    from pipeline.stages.truncate import kept_counts
+    from pipeline.methods.d2i.stages.truncate import kept_counts
 
     tail = np.array([8.0, 4.0, 2.0, 1.0, 0.5])  # energy 85.25
     value = np.r_[[1e3, 1e3], tail, [5.0, 5.0], tail]
@@ -138,8 +138,8 @@ def test_cut_keeps_the_coarsest_coefficients_so_a_spike_cannot_take_the_mean():
     and a row without its mean (detail coefficients sum to zero) has no product with a
     uniform radiance at all (measured: 0.0). The truncate stage keeps the coefficients
     below COARSE_KEPT whatever their size: the product is kept (measured: exact)."""
+    from pipeline.methods.d2i.stages.truncate import COARSE_KEPT, cut_to_budget, kept_counts
     from pipeline.rows import expand_values
-    from pipeline.stages.truncate import COARSE_KEPT, cut_to_budget, kept_counts
 
     length = 1 << 16
     row = 0.02 * (1.0 + 0.4 * np.sin(np.linspace(0.0, 6.0, length)))[None]  # the field

@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 
-from pipeline import inspect
+from pipeline import inspect, job
 from pipeline.errors import PrtError
 from pipeline.runner import run
 from pipeline.scene import load_scene
 from pipeline.schema import load_schema
-from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
 
 sys.path.insert(0, str(PROJECT / "examples"))  # the example scripts' functions
@@ -49,7 +48,7 @@ def test_an_artifact_opens_lazily_with_its_schema_dims_and_provenance(tmp_path):
     equals what the stages read (Artifact.read), the provenance record is in attrs;
     an unknown artifact name is one error line naming what is present."""
     scene = load_scene(write_scene(tmp_path, small_scene_dict(8)))
-    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+    run(scene, job.stages(), Workdir(tmp_path / "work"),
         until="geometry", progress=False)
     work = inspect.open_workdir(tmp_path / "work")
     assert "geometry" in work.artifacts()
@@ -76,7 +75,7 @@ def test_chunk_times_example_charts_the_records_chunk_seconds(tmp_path):
     from matplotlib.image import imread
 
     scene = load_scene(write_scene(tmp_path, small_scene_dict(8)))
-    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+    run(scene, job.stages(), Workdir(tmp_path / "work"),
         until="geometry", progress=False)
     out = tmp_path / "times.png"
     result = run_example("chunk_times", str(tmp_path / "work"), "geometry", "--out", str(out))
@@ -99,7 +98,7 @@ def test_sg_lobes_example_reads_slot_zero_at_the_normal_view(tmp_path):
     from test_sg import sg_lights_map
 
     from pipeline.images import write_exr
-    from pipeline.stages.sg_fit import slot_counts
+    from pipeline.methods.sg.stages.fit import slot_counts
 
     write_exr(tmp_path / "env.exr", sg_lights_map().astype(np.float32))
     doc = small_scene_dict(8)
@@ -107,7 +106,7 @@ def test_sg_lobes_example_reads_slot_zero_at_the_normal_view(tmp_path):
     doc["lights"] = [{"type": "environment", "file": str(tmp_path / "env.exr")}]
     doc["settings"] = {"sg.fit_grid": [9, 16], "sg.fit_batch": 64, "sg.indirect_samples": 0}
     scene = load_scene(write_scene(tmp_path, doc))
-    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+    run(scene, job.stages(), Workdir(tmp_path / "work"),
         until="sg.relax", progress=False)
     out = tmp_path / "lobes.png"
     run_example("sg_lobes_over_mesh", str(tmp_path / "work"), "--out", str(out))
@@ -137,7 +136,7 @@ def test_brdf_basis_example_reads_one_materials_basis(tmp_path):
     from pipeline import job
 
     scene = job.open_scene(None)
-    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+    run(scene, job.stages(), Workdir(tmp_path / "work"),
         until="brdf_basis", progress=False)
     out = tmp_path / "basis.png"
     run_example("brdf_basis", str(tmp_path / "work"), "--out", str(out))

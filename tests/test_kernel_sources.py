@@ -52,7 +52,7 @@ def helper_heads_not_inlined(source: str) -> list[str]:
 
 
 def kernel_files() -> list[Path]:
-    return sorted(p for folder in KERNEL_FOLDERS for p in folder.glob("*.[ch]*"))
+    return sorted(p for folder in KERNEL_FOLDERS for p in folder.rglob("*.[ch]*"))
 
 
 def test_the_parser_finds_helpers_kernels_and_skips_macros_and_comments():

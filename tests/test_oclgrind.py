@@ -78,7 +78,7 @@ def replay(folder: Path, checks: dict[str, str], only: list[str] = ()) -> dict[s
 
 
 def kernels_of(folder: Path) -> set[tuple[str, str]]:
-    return {(p.name, m.group(1)) for p in folder.glob("*.cl")
+    return {(p.name, m.group(1)) for p in folder.rglob("*.cl")
             for m in re.finditer(r"__kernel\s+void\s+(\w+)", p.read_text())}
 
 

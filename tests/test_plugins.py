@@ -113,17 +113,17 @@ def test_code_edits_rerun_exactly_what_they_touch(plugin):
 
 def test_editing_a_math_module_changes_exactly_the_stages_importing_it(tmp_path,
                                                                        monkeypatch):
-    """pipeline/math/transfer.py (the d2i estimators) is imported by the gather,
+    """pipeline/methods/d2i/transfer.py (the d2i estimators) is imported by the gather,
     transfer, glossy transfer and bounce stages (the last two through the transfer
     stage's helpers): an edit changes their code versions and no other stage's."""
     graph = job.stages()
     before = {name: stage_code(spec) for name, spec in graph.stages.items()}
-    original = codeversion.module_file("pipeline.math.transfer")
+    original = codeversion.module_file("pipeline.methods.d2i.transfer")
     edited = tmp_path / "transfer.py"
     edited.write_text(original.read_text() + "\n# an edited comment\n")
     real = codeversion.module_file
     monkeypatch.setattr(codeversion, "module_file",
-                        lambda m: edited if m == "pipeline.math.transfer" else real(m))
+                        lambda m: edited if m == "pipeline.methods.d2i.transfer" else real(m))
     after = {name: stage_code(spec) for name, spec in graph.stages.items()}
     assert {n for n in before if before[n] != after[n]} == {
         "d2i.gather", "d2i.transfer", "d2i.transfer_t", "d2i.bounce"}

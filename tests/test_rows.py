@@ -37,9 +37,9 @@ def test_sort_rows_moves_whole_rows_in_key_order(monkeypatch, piece):
 
 
 def test_merge_rows_puts_first_entries_before_seconds_in_each_row():
-    """pipeline.stages.transfer.merge_rows against the definition: row by row, the
+    """pipeline.methods.d2i.stages.transfer.merge_rows against the definition: row by row, the
     first CSR's entries then the second's, with empty rows on either side."""
-    from pipeline.stages.transfer import merge_rows
+    from pipeline.methods.d2i.stages.transfer import merge_rows
 
     rng = np.random.default_rng(3)
     first_count, second_count = rng.integers(0, 4, 30), rng.integers(0, 6, 30)

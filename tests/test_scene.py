@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from helpers import PROJECT, SHARED_DATA, small_scene_dict, write_scene
 
+from pipeline import job
 from pipeline.errors import PrtError
 from pipeline.keys import digest
 from pipeline.math.brdf import MATERIAL_PARAMETERS
 from pipeline.runner import plan, run
 from pipeline.scene import load_scene
 from pipeline.scene_edits import with_material_edits
-from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
 
 
@@ -41,7 +41,7 @@ def test_bunny_grace_scene_sees_bunny_on_ground(tmp_path, monkeypatch):
     assert scene.objects["bunny"].mesh == (SHARED_DATA / "meshes" / "bunny_60kf.obj").resolve()
     assert scene.lights[0].type == "environment"
     workdir = Workdir(tmp_path / "w")
-    run(scene, load_stagefile(), workdir, until="gbuffer", progress=False)
+    run(scene, job.stages(), workdir, until="gbuffer", progress=False)
     geo = open_artifact(workdir.artifact("geometry"))
     bunny = geo.read("object_ranges")[0]
     assert bunny[3] - bunny[2] == 59664
@@ -76,7 +76,7 @@ def test_mesh_section_key_follows_content_not_location(tmp_path):
     assert a == b
     # the leaf that stages declare (objects.*.mesh), and so the stage keys, too
     assert scene_a.section("objects.floor.mesh") == scene_b.section("objects.floor.mesh")
-    keys = [{p.spec.name: p.key for p in plan(s, load_stagefile(), Workdir(tmp_path / "w"))}
+    keys = [{p.spec.name: p.key for p in plan(s, job.stages(), Workdir(tmp_path / "w"))}
             for s in (scene_a, scene_b)]
     assert keys[0] == keys[1]
     with open(tmp_path / "b" / "cbox_floor.obj", "a") as f:
@@ -261,7 +261,7 @@ def test_smooth_welds_a_faceted_mesh_file_and_only_when_asked(tmp_path):
             doc["objects"]["bunny"]["smooth"] = True
         scene = load_scene(write_scene(tmp_path, doc))
         work = Workdir(tmp_path / f"work{smooth}")
-        run(scene, load_stagefile(PROJECT / "stages.yaml"), work, targets={"geometry"},
+        run(scene, job.stages(), work, targets={"geometry"},
             progress=False)
         geometry = open_artifact(work.artifact("geometry"))
         counts[smooth] = (len(geometry.read("vertices")), len(geometry.read("faces")))

@@ -1,4 +1,4 @@
-"""Spherical Gaussians (pipeline/math/sg.py, kernels/sg.h): the closed forms against
+"""Spherical Gaussians (pipeline/math/sg.py, kernels/sg/sg.h): the closed forms against
 quadrature on the sphere, float32 behaviour of sharp lobes, the prefiltered environment
 lookup against direct quadrature, and each kernel against its NumPy twin."""
 
@@ -187,7 +187,7 @@ def test_prefiltered_lookup_matches_quadrature(prefiltered):
 
 
 def test_formula_kernel_matches_numpy():
-    """kernels/sg.h's eval, integral, inner product and product against float64 NumPy
+    """kernels/sg/sg.h's eval, integral, inner product and product against float64 NumPy
     for λ from 10⁻² to 10⁴, on the same (float32-rounded) inputs. A value e^E with
     E ≥ −40 (smaller ones are below 1e-17 and compared absolutely) carries the float32
     rounding of E, a few ulps of |E| ≤ 40 · 6e-8 · 4 ≈ 1e-5 relative; tolerance 3e-5
@@ -216,7 +216,7 @@ def test_formula_kernel_matches_numpy():
 
 
 def test_env_kernel_matches_numpy(prefiltered):
-    """kernels/sg.h's sg_env_integral against env_integral on the same stack (packed to
+    """kernels/sg/sg.h's sg_env_integral against env_integral on the same stack (packed to
     float32). Tolerance 1e-4 of the largest channel: float32 texel values (6e-8), the
     level coordinate's float32 log (~1e-6 of a level → as much of the step between
     levels) and envmap.h's lookup (1e-4 of the map's largest texel, test_triple_tables);

@@ -1,4 +1,4 @@
-"""Method sg's diffuse SH transfer (pipeline/math/sg_diffuse.py) on small hand-built
+"""Method sg's diffuse SH transfer (pipeline/methods/sg/diffuse.py) on small hand-built
 scenes: an open plane against the clamped cosine's exact coefficients, a floor vertex
 beside a wall against a brute-force two-level estimate with analytic ray casting, and
 the subdivided plane primitive the sg scenes stand on."""
@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PROJECT
 
-from pipeline.math import sg_diffuse, sh
+from pipeline import job
+from pipeline.math import sh
 from pipeline.math.brdf import BrdfParams
-from pipeline.math.sg_scene import VertexScene
 from pipeline.meshio import primitive_mesh
+from pipeline.methods.sg import diffuse as sg_diffuse
+from pipeline.methods.sg.vertex_scene import VertexScene
 
 
 def scene_of(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
@@ -179,7 +180,6 @@ def test_stage_writes_the_transfer_and_ignores_glossy_edits(tmp_path):
 
     from pipeline.runner import plan, run
     from pipeline.scene import load_scene
-    from pipeline.stagefile import load_stagefile
     from pipeline.store import Workdir, open_artifact
 
     doc = {
@@ -198,7 +198,7 @@ def test_stage_writes_the_transfer_and_ignores_glossy_edits(tmp_path):
         "lights": [{"type": "environment",
                     "file": str(constant_environment(tmp_path / "sky.exr", [2.0] * 3))}],
     }
-    stagefile = load_stagefile(PROJECT / "stages.yaml")
+    stagefile = job.stages()
     workdir = Workdir(tmp_path / "work")
     scene = load_scene(write_scene(tmp_path, doc))
     run(scene, stagefile, workdir, until="sg.diffuse", progress=False)

@@ -1,4 +1,4 @@
-"""Batched spherical Gaussian fits (pipeline/math/sg_fit.py): the analytic Jacobian,
+"""Batched spherical Gaussian fits (pipeline/methods/sg/fit.py): the analytic Jacobian,
 recovery of known lobes, zero functions, and the batched Levenberg–Marquardt against
 scipy's trust-region-reflective path on the same energy."""
 
@@ -9,7 +9,8 @@ import itertools
 import numpy as np
 import pytest
 
-from pipeline.math import sg, sg_fit
+from pipeline.math import sg
+from pipeline.methods.sg import fit as sg_fit
 
 GRID = sg.latlong_directions(33, 64)  # 2112 directions, 5.6° apart at the equator
 DIRECTIONS, SOLID_ANGLES = GRID[0].reshape(-1, 3), GRID[1].ravel()

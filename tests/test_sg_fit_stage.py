@@ -1,22 +1,25 @@
-"""Method sg's fit stage (pipeline/stages/sg_fit.py) and its parts: the support-cap fast
-path (pipeline/math/sg_support.py), lobe correspondence, flips and relaxation
-(pipeline/math/sg_coherence.py), N from the tolerance, the stage on a tiny scene."""
+"""Method sg's fit stage (pipeline/methods/sg/stages/fit.py) and its parts: the support-cap fast
+path (pipeline/methods/sg/support.py), lobe correspondence, flips and relaxation
+(pipeline/methods/sg/coherence.py), N from the tolerance, the stage on a tiny scene."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PROJECT, small_scene_dict, write_scene
+from helpers import small_scene_dict, write_scene
 from test_sg import sg_lights_map
 from test_sg_fit import DIRECTIONS, SOLID_ANGLES, random_lobes, tabulate
 
+from pipeline import job
 from pipeline.images import write_exr
-from pipeline.math import sg, sg_coherence, sg_fit, sg_support
-from pipeline.math.sg_transport import view_directions
+from pipeline.math import sg
+from pipeline.methods.sg import coherence as sg_coherence
+from pipeline.methods.sg import fit as sg_fit
+from pipeline.methods.sg import support as sg_support
+from pipeline.methods.sg.stages import fit as stage
+from pipeline.methods.sg.transport import view_directions
 from pipeline.runner import run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.stages import sg_fit as stage
 from pipeline.store import Workdir, open_artifact
 
 
@@ -57,7 +60,7 @@ def test_relative_errors_match_the_model_image():
     ~0.6), an exact copy of the model (error 0: the direct branch), a zero function
     (NaN). Tolerance 1e-4 absolute: float32 sums carry ~1e-6 of ‖T‖², i.e. ≤ 1e-5 of
     error above 0.05."""
-    from pipeline.math.sg_fit import SGFit
+    from pipeline.methods.sg.fit import SGFit
 
     mean, sigma, weight = random_lobes(12, 2, seed=7)
     rng = np.random.default_rng(8)
@@ -136,7 +139,8 @@ def test_relax_stage_removes_flips_across_batches():
     every view, none inside. After the stage none is left, and each (vertex, view)
     keeps the same lobes (only their slots change), counts and errors untouched."""
     from pipeline.chunk import make_chunk
-    from pipeline.stages import ChunkContext, sg_relax
+    from pipeline.methods.sg.stages import relax as sg_relax
+    from pipeline.stages import ChunkContext
 
     views = view_directions()
     lobes = np.zeros((4, 92, 3, 7), np.float32)
@@ -231,7 +235,7 @@ def test_stage_writes_valid_lobes_on_a_tiny_scene(tmp_path):
     # vertex gets a defined, empty result)
     doc["settings"] = {"sg.fit_grid": [9, 16], "sg.fit_batch": 64, "sg.indirect_samples": 0}
     scene = load_scene(write_scene(tmp_path, doc))
-    run(scene, load_stagefile(PROJECT / "stages.yaml"), Workdir(tmp_path / "work"),
+    run(scene, job.stages(), Workdir(tmp_path / "work"),
         until="sg.fit", progress=False)
     artifact = open_artifact(Workdir(tmp_path / "work").artifact("sg.fit"))
     geometry = open_artifact(Workdir(tmp_path / "work").artifact("geometry"))

@@ -1,4 +1,4 @@
-"""Method sg's prefiltered environment: the fast stack (pipeline/math/sg_prefilter.py)
+"""Method sg's prefiltered environment: the fast stack (pipeline/methods/sg/prefilter.py)
 against the brute-force reference, the stage ``sg.env_prefilter`` (stored stack, rebuilt
 when the map changes), and the plug-in skeleton's refusals."""
 
@@ -12,17 +12,18 @@ import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 from test_sg import sg_lights_map
 
+from pipeline import job
 from pipeline.errors import PrtError
 from pipeline.images import read_environment, write_exr
-from pipeline.math import sg, sg_prefilter
+from pipeline.math import sg
 from pipeline.method import check_method_scene, get_method
+from pipeline.methods.sg import prefilter as sg_prefilter
+from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.runner import run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.stages.env_prefilter import read_stack
 from pipeline.store import Workdir, open_artifact
 
-STAGEFILE = load_stagefile(PROJECT / "stages.yaml")
+STAGEFILE = job.stages()
 
 
 def spiky_map(height: int, width: int, seed: int) -> np.ndarray:

@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PROJECT, small_scene_dict, write_scene
+from helpers import small_scene_dict, write_scene
 from test_sg import sg_lights_map
 
+from pipeline import job
 from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math.brdf import BrdfParams, glossy, to_local
 from pipeline.math.frames import tangent_from_normal
-from pipeline.math.sg_transport import view_directions
+from pipeline.methods.sg.stages.probe import probe_vertices
+from pipeline.methods.sg.transport import view_directions
 from pipeline.runner import run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.stages.sg_probe import probe_vertices
 from pipeline.store import Workdir, open_artifact
 
 
@@ -29,7 +29,7 @@ def bake_probe(tmp_path, vertices):
                        "sg.diffuse_samples": 64, "sg.probe_vertices": vertices}
     scene = load_scene(write_scene(tmp_path, doc))
     work = Workdir(tmp_path / "work")
-    run(scene, load_stagefile(PROJECT / "stages.yaml"), work, until="sg.probe",
+    run(scene, job.stages(), work, until="sg.probe",
         progress=False)
     return scene, open_artifact(work.artifact("sg.probe")), open_artifact(work.artifact("geometry"))
 

@@ -1,4 +1,4 @@
-"""Method sg's renderer (pipeline/render/sg.py, kernels/sg_render.cl) on synthetic
+"""Method sg's renderer (pipeline/methods/sg/render.py, kernels/sg/sg_render.cl) on synthetic
 artifacts in the layout of the sg.fit / sg.diffuse contract: the view-triangle lookup,
 the kernels against their NumPy twins, a highlight kept between views, a lobe's
 integral against quadrature, and an environment rotation."""
@@ -12,9 +12,9 @@ from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math import sg, sh
 from pipeline.math.envmap import direction_to_uv, rotation_y, uv_to_direction
-from pipeline.math.sg_prefilter import prefilter
-from pipeline.math.sg_transport import view_directions
-from pipeline.render import sg as render
+from pipeline.methods.sg import render
+from pipeline.methods.sg.prefilter import prefilter
+from pipeline.methods.sg.transport import view_directions
 from pipeline.scene_edits import with_environment_rotation
 from tests.helpers import scene_geometry, small_scene_dict
 

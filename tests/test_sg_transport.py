@@ -1,4 +1,4 @@
-"""Method sg's tabulated glossy transport (pipeline/math/sg_transport.py): the 92 view
+"""Method sg's tabulated glossy transport (pipeline/methods/sg/transport.py): the 92 view
 directions, the direct transport's integral against the BRDF's directional albedo, its
 visibility against an analytic occluder, and the indirect glossy estimator against
 quadrature."""
@@ -11,8 +11,8 @@ import trimesh
 from pipeline.math import sg, sh
 from pipeline.math.brdf import BrdfParams, directional_albedo, glossy
 from pipeline.math.geodesic import icosahedron
-from pipeline.math.sg_scene import VertexScene
-from pipeline.math.sg_transport import (
+from pipeline.meshio import primitive_mesh
+from pipeline.methods.sg.transport import (
     direct_glossy,
     glossy_transport,
     indirect_glossy_sh,
@@ -20,7 +20,7 @@ from pipeline.math.sg_transport import (
     view_directions,
     visibility,
 )
-from pipeline.meshio import primitive_mesh
+from pipeline.methods.sg.vertex_scene import VertexScene
 from pipeline.raytrace import RayTracer
 
 SHINY = BrdfParams("blinn_phong", (0.2, 0.2, 0.2), (0.3, 0.5, 0.7), gamma=20.0)

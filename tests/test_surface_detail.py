@@ -1,4 +1,4 @@
-"""Surface detail (pipeline/math/textures.py, pipeline/surface_detail.py): textures,
+"""Surface detail (pipeline/math/textures.py, pipeline/render/surface_detail.py): textures,
 blends of two materials, bump maps; their scene syntax, refusals, method triple's BRDF
 lookups and the reference's blended BRDF."""
 
@@ -15,11 +15,11 @@ from pipeline.images import read_texture, write_exr
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.textures import sample
 from pipeline.method import check_method_scene, get_method
+from pipeline.methods.triple.render import PixelLookups, brdf_lookups, shade, shade_numpy
 from pipeline.raytrace import Hits, Mesh, surface_at
 from pipeline.reference import PathTracer, _brdf, _brdf_pdf, _Vertex
-from pipeline.render.triple import PixelLookups, brdf_lookups, shade, shade_numpy
+from pipeline.render.surface_detail import SceneDetail
 from pipeline.scene import load_scene
-from pipeline.surface_detail import SceneDetail
 
 # --------------------------------------------------------------------------- textures
 
@@ -324,8 +324,8 @@ def test_the_grazing_view_row_of_a_ward_table_is_finite():
     the view grid's grazing row (N·V = 0): that row is sampled half a θ step inside, so
     its mean stays of the order of the row one step above (measured 1.6e5 × before; the
     bound 3 allows the growth of 1/√cos θ_o over half a step, √2 at the horizon)."""
-    from pipeline.math.frame_grids import ViewGrid
-    from pipeline.stages.brdf_tables import view_leaf_means
+    from pipeline.methods.triple.frame_grids import ViewGrid
+    from pipeline.methods.triple.stages.brdf_tables import view_leaf_means
 
     grid = ViewGrid(8, 16)
     params = BrdfParams("ward_anisotropic", (0, 0, 0), (1, 1, 1), gamma=0.1, alpha_ratio=10.0)

@@ -1,4 +1,4 @@
-"""The d2i transfer estimators (pipeline/math/transfer.py) against brute-force
+"""The d2i transfer estimators (pipeline/methods/d2i/transfer.py) against brute-force
 integration over the gather disks (DESIGN §7: area measure, squared distance)."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from pipeline.math.brdf import BrdfParams, coordinate, fixed_term, to_local
-from pipeline.math.brdf_pca import build_basis
 from pipeline.math.frames import tangent_from_normal
-from pipeline.math.transfer import (
+from pipeline.methods.d2i.brdf_pca import build_basis
+from pipeline.methods.d2i.transfer import (
     Disks,
     GlossyTable,
     Receivers,
@@ -168,11 +168,11 @@ def test_convergence_threshold_uses_fewer_samples_for_far_disks():
                                                ("cook_torrance", (0.1, 2.0)),
                                                ("ashikhmin_shirley", (3.0, 300.0))])
 def test_opencl_kernel_matches_numpy(scene, model, gamma_range):
-    """kernels/transfer.cl = pipeline/math/transfer.py on float32 inputs, with adaptive
+    """kernels/d2i/transfer.cl = pipeline/methods/d2i/transfer.py on float32 inputs, with adaptive
     sample counts and no early stop (tolerance 0: a float32 and a float64
     sum may stop at different prefixes). To 2e-4 of each receiver's largest entry:
     float32 sums of up to 256 terms, and the basis cell found from a float32 angle."""
-    from pipeline.stages.transfer import TransferKernel
+    from pipeline.methods.d2i.stages.transfer import TransferKernel
 
     receivers, disks = scene
     receivers = Receivers(*(a.astype(np.float32).astype(float) for a in (
@@ -289,7 +289,7 @@ def test_columns_without_source_area_are_interpolated_and_do_not_bias_truncated_
     their coarse share), and keeps the product to 0.1 % once filled (measured: 1e-5):
     the filled row is smooth, so its 64 largest coefficients hold it."""
     from pipeline.math import haar
-    from pipeline.math.transfer import fill_sourceless
+    from pipeline.methods.d2i.transfer import fill_sourceless
 
     rng = np.random.default_rng(3)
     count = 2000
@@ -331,7 +331,7 @@ def test_compressed_rows_keep_products_where_a_near_spike_borders_a_sourceless_c
     stored row's product with a radiance vector (zero where there is no area) keeps the
     exact one to 0.1 % at a 64-coefficient cap (with the holes left as zeros: −2 %)."""
     from pipeline.math import haar
-    from pipeline.stages.transfer import compress_rows
+    from pipeline.methods.d2i.stages.transfer import compress_rows
 
     rng = np.random.default_rng(5)
     count = 2000

@@ -7,18 +7,22 @@ import copy
 
 import numpy as np
 import pytest
-from helpers import PROJECT, small_scene_dict, write_scene
+from helpers import small_scene_dict, write_scene
 
+from pipeline import job
 from pipeline.chunkwrite import segment_name
 from pipeline.math.sphwavelet import wavelet_basis
-from pipeline.math.texels import COVERED, DILATED, EMPTY
+from pipeline.methods.triple.stages.visibility import (
+    RAY_EPSILON,
+    fine_directions,
+    visibility_leaf_means,
+)
+from pipeline.methods.triple.texels import COVERED, DILATED, EMPTY
 from pipeline.runner import plan, run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.stages.visibility import RAY_EPSILON, fine_directions, visibility_leaf_means
 from pipeline.store import Workdir, open_artifact
 
-STAGEFILE = load_stagefile(PROJECT / "stages.yaml")
+STAGEFILE = job.stages()
 LEVEL, REFINE = 2, 1
 SETTINGS = {"triple.leaf_level": LEVEL, "triple.visibility_refine": REFINE,
             "triple.texel_tile": 16, "triple.texture_max": 48,
@@ -243,9 +247,10 @@ def test_stored_rows_reconstruct_the_leaf_means_when_nothing_is_dropped(baked):
     texel_row / start / count; empty texels have empty rows; every row of the first
     320 coefficients' support is stored."""
     _, _, _, geometry, atlas, visibility = baked
-    from pipeline.stages.visibility import scene_tracer
+    from pipeline.stages.geometry import traced_geometry
 
-    tracer, face_normal, epsilon = scene_tracer(geometry)
+    traced = traced_geometry(geometry)
+    tracer, face_normal, epsilon = traced.tracer, traced.mesh.face_normal, traced.epsilon
     ranges = geometry.read("object_ranges")
     offsets = dict(zip(atlas.attrs["texture_sizes"], atlas.read("texture_offsets"), strict=True))
     for index, obj in enumerate(OBJECTS):
@@ -300,7 +305,7 @@ def test_visibility_chunks_resume_after_a_crash(baked, tmp_path, monkeypatch):
     others, and the artifact equals the uninterrupted bake's byte for byte."""
     folder, doc, workdir, *_ = baked
     from pipeline.errors import PrtError
-    from pipeline.stages import visibility as stage
+    from pipeline.methods.triple.stages import visibility as stage
 
     original, calls = stage.run_chunk, []
 
@@ -340,7 +345,7 @@ def test_texture_side_follows_the_size_on_screen_within_its_bounds():
     packing is retried until it does); an object off screen gets about texture_min."""
     import trimesh
 
-    from pipeline.stages.atlas import packed_atlas
+    from pipeline.methods.triple.stages.atlas import packed_atlas
 
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
     params = {"triple.texels_per_pixel": 1.0, "triple.texture_min": 16,
@@ -357,14 +362,15 @@ def test_texture_side_follows_the_size_on_screen_within_its_bounds():
 
 def test_an_xatlas_atlas_is_freed_only_when_the_next_one_is_made():
     """Freeing an xatlas Atlas right after generate() can hang its process forever (a
-    lost wake-up in xatlas's task scheduler; pipeline/stages/atlas.py ``_held_atlas``):
+    lost wake-up in xatlas's task scheduler; pipeline/methods/triple/stages/atlas.py
+    ``_held_atlas``):
     each atlas stays alive until the next one is made. The race is too rare to provoke
     here (21,000 atlases made and freed at once, three processes on 2 cores, none hung),
     so this checks the order: after a pack its atlas is alive, and the next pack frees it."""
     import gc
     import weakref
 
-    from pipeline.stages import atlas as stage
+    from pipeline.methods.triple.stages import atlas as stage
 
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float64)
     faces = np.array([[0, 1, 2], [1, 3, 2]], np.int64)

@@ -1,5 +1,5 @@
 """Method triple's device lookups from a G-buffer and the dense top-only path
-(kernels/triple_lookup.h, kernels/triple.cl; pipeline/render/triple_gbuffer.py,
+(kernels/triple/triple_lookup.h, kernels/triple/triple.cl; pipeline/methods/triple/gbuffer.py,
 triple_dense.py), against their NumPy twins, with synthetic inputs: random shading
 frames (as a bump map gives them, independent of any geometry), two-material blends,
 texels left empty."""
@@ -15,20 +15,20 @@ from test_triple_render import LEVEL, random_rows, synthetic_tables
 from pipeline import cl
 from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.geodesic import geodesic_levels
-from pipeline.render.triple import Atlas, shade_gbuffer, shade_numpy
-from pipeline.render.triple_dense import (
+from pipeline.methods.triple.dense import (
     DenseTables,
     dense_level,
     kept_triangles,
     shade_dense_numpy,
 )
-from pipeline.render.triple_gbuffer import (
+from pipeline.methods.triple.gbuffer import (
     GBuffer,
     LookupTables,
     device_lookups,
     lookups_numpy,
     read_lookups,
 )
+from pipeline.methods.triple.render import Atlas, shade_gbuffer, shade_numpy
 
 TURN = 0.7  # radians: an environment rotation that is not a multiple of the grid step
 
@@ -244,11 +244,11 @@ def test_surface_kernel_matches_the_numpy_gbuffer(tmp_path):
     from test_surface_detail import detail_scene, png
 
     from pipeline import job
+    from pipeline.methods.triple.render import camera_gbuffer, camera_gbuffer_numpy
     from pipeline.raytrace import Mesh, RayTracer
-    from pipeline.render.triple import camera_gbuffer, camera_gbuffer_numpy
+    from pipeline.render.surface_detail import SceneDetail
     from pipeline.scene_edits import with_camera_position
     from pipeline.store import open_artifact
-    from pipeline.surface_detail import SceneDetail
 
     png(tmp_path / "ramp.png", np.tile(np.arange(16) / 15, (4, 1)))
     scene = detail_scene(tmp_path, bump={"texture": "ramp.png", "height": 0.3,

@@ -16,9 +16,9 @@ from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math.camera import camera_rays
 from pipeline.method import get_method
+from pipeline.methods.triple.render import load_tables
 from pipeline.raytrace import RayTracer
 from pipeline.reference import ReferenceSettings
-from pipeline.render.triple import load_tables
 from pipeline.scene import load_scene
 from pipeline.scene_edits import with_environment_rotation, with_material_edits
 

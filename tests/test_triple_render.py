@@ -1,14 +1,14 @@
-"""Method triple's per-pixel shading (pipeline/render/triple.py, kernels/triple.cl)."""
+"""Method triple's per-pixel shading (pipeline/methods/triple/render.py,
+kernels/triple/triple.cl)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.sphwavelet import depth_first_keys, wavelet_basis
-from pipeline.math.wavelet_rows import select_rows, to_half
-from pipeline.render.triple import (
+from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
+from pipeline.methods.triple.render import (
     PixelLookups,
     TripleTables,
     WaveletRows,
@@ -18,6 +18,7 @@ from pipeline.render.triple import (
     shade_numpy,
     texel_lookups,
 )
+from pipeline.methods.triple.wavelet_rows import select_rows, to_half
 
 LEVEL = 2
 
@@ -65,7 +66,7 @@ def random_lookups(rng, tables: TripleTables, n: int) -> PixelLookups:
 
 
 def test_shading_kernel_matches_numpy():
-    """kernels/triple.cl against the float64 sparse triple products of the interpolated
+    """kernels/triple/triple.cl against the float64 sparse triple products of the interpolated
     rows. Tolerance: float32 sums of a few hundred terms: relative 1e-4."""
     rng = np.random.default_rng(2)
     tables = synthetic_tables(rng)

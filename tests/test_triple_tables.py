@@ -8,19 +8,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipeline import job
 from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math.brdf import BrdfParams, glossy
-from pipeline.math.brdf_tables import diffuse_leaf_means, glossy_leaf_means
 from pipeline.math.envmap import LUMINANCE, EnvironmentMap
-from pipeline.math.frame_grids import FrameGrid, ViewGrid
 from pipeline.math.geodesic import geodesic_levels
-from pipeline.math.light_grid import frame_leaf_means, prefilter
 from pipeline.math.sphwavelet import depth_first_keys, leaf_means, wavelet_basis
-from pipeline.math.wavelet_rows import from_half, rows_to_dense, select_rows
+from pipeline.methods.triple.brdf_tables import diffuse_leaf_means, glossy_leaf_means
+from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
+from pipeline.methods.triple.light_grid import frame_leaf_means, prefilter
+from pipeline.methods.triple.wavelet_rows import from_half, rows_to_dense, select_rows
 from pipeline.runner import run
 from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
 from pipeline.store import Workdir, open_artifact
 from tests.helpers import small_scene_dict, write_scene
 
@@ -65,13 +65,13 @@ def test_envmap_kernel_matches_environment_map():
 
 @pytest.mark.parametrize("n_psi", [4, 3])
 def test_light_kernel_matches_numpy_twin(n_psi):
-    """kernels/light_rotations.cl (φ steps as column shifts; for an even n_ψ, ψ + π as
+    """kernels/triple/light_rotations.cl (φ steps as column shifts; for an even n_ψ, ψ + π as
     a leaf permutation) against the twin's leaf means in the grid's own frames (full
     rotations), for grid entries of φ indices 2..4 from the third of φ = 2 to the
     second-last of φ = 4 (a span cut inside its planes, as a chunk's: the kernel
     computes only the entries inside it). Tolerance 1e-5 of the largest texel: float32
     lookups (see above) and a 4-sample weighted sum."""
-    from pipeline.stages.light_rotations import kernel_leaf_means
+    from pipeline.methods.triple.stages.light_rotations import kernel_leaf_means
 
     rgb = _random_map(32, 64)
     grid = FrameGrid(8, 5, n_psi)
@@ -103,11 +103,11 @@ BRDFS = [BrdfParams("blinn_phong", (0, 0, 0), (1, 1, 1), gamma=40.0),
 
 @pytest.mark.parametrize("params", BRDFS, ids=[p.model for p in BRDFS])
 def test_brdf_kernel_matches_numpy_twin(params):
-    """kernels/brdf_tables.cl (brdf_glossy of kernels/brdf.h × cos θi) against the
+    """kernels/triple/brdf_tables.cl (brdf_glossy of kernels/brdf.h × cos θi) against the
     twin, views from normal to grazing. Tolerance 2e-4 of each view's largest leaf mean:
     brdf.h keeps float32 lobes to a few ulps before the power γ (its docstring); the
     rest is a 4-sample weighted sum."""
-    from pipeline.stages.brdf_tables import kernel_leaf_means
+    from pipeline.methods.triple.stages.brdf_tables import kernel_leaf_means
 
     views = ViewGrid(4, 6).directions()
     got = kernel_leaf_means(params, views, LEVEL, 1)
@@ -121,7 +121,11 @@ def test_brdf_views_mirrored_from_a_quarter_match_direct_evaluation(params):
     """view_leaf_means (a quarter of the φ_o evaluated, the rest mirrored by leaf
     permutations) equals the kernel run on every view: the same float32 sums on
     permuted samples, so to 1e-6 of each view's largest leaf mean."""
-    from pipeline.stages.brdf_tables import kernel_leaf_means, sampled_views, view_leaf_means
+    from pipeline.methods.triple.stages.brdf_tables import (
+        kernel_leaf_means,
+        sampled_views,
+        view_leaf_means,
+    )
 
     grid = ViewGrid(8, 3)
     got = view_leaf_means(params, grid, LEVEL, 1)
@@ -228,7 +232,7 @@ def _scene(tmp_path, env: np.ndarray | None = None, name: str = "scene.yaml",
 
 
 def _runs(scene, workdir, stage):
-    return {r.name: r for r in run(scene, load_stagefile(), workdir, until=stage,
+    return {r.name: r for r in run(scene, job.stages(), workdir, until=stage,
                                    progress=False)}
 
 
@@ -236,7 +240,7 @@ def test_stored_lighting_rows_reconstruct_leaf_means_within_their_residual(tmp_p
     """Every stored row, expanded, is the twin's leaf means of the prefiltered map in
     that grid frame to within its stored residual (luminance-weighted relative L2;
     + 1e-5 for the float32 kernel); blocks of 30 rows cut φ slices of 20 rows."""
-    from pipeline.stages.light_rotations import prefiltered_map
+    from pipeline.methods.triple.stages.light_rotations import prefiltered_map
 
     rgb = _random_map(32, 64)
     scene = _scene(tmp_path, rgb)
@@ -302,7 +306,7 @@ def test_brdf_table_against_brute_force_quadrature(tmp_path):
     value = from_half(count, art.read("value"), art.read("scale"))
     dense = rows_to_dense(count, art.read("index"), value, 320)[:, 0]
     table = wavelet_basis(LEVEL).inverse(dense[start[m]:start[m + 1]])
-    from pipeline.stages.brdf_tables import sampled_views
+    from pipeline.methods.triple.stages.brdf_tables import sampled_views
 
     views = sampled_views(ViewGrid(8, 4))  # the grazing row half a θ step inside
     assert table.shape == (1 + len(views), 320)

@@ -1,5 +1,5 @@
-"""The stored-row selection on the device (kernels/wavelet_select.cl) against its NumPy
-twin (pipeline/math/wavelet_rows.py select_rows), the float16 storage of the rows
+"""The stored-row selection on the device (kernels/triple/wavelet_select.cl) against its NumPy
+twin (pipeline/methods/triple/wavelet_rows.py select_rows), the float16 storage of the rows
 (to_half / from_half), and the lighting and BRDF stages' rows against the path before
 the selection kernel (NumPy selection, float32 values). Leaf level 2–3."""
 
@@ -10,12 +10,12 @@ import pytest
 
 from pipeline.chunk import make_chunk
 from pipeline.math.envmap import LUMINANCE
-from pipeline.math.wavelet_rows import depth_first_order, from_half, select_rows, to_half
+from pipeline.methods.triple.stages import brdf_tables as brdf_stage
+from pipeline.methods.triple.stages import light_rotations as light_stage
+from pipeline.methods.triple.wavelet_rows import depth_first_order, from_half, select_rows, to_half
+from pipeline.methods.triple.wavelet_select_cl import select_rows as select_rows_cl
 from pipeline.sphwavelet_cl import forward
 from pipeline.stages import ChunkContext
-from pipeline.stages import brdf_tables as brdf_stage
-from pipeline.stages import light_rotations as light_stage
-from pipeline.wavelet_select_cl import select_rows as select_rows_cl
 
 LEVEL = 3  # 1280 coefficients
 
@@ -182,7 +182,7 @@ def test_half_values_equal_to_half_of_the_float_rows(channels):
     OpenCL allows a float division 2.5 ulp (NVIDIA's driver uses that), which can move a
     quotient across a float16 rounding boundary: then one float16 step, on few values."""
     from pipeline import cl
-    from pipeline.wavelet_select_cl import select_rows_buffer
+    from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
 
     rng = np.random.default_rng(5)
     coefficients = (rng.standard_normal((60, channels, 320))

@@ -132,6 +132,6 @@ def truncate(coefficients: np.ndarray, tolerance: float, cap: int) -> dict[str, 
 @cache
 def matrix(n: int) -> np.ndarray:
     """The orthonormal Haar transform of length n (a power of two) as an (n, n) float64
-    matrix W in the standard layout: W @ x == forward(x) (pipeline/math/blocks.py applies
+    matrix W in the standard layout: W @ x == forward(x) (pipeline/methods/d2i/blocks.py applies
     it across blocks of neighbouring rows)."""
     return forward(np.eye(n)).T

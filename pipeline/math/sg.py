@@ -253,7 +253,7 @@ def env_integral_reference(rgb: np.ndarray, mu: np.ndarray, lam: np.ndarray,
 
 
 def pack_stack(stack: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """The device layout of kernels/sg.h: the levels' texels back to back (float32,
+    """The device layout of kernels/sg/sg.h: the levels' texels back to back (float32,
     Σ H_ℓ W_ℓ · 3) and per level (first texel, W_ℓ, H_ℓ) (int32, n × 3)."""
     sizes = [level.shape[0] * level.shape[1] for level in stack]
     first = np.concatenate([[0], np.cumsum(sizes)[:-1]])

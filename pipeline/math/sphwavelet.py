@@ -198,7 +198,7 @@ def sparse_triple_product(basis: WaveletBasis,
     each function the coefficients on the current path and its coarse value f̄ on every
     triangle of the path (module docstring); a triangle none of the lists touches has
     no coefficients, so its f̄ follows from its parent's. The NumPy twin of the
-    per-pixel loop in kernels/triple.cl (scalar Python: for tests, not for speed)."""
+    per-pixel loop in kernels/triple/triple.cl (scalar Python: for tests, not for speed)."""
     depth = basis.leaf_level
     keys = depth_first_keys(depth)
     heads = [0, 0, 0]

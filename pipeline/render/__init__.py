@@ -1,4 +1,6 @@
-"""Renderers: each reads baked artifacts and produces a :class:`Frame`; none imports stages."""
+"""What every method's renderer shares: the :class:`Frame` it produces, device images,
+back-face notes; the shared direct-light renderer (``direct``), shadows, emitters,
+surface detail and edit sequences live beside this module."""
 
 from __future__ import annotations
 
@@ -8,6 +10,8 @@ from typing import Any
 import numpy as np
 
 from pipeline import cl
+
+WORK_GROUP = 64  # work-items per group of the per-pixel kernels (pipeline.cl.run's local)
 
 
 @dataclass

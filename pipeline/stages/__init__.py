@@ -20,9 +20,10 @@ A stage module provides plain functions:
 The runner owns everything else: keys, I/O (chunks are written in place into the final
 artifact, pipeline/chunkwrite.py), seeding, progress and executors.
 
-stages.yaml names a stage's implementation by module: ``impl: transfer`` is the module
-``pipeline.stages.transfer``; a dotted name (``toy.per_object``, ``pkg.mod:attr``) is
-imported as it is (a plug-in's own stages).
+stages.yaml names a stage's implementation by module: ``impl: gbuffer`` is the module
+``pipeline.stages.gbuffer`` (the stages every method may read); a dotted name
+(``pipeline.methods.d2i.stages.transfer``, ``toy.per_object``, ``pkg.mod:attr``) is
+imported as it is (a method's own stages).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.math.camera import camera_frame, camera_rays
-from pipeline.raytrace import Mesh, RayTracer, surface_at
+from pipeline.raytrace import surface_at
 from pipeline.stages import (
     AssembleContext,
     Block,
@@ -22,21 +22,7 @@ from pipeline.stages import (
     Output,
     tile_blocks,
 )
-
-_TRACERS: dict[str, tuple[RayTracer, Mesh]] = {}
-
-
-def _scene_tracer(ctx: ChunkContext) -> tuple[RayTracer, Mesh]:
-    """The Embree scene of the geometry input and its mesh attributes, built once per
-    process and input key."""
-    geometry = ctx.inputs["geometry"]
-    key = geometry.record["key"]
-    if key not in _TRACERS:
-        arrays = {n: geometry.read(n) for n in
-                  ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
-        _TRACERS.clear()
-        _TRACERS[key] = (RayTracer(arrays["vertices"], arrays["faces"]), Mesh.from_arrays(arrays))
-    return _TRACERS[key]
+from pipeline.stages.geometry import traced_geometry
 
 
 def layout(ctx: AssembleContext) -> Layout:
@@ -54,8 +40,9 @@ def run_chunk(ctx: ChunkContext) -> dict[str, Block]:
     shape = (y1 - y0, x1 - x0)
     origins, dirs = camera_rays(cam["position"], cam["look_at"], cam["up"], cam["fov"],
                                 cam["width"], cam["height"], ctx.chunk.region)
-    tracer, mesh = _scene_tracer(ctx)
-    hits = tracer.intersect(origins, dirs)
+    traced = traced_geometry(ctx.inputs["geometry"])
+    mesh = traced.mesh
+    hits = traced.tracer.intersect(origins, dirs)
     hit = hits.prim >= 0
     d = dirs.reshape(-1, 3).astype(np.float64)
     surface = surface_at(mesh, hits.select(hit), origins.reshape(-1, 3)[hit], d[hit],

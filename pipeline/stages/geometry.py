@@ -16,13 +16,46 @@ The assembled artifact concatenates objects in scene order (schema ``geometry``)
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pipeline.errors import PrtError
 from pipeline.meshio import weld
+from pipeline.raytrace import RAY_EPSILON, Mesh, RayTracer
 from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
+from pipeline.store import Artifact
 
 DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
+
+
+@dataclass(frozen=True)
+class TracedGeometry:
+    """A ``geometry`` artifact ready for rays: its Embree scene, its mesh attributes
+    (``mesh.face_normal``: unit face normals, float64) and the origin offset of
+    secondary rays, ``epsilon`` = RAY_EPSILON × its bounding-box diagonal (scene units)."""
+
+    tracer: RayTracer
+    mesh: Mesh
+    epsilon: float
+
+
+_TRACED: dict[str, TracedGeometry] = {}
+
+
+def traced_geometry(geometry: Artifact) -> TracedGeometry:
+    """The :class:`TracedGeometry` of ``geometry``, built once per process and artifact
+    key (the stages that trace rays share it)."""
+    key = geometry.record["key"]
+    if key not in _TRACED:
+        arrays = {n: geometry.read(n) for n in
+                  ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
+        diagonal = np.linalg.norm(np.subtract(geometry.attrs["bbox_max"],
+                                              geometry.attrs["bbox_min"]))
+        _TRACED.clear()
+        _TRACED[key] = TracedGeometry(RayTracer(arrays["vertices"], arrays["faces"]),
+                                      Mesh.from_arrays(arrays), RAY_EPSILON * float(diagonal))
+    return _TRACED[key]
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:

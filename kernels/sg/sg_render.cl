@@ -1,0 +1,139 @@
+/* Method sg's frame (pipeline/methods/sg/render.py; NumPy twins view_triangles, shade_numpy).
+ * One work-item per pixel that sees a surface (or, for sg_background, misses).
+ *
+ * sg_view_lookup: the view triangle containing the pixel's direction to the eye w_o
+ * (world, unit) among the 180 geodesic triangles of the 92 views, searched in two
+ * levels: the icosahedron face (20) whose cone holds w_o, then its 9 sub-triangles.
+ * A triangle (a, b, c) stores the inverse M^-1 of M = [a b c] (columns): the weights
+ * beta = M^-1 w_o are all >= 0 exactly when w_o lies in the triangle's cone, and
+ * beta / sum(beta) are its gnomonic barycentrics (exact at the views, continuous across
+ * edges). The triangle whose smallest weight is largest is taken (no branch on a
+ * threshold: a w_o on an edge picks either side, both give the same weights);
+ * rounding's tiny negatives are clamped to 0 before normalising.
+ *
+ * sg_shade: per lobe slot s < the largest count of the face's 3 vertices, the lobe
+ * blended over 3 vertices x 3 views with weights W = face barycentric x view weight:
+ *     w = sum W w_i,  mu = normalise(sum W mu_i),
+ *     lam = exp(sum W log lam_i)   (LAMBDA_LOG = 1: linear in log sigma; the host
+ *                                   stores log lam in the lobes' last field)
+ *         | sum W lam_i            (LAMBDA_LOG = 0),
+ * integrated against the environment by the prefiltered stack at R^T mu (sg.h's
+ * sg_env_integral); plus the diffuse SH term sum_k (sum_v bary_v transfer[v, c, k])
+ * L[k, c] = sum_v bary_v D[v, c], D[v, c] = sum_k transfer[v, c, k] L[k, c] computed
+ * per frame on the host (the sum is linear); all times the light's scale. Lobes: the
+ * stored slots, R x VIEWS x 7 floats (w_rgb, mu_xyz, lam), vertex v's in rows
+ * first[v] .. first[v + 1] - 1 (first: V + 1 ints); D V x 3 floats. */
+#include "inline.h"
+#include "sg.h"
+
+#ifndef LAMBDA_LOG
+#define LAMBDA_LOG 1
+#endif
+#define SG_FIELDS 7
+
+/* beta = M^-1 d for the 3x3 row-major inverse at m. */
+PRT_INLINE float3 sg_cone_weights(__global const float* m, float3 d) {
+    return (float3)(m[0] * d.x + m[1] * d.y + m[2] * d.z,
+                    m[3] * d.x + m[4] * d.y + m[5] * d.z,
+                    m[6] * d.x + m[7] * d.y + m[8] * d.z);
+}
+
+PRT_INLINE float sg_min3(float3 b) { return fmin(b.x, fmin(b.y, b.z)); }
+
+__kernel void sg_view_lookup(__global const float* parent_inverse,  /* 20 x 9 */
+                             __global const int* children,          /* 20 x 9 */
+                             __global const float* face_inverse,    /* 180 x 9 */
+                             __global const int* face_views,        /* 180 x 3 */
+                             __global const float* wo, const int n,
+                             __global int* view_out, __global float* weight_out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float3 d = vload3(i, wo);
+    int parent = 0;
+    float best = -INFINITY;
+    for (int p = 0; p < 20; ++p) {
+        float m = sg_min3(sg_cone_weights(parent_inverse + 9 * p, d));
+        if (m > best) { best = m; parent = p; }
+    }
+    int face = children[9 * parent];
+    best = -INFINITY;
+    for (int c = 0; c < 9; ++c) {
+        int f = children[9 * parent + c];
+        float m = sg_min3(sg_cone_weights(face_inverse + 9 * f, d));
+        if (m > best) { best = m; face = f; }
+    }
+    float3 b = fmax(sg_cone_weights(face_inverse + 9 * face, d), (float3)(0.0f));
+    b /= b.x + b.y + b.z;
+    vstore3(b, i, weight_out);
+    view_out[3 * i] = face_views[3 * face];
+    view_out[3 * i + 1] = face_views[3 * face + 1];
+    view_out[3 * i + 2] = face_views[3 * face + 2];
+}
+
+__kernel void sg_shade(__global const float* lobes, __global const int* first,
+                       __global const uchar* count,
+                       __global const float* vertex_diffuse, const int views,
+                       __global const int* corner, __global const float* bary,
+                       __global const int* view, __global const float* view_weight,
+                       __global const float* stack, __global const int* level_info,
+                       const int levels, const float log_sigma0, const float inv_log_ratio,
+                       const float turn_cos, const float turn_sin,
+                       const float scale, const int n,
+                       __global float* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    int v[3] = {corner[3 * i], corner[3 * i + 1], corner[3 * i + 2]};
+    float fb[3] = {bary[3 * i], bary[3 * i + 1], bary[3 * i + 2]};
+    int j[3] = {view[3 * i], view[3 * i + 1], view[3 * i + 2]};
+    float vb[3] = {view_weight[3 * i], view_weight[3 * i + 1], view_weight[3 * i + 2]};
+    int base[3], stored[3];
+    for (int a = 0; a < 3; ++a) {
+        base[a] = first[v[a]];
+        stored[a] = first[v[a] + 1] - base[a];
+    }
+    int slots = max((int)count[v[0]], max((int)count[v[1]], (int)count[v[2]]));
+    float3 radiance = (float3)(0.0f);
+    for (int s = 0; s < slots; ++s) {
+        float3 w = (float3)(0.0f), mu = (float3)(0.0f);
+        float lam = 0.0f;
+        for (int a = 0; a < 3; ++a) {
+            if (stored[a] == 0) continue;  /* no glossy part: adds nothing */
+            /* a slot beyond the corner's stored ones: its slot 0's mean and sharpness,
+               w = 0 (data_schema/sg/sg_lobes.yaml) */
+            int row = base[a] + (s < stored[a] ? s : 0);
+            float keep = s < stored[a] ? 1.0f : 0.0f;
+            for (int b = 0; b < 3; ++b) {
+                float weight = fb[a] * vb[b];
+                __global const float* p = lobes + (row * views + j[b]) * SG_FIELDS;
+                w += (weight * keep) * (float3)(p[0], p[1], p[2]);
+                mu += weight * (float3)(p[3], p[4], p[5]);
+                lam += weight * p[6];  /* log lam with LAMBDA_LOG */
+            }
+        }
+#if LAMBDA_LOG
+        lam = exp(lam);
+#endif
+        float len = length(mu);
+        if (!(len > 0.0f)) continue;  /* opposite means cancel: no defined direction */
+        float3 mu_map = envmap_from_world(mu / len, turn_cos, turn_sin);
+        radiance += sg_env_integral(stack, level_info, levels, log_sigma0, inv_log_ratio,
+                                    mu_map, lam, w);
+    }
+    float3 diffuse = fb[0] * vload3(v[0], vertex_diffuse) + fb[1] * vload3(v[1], vertex_diffuse)
+                   + fb[2] * vload3(v[2], vertex_diffuse);
+    vstore3(scale * (radiance + diffuse), i, out);
+}
+
+/* Pixels that miss: the environment map itself, rotated, times the light's scale. */
+__kernel void sg_background(__global const float* rgb, const int width, const int height,
+                            __global const float* direction, const float turn_cos,
+                            const float turn_sin, const float scale, const int n,
+                            __global float* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float3 d = envmap_from_world(vload3(i, direction), turn_cos, turn_sin);
+    vstore3(scale * envmap_radiance(rgb, width, height, d), i, out);
+}

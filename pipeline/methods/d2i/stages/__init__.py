@@ -1,0 +1,1 @@
+"""Method d2i's stages (declared in pipeline/methods/d2i/stages.yaml)."""

@@ -1,0 +1,515 @@
+"""Method ``sg`` (paper 003 §5): per pixel, the spherical Gaussians of the hit face's 3
+vertices at the 3 views around the direction to the eye, blended and integrated against
+the prefiltered environment, plus the diffuse SH term (kernels/sg/sg_render.cl; NumPy twins
+:func:`view_triangles` and :func:`shade_numpy`).
+
+Artifacts (the contract between issue 17's stages and this renderer): ``geometry`` (vertices,
+faces: global vertex indices), ``sg.relax`` (``sg_lobes``, sg.fit's lobes relabelled
+against flips over every mesh edge: per vertex, view of
+``sg_transport.view_directions()`` and lobe slot, (w_rgb, μ_xyz, λ), world frame, w in
+1/sr, λ = 1/σ² in rad⁻²; ``count`` lobes per vertex), ``sg.diffuse`` (``sg_diffuse``:
+per vertex the diffuse transfer (3 channels × 25 SH coefficients), albedo/π and cosine
+included) and ``sg.env_prefilter`` (the map convolved by normalised SGs, pipeline/math/
+sg.py).
+
+**The pixel.** A camera ray hits face (v₀, v₁, v₂) at barycentrics f_a (Embree's u, v:
+f = (1 − u − v, u, v)); ω_o = −ray direction (world, unit, towards the eye).
+
+* *View triangle.* The 92 views are the vertices of 180 geodesic triangles (their convex
+  hull, :class:`ViewTriangulation`); the triangle (a, b, c) whose cone holds ω_o gives
+  weights β = M⁻¹ω_o, M = [a b c] (columns), normalised to sum 1: the gnomonic
+  barycentrics (the point where the ray ω_o meets the flat triangle), ≥ 0 inside, 1 at
+  a view, continuous across edges (on an edge both triangles solve the same 2 × 2
+  system). Found in two levels: the icosahedron face (20 cones, their edges are great
+  circles through the sub-triangles' edges) and then its 9 sub-triangles.
+* *Lobes.* Per slot s (slot s is the same lobe at every view and vertex: the fit keeps
+  correspondences), with W_ab = f_a β_b over the 3 vertices × 3 views:
+  w = Σ W w_ab, μ = normalise(Σ W μ_ab), and λ = exp(Σ W log λ_ab) (linear in log σ,
+  the stack's own coordinate; ``lambda_blend="linear"``: Σ W λ_ab). A highlight moves
+  with μ between views instead of cross-fading (tests/test_sg_render.py).
+* *Integral.* ∫ w G(ω; μ, λ) L(ω) dω = w · sg.integral(λ) · P(Rᵀμ, σ = 1/√λ), P the
+  stack looked up at the map-space mean (R the environment's rotation about +y,
+  ``envmap.rotation_y``), times the light's ``scale``.
+* *Diffuse.* Σ_a f_a max(0, Σ_k transfer[v_a, c, k] L_k,c) · scale (negative SH ringing
+  clamped per vertex), L = sh.project_latlong of
+  the map turned by the light's rotation (projected once, turned per frame by
+  ``sh.rotate_y``): the vertices' diffuse radiance D computed per frame on the host
+  (V × 3n² products) and interpolated in the kernel, instead of 3n² per pixel.
+* Pixels that miss see the environment map (bilinear, rotated, scaled).
+
+Camera rays, their hits and the view triangles are kept per camera (a G-buffer), so an
+environment-rotation frame runs the shading kernel only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.errors import PrtError
+from pipeline.images import read_environment
+from pipeline.math import sg, sh
+from pipeline.math.camera import camera_rays
+from pipeline.math.envmap import rotation_y
+from pipeline.math.geodesic import icosahedron
+from pipeline.methods.sg.stages.env_prefilter import read_stack
+from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
+from pipeline.methods.sg.transport import view_directions
+from pipeline.raytrace import RayTracer
+from pipeline.render import (
+    WORK_GROUP,
+    DeviceImage,
+    Frame,
+    back_face_notes,
+    camera_key,
+    sees_back,
+)
+from pipeline.scene import Scene
+from pipeline.store import Artifact
+
+SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
+LAMBDA_BLENDS = ("log", "linear")
+# what a frame shows: everything, or the reflected light of the lobes or of the SH term
+COMPONENTS = ("all", "glossy", "diffuse")
+
+
+# ------------------------------------------------------------------ view triangles
+
+
+@dataclass(frozen=True)
+class ViewTriangulation:
+    """The 92 views' geodesic triangles. ``views`` (92, 3) unit, world; ``faces``
+    (180, 3) view indices; ``face_inverse`` (180, 3, 3) M⁻¹ of M = [a b c] (columns);
+    ``parent_inverse`` (20, 3, 3) the same for the icosahedron's faces and
+    ``children`` (20, 9) the triangles inside each."""
+
+    views: np.ndarray
+    faces: np.ndarray
+    face_inverse: np.ndarray
+    parent_inverse: np.ndarray
+    children: np.ndarray
+
+
+@cache
+def view_triangulation() -> ViewTriangulation:
+    """The triangulation of ``sg_transport.view_directions()`` (their convex hull),
+    grouped by the icosahedron face holding each triangle's centroid."""
+    from scipy.spatial import ConvexHull
+
+    views = view_directions()
+    faces = np.asarray(ConvexHull(views).simplices, np.int64)
+    face_inverse = np.linalg.inv(np.transpose(views[faces], (0, 2, 1)))
+    corners, ico_faces = icosahedron()
+    parent_inverse = np.linalg.inv(np.transpose(corners[ico_faces], (0, 2, 1)))
+    centroid = views[faces].mean(axis=1)
+    inside = np.einsum("pij,fj->fpi", parent_inverse, centroid).min(axis=2)  # (180, 20)
+    parent = inside.argmax(axis=1)
+    children = np.stack([np.flatnonzero(parent == p) for p in range(len(ico_faces))])
+    return ViewTriangulation(views, faces, face_inverse, parent_inverse, children)
+
+
+def view_triangles(tri: ViewTriangulation, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The views (P, 3) int32 and weights (P, 3) float64 (≥ 0, sum 1) of the triangle
+    holding each unit direction ``wo`` (P, 3): the kernel ``sg_view_lookup``'s twin
+    (module docstring)."""
+    d = np.asarray(wo, np.float64)
+    parent = np.einsum("pij,nj->npi", tri.parent_inverse, d).min(axis=2).argmax(axis=1)
+    candidates = tri.children[parent]  # (P, 9)
+    beta = np.einsum("ncij,nj->nci", tri.face_inverse[candidates], d)  # (P, 9, 3)
+    face = candidates[np.arange(len(d)), beta.min(axis=2).argmax(axis=1)]
+    weights = np.maximum(np.einsum("nij,nj->ni", tri.face_inverse[face], d), 0.0)
+    weights /= weights.sum(axis=1, keepdims=True)
+    return tri.faces[face].astype(np.int32), weights
+
+
+def _launch(kernel: Any, size: int, args: list[Any], outs: list[np.ndarray]) -> float:
+    """One launch over ``size`` work-items (groups of WORK_GROUP) writing ``outs`` (host
+    arrays, filled); the kernel's milliseconds."""
+    import pyopencl as pcl
+
+    buffers = [pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, max(o.nbytes, 4))
+               for o in outs]
+    event = kernel(cl.queue(), (-(-size // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
+                   *args, *buffers)
+    ms = cl.event_ms(event)
+    for host, buffer in zip(outs, buffers, strict=True):
+        if host.size:
+            pcl.enqueue_copy(cl.queue(), host, buffer).wait()
+    return ms
+
+
+@cache
+def _triangulation_buffers() -> tuple[Any, ...]:
+    tri = view_triangulation()
+    return tuple(cl.read_only_buffer(a) for a in (
+        tri.parent_inverse.astype(np.float32), tri.children.astype(np.int32),
+        tri.face_inverse.astype(np.float32), tri.faces.astype(np.int32)))
+
+
+def device_view_triangles(wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`view_triangles` by the kernel: views (P, 3) int32, weights (P, 3)
+    float32, and the kernel's milliseconds."""
+    wo = np.ascontiguousarray(wo, np.float32)
+    views, weights = np.empty((len(wo), 3), np.int32), np.empty((len(wo), 3), np.float32)
+    ms = _launch(cl.kernel("sg_render.cl", "sg_view_lookup"), len(wo),
+                 [*_triangulation_buffers(), cl.read_only_buffer(wo), np.int32(len(wo))],
+                 [views, weights])
+    return views, weights, ms
+
+
+# -------------------------------------------------------------------------- tables
+
+
+@dataclass
+class SgTables:
+    """What a frame reads. ``lobes`` (R, views, 7) float32: the stored slots, vertex by
+    vertex (w_rgb 1/sr, μ unit world, λ rad⁻² > 0; data_schema/sg/sg_lobes.yaml v2);
+    ``first`` (V + 1,) int32: vertex v's slots are rows first[v] … first[v + 1] − 1;
+    ``count`` (V,) lobes per vertex; ``transfer`` (V, 3, 25) float32 (diffuse SH
+    transfer); ``stack``/``levels`` the prefiltered map (sg.PrefilterLevels, levels
+    (H_ℓ, W_ℓ, 3) float32, W/(m² sr))."""
+
+    lobes: np.ndarray
+    first: np.ndarray
+    count: np.ndarray
+    transfer: np.ndarray
+    stack: list[np.ndarray]
+    levels: sg.PrefilterLevels
+
+    @classmethod
+    def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
+                   stack: list[np.ndarray], levels: sg.PrefilterLevels,
+                   slots: np.ndarray | None = None) -> SgTables:
+        """Tables from lobes in every slot (V, views, 3, 7), storing ``slots`` (V,) slots
+        per vertex (default max(count, 1))."""
+        count = np.asarray(count, np.uint8)
+        slots = np.maximum(count, 1) if slots is None else np.asarray(slots)
+        rows, first = pack_slots(np.asarray(lobes, np.float32), slots)
+        return cls(rows, np.append(first, len(rows)).astype(np.int32), count,
+                   np.asarray(transfer, np.float32), stack, levels)
+
+    @property
+    def nbytes(self) -> int:
+        return self.lobes.nbytes + self.first.nbytes + self.count.nbytes \
+            + self.transfer.nbytes + sum(level.nbytes for level in self.stack)
+
+
+def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
+    """The tables from the artifacts of ``sg.relax``, ``sg.diffuse`` and
+    ``sg.env_prefilter``, checked against each other and the geometry's
+    ``vertex_count`` (one-line PrtErrors naming the artifact)."""
+    fit, diffuse = artifacts["sg.relax"], artifacts["sg.diffuse"]
+    views = fit.read("views")
+    if views.shape != view_directions().shape or \
+            not np.allclose(views, view_directions(), atol=1e-9):
+        raise PrtError("sg.relax", "views: not sg_transport.view_directions() in order; "
+                       "re-bake sg.fit")
+    lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
+    first = np.asarray(fit.read("first"), np.int64)
+    count = np.ascontiguousarray(fit.read("count"), np.uint8)
+    transfer = np.ascontiguousarray(diffuse.read("transfer"), np.float32)
+    order = int(diffuse.attrs.get("order", sh.ORDER))
+    expected = {"sg.relax lobes": (lobes.shape[1:], (len(views), FIELDS)),
+                "sg.relax first": (first.shape, (vertex_count,)),
+                "sg.relax count": (count.shape, (vertex_count,)),
+                "sg.diffuse transfer": (transfer.shape, (vertex_count, 3, order ** 2))}
+    for what, (shape, want) in expected.items():
+        if tuple(shape) != want:
+            raise PrtError(what.split()[0], f"{what.split()[1]}: shape {tuple(shape)}, "
+                           f"expected {want} (geometry has {vertex_count} vertices)")
+    slots = slot_counts(first, len(lobes))
+    if len(first) and (first[0] != 0 or np.any(slots < 0) or np.any(slots < count)
+                       or np.any(slots > SLOTS)):
+        raise PrtError("sg.relax", "first: slot rows out of order or fewer than a "
+                       "vertex's count")
+    if not (np.all(np.isfinite(lobes)) and np.all(lobes[..., 6] > 0)):
+        raise PrtError("sg.relax", "lobes: non-finite values or a sharpness λ ≤ 0")
+    stack, levels = read_stack(artifacts["sg.env_prefilter"])
+    return SgTables(lobes, np.append(first, len(lobes)).astype(np.int32), count, transfer,
+                    stack, levels)
+
+
+# ------------------------------------------------------------------------- shading
+
+
+def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
+                view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
+                scale: float = 1.0, lambda_blend: str = "log") -> np.ndarray:
+    """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
+    vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
+    ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
+    (25, 3), the environment turned by ``degrees`` about +y, times ``scale``. A slot
+    beyond a corner's stored ones is its slot 0 with w = 0; a corner with none adds
+    nothing."""
+    corner = np.asarray(corner, np.int64)
+    view = np.asarray(view, np.int64)
+    base = tables.first[corner].astype(np.int64)
+    stored = tables.first[corner + 1] - base                                  # (P, 3)
+    weight = bary[:, :, None].astype(np.float64) * view_weight[:, None, :]  # (P, 3, 3)
+    weight = weight * (stored > 0)[:, :, None]
+    slots = tables.count[corner].max(axis=1)
+    stack = [np.asarray(level, np.float64) for level in tables.stack]
+    turn = rotation_y(degrees)
+    out = np.zeros((len(corner), 3))
+    for s in range(SLOTS):
+        row = np.where(stored > 0, base + np.where(stored > s, s, 0), 0)
+        lobe = tables.lobes[row[:, :, None], view[:, None, :]].astype(np.float64)
+        keep = (stored > s)[:, :, None]
+        w = np.einsum("pab,pabc->pc", weight * keep, lobe[..., 0:3])
+        mu = np.einsum("pab,pabc->pc", weight, lobe[..., 3:6])
+        if lambda_blend == "log":
+            lam = np.exp(np.einsum("pab,pab->p", weight, np.log(lobe[..., 6])))
+        else:
+            lam = np.einsum("pab,pab->p", weight, lobe[..., 6])
+        length = np.linalg.norm(mu, axis=1)
+        ok = (slots > s) & (length > 0)
+        mu_map = (mu[ok] / length[ok, None]) @ turn  # Rᵀμ, as rows
+        out[ok] += sg.env_integral(stack, tables.levels, mu_map, lam[ok], w[ok])
+    diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh)[corner]
+    out += np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse)
+    return scale * out
+
+
+def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
+    """The vertices' diffuse radiance D (V, 3) = max(0, Σ_k transfer[v, c, k]
+    light_sh[k, c]) (without the light's scale). A truncated SH product can ring below
+    zero next to a bright window's shadow (Grace at order 5: whole patches of the bunny
+    and the ground); radiance cannot, so D is clamped, as PRT renderers do."""
+    return np.maximum(np.einsum("vck,kc->vc", transfer, light_sh), 0.0)
+
+
+@dataclass
+class SgDevice:
+    """The tables on the OpenCL device, uploaded once (with ``lambda_blend="log"`` the
+    lobes' last field holds log λ, as the kernel blends it); ``shade`` runs
+    ``sg_shade``."""
+
+    tables: SgTables
+    lambda_blend: str = "log"
+    buffers: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = self.tables
+        flat, info = sg.pack_stack(t.stack)
+        lobes = t.lobes
+        if self.lambda_blend == "log":  # the kernel blends log λ: taken once, here
+            lobes = lobes.copy()
+            lobes[..., 6] = np.log(lobes[..., 6])
+        self.buffers = {name: cl.read_only_buffer(array) for name, array in (
+            ("lobes", lobes), ("first", t.first), ("count", t.count), ("stack", flat),
+            ("info", info))}
+        self.kernel = cl.kernel("sg_render.cl", "sg_shade",
+                                {"LAMBDA_LOG": int(self.lambda_blend == "log")})
+
+    def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
+        """A device buffer of :func:`vertex_diffuse` (V, 3) float32."""
+        d = vertex_diffuse(self.tables.transfer, light_sh.astype(np.float32))
+        return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
+
+    def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
+              scale: float, out_buffer: Any | None = None) -> tuple[np.ndarray | None, float]:
+        """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
+        ``pixels`` (corner, bary, view, view_weight), with the vertices' diffuse
+        radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), and the kernel's
+        milliseconds. With ``out_buffer`` (≥ n · 12 bytes on the device) the radiance
+        stays there and None is returned in its place."""
+        b, levels, a = self.buffers, self.tables.levels, np.radians(degrees)
+        out = None if out_buffer is not None else np.empty((n, 3), np.float32)
+        ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
+                    np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
+                    pixels["view"], pixels["view_weight"], b["stack"], b["info"],
+                    np.int32(levels.count), np.float32(np.log(levels.sigma0)),
+                    np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
+                    np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
+                    writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
+        return out, ms
+
+
+def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
+                 view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
+                 scale: float = 1.0) -> np.ndarray:
+    """The kernel on host arrays (as :func:`shade_numpy`'s arguments), float32 (P, 3)."""
+    pixels = {"corner": cl.read_only_buffer(np.asarray(corner, np.int32)),
+              "bary": cl.read_only_buffer(np.asarray(bary, np.float32)),
+              "view": cl.read_only_buffer(np.asarray(view, np.int32)),
+              "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32))}
+    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), degrees,
+                        scale)[0]
+
+
+def kernel_bytes(tables: SgTables, corner: np.ndarray) -> int:
+    """Bytes ``sg_shade`` loads and stores for these pixels, every gathered load counted
+    (cache hits included): per pixel 4 × 12 B of indices and weights, 3 counts, per
+    active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B, 3 vertices' diffuse
+    radiance × 12 B, 12 B out."""
+    slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
+    per_pixel = 48 + 3 + 3 * 12 + 12
+    return int(len(corner) * per_pixel + slots.sum() * (9 * FIELDS * 4 + 2 * 4 * 12))
+
+
+# -------------------------------------------------------------------------- frames
+
+
+@dataclass
+class SgGBuffer:
+    """One camera's pixels: ``pixel`` (P,) flat indices that hit, their face's vertices
+    ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), view triangles ``view`` (P, 3)
+    and ``view_weight`` (P, 3); ``miss_pixel``/``miss_direction`` (M, 3) world ray
+    directions of the others; the milliseconds it took; ``back`` (P,) whether the pixel
+    sees the back of its face and ``face`` (P,) the face."""
+
+    pixel: np.ndarray
+    corner: np.ndarray
+    bary: np.ndarray
+    view: np.ndarray
+    view_weight: np.ndarray
+    miss_pixel: np.ndarray
+    miss_direction: np.ndarray
+    trace_ms: float
+    view_lookup_ms: float
+    back: np.ndarray
+    face: np.ndarray
+    device: dict[str, Any] = field(default_factory=dict)
+
+    def buffers(self) -> dict[str, Any]:
+        """Device copies of the per-pixel arrays (made on first use)."""
+        if not self.device:
+            self.device = {name: cl.read_only_buffer(getattr(self, name)) for name in
+                           ("corner", "bary", "view", "view_weight", "miss_direction")}
+            self.device.update({name: cl.read_only_buffer(getattr(self, name).astype(np.int32))
+                                for name in ("pixel", "miss_pixel")})
+        return self.device
+
+
+def camera_gbuffer(tracer: RayTracer, vertices: np.ndarray, faces: np.ndarray, cam: Any
+                   ) -> SgGBuffer:
+    """Trace camera ``cam``'s rays; hits' faces and barycentrics, view triangles of
+    ω_o = −ray direction (kernel ``sg_view_lookup``)."""
+    t0 = time.perf_counter()
+    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                      cam.width, cam.height)
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    hits = tracer.intersect(origins, directions)
+    hit = hits.prim >= 0
+    u, v = hits.u[hit], hits.v[hit]
+    corner = np.ascontiguousarray(faces[hits.prim[hit]], np.int32)
+    bary = np.ascontiguousarray(np.stack([1.0 - u - v, u, v], axis=1), np.float32)
+    trace_ms = (time.perf_counter() - t0) * 1e3
+    view, view_weight, lookup_ms = device_view_triangles(-directions[hit])
+    a, b, c = (np.asarray(vertices, np.float64)[corner[:, k]] for k in range(3))
+    back = sees_back(directions[hit], np.cross(b - a, c - a))
+    return SgGBuffer(np.flatnonzero(hit), corner, bary, view, view_weight,
+                     np.flatnonzero(~hit), np.ascontiguousarray(directions[~hit]),
+                     trace_ms, lookup_ms, back, hits.prim[hit])
+
+
+def environment_light(scene: Scene) -> dict[str, Any]:
+    """The params of the scene's one environment light."""
+    return next(light for light in scene.lights if light.type == "environment").params
+
+
+def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
+              env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
+              face_object: np.ndarray | None = None) -> Callable[[Scene], Frame]:
+    """The frame function over loaded tables: each call traces its scene's camera (kept
+    while the camera stays), reads the environment's rotation and scale, and shades
+    (timings: gbuffer (trace + view lookup), sh (SH rotation and the vertices' diffuse
+    radiance), shade, background). ``component`` (one of :data:`COMPONENTS`): ``all``,
+    or the reflected light of one part, ``glossy`` (the lobes) or ``diffuse`` (the SH
+    term), without the background (as ``prt reference --lobe``). With ``face_object``
+    (F,), a frame notes the objects whose pixels see the backs of faces
+    (:func:`pipeline.render.back_face_notes`)."""
+    if lambda_blend not in LAMBDA_BLENDS:
+        raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
+                       f"{', '.join(LAMBDA_BLENDS)}")
+    if component not in COMPONENTS:
+        raise PrtError("--option", f"component={component!r}: expected one of "
+                       f"{', '.join(COMPONENTS)}")
+    if component == "diffuse":  # no lobe slot runs
+        tables = replace(tables, count=np.zeros_like(tables.count))
+    tracer = RayTracer(vertices, faces)
+    device = SgDevice(tables, lambda_blend)
+    env_map = np.ascontiguousarray(env_map, np.float32)
+    order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
+    map_sh = sh.project_latlong(env_map, order=order)  # (order², 3), unrotated
+    if component == "glossy":
+        map_sh = np.zeros_like(map_sh)
+    static: dict[str, Any] = {}
+    cached: dict[tuple, SgGBuffer] = {}
+    images: dict[int, DeviceImage] = {}  # the last image size's device image
+
+    def frame(scene: Scene) -> Frame:
+        t0 = time.perf_counter()
+        cam = scene.camera
+        key = camera_key(cam)
+        was_cached = key in cached
+        if not was_cached:
+            cached.clear()
+            cached[key] = camera_gbuffer(tracer, vertices, faces, cam)
+        gbuffer = cached[key]
+        pixels = gbuffer.buffers()
+        t1 = time.perf_counter()
+        light = environment_light(scene)
+        degrees, scale = float(light.get("rotation", 0.0)), float(light.get("scale", 1.0))
+        vertex_diffuse = device.vertex_diffuse(sh.rotate_y(map_sh, degrees))
+        t2 = time.perf_counter()
+        # shading, background and their scatter stay on the device (render.DeviceImage)
+        image = DeviceImage.of_size(images, cam.width * cam.height)
+        shade_ms = background_ms = scatter_ms = 0.0
+        background = len(gbuffer.miss_pixel) > 0 and component == "all"
+        if not background:  # the pixels that miss stay black
+            image.clear()
+        if len(gbuffer.pixel):
+            shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * len(gbuffer.pixel))
+            _, shade_ms = device.shade(pixels, len(gbuffer.pixel), vertex_diffuse, degrees,
+                                       scale, out_buffer=shaded)
+            scatter_ms += image.scatter(shaded, pixels["pixel"], len(gbuffer.pixel))
+        if background:
+            if "map" not in static:
+                static["map"] = cl.read_only_buffer(env_map)
+            miss = cl.scratch_buffer(image.buffers, "miss", 12 * len(gbuffer.miss_pixel))
+            a = np.radians(degrees)
+            background_ms = cl.run(cl.kernel("sg_render.cl", "sg_background"),
+                                   len(gbuffer.miss_pixel), static["map"],
+                                   np.int32(env_map.shape[1]), np.int32(env_map.shape[0]),
+                                   pixels["miss_direction"], np.float32(np.cos(a)),
+                                   np.float32(np.sin(a)), np.float32(scale),
+                                   np.int32(len(gbuffer.miss_pixel)), out=None,
+                                   writes=12 * len(gbuffer.miss_pixel), out_buffer=miss,
+                                   local=WORK_GROUP)
+            scatter_ms += image.scatter(miss, pixels["miss_pixel"], len(gbuffer.miss_pixel))
+        rgb = image.read()
+        t3 = time.perf_counter()
+        timings = {"gbuffer_ms": (t1 - t0) * 1e3, "gbuffer_cached": float(was_cached),
+                   "trace_ms": 0.0 if was_cached else gbuffer.trace_ms,
+                   "view_lookup_ms": 0.0 if was_cached else gbuffer.view_lookup_ms,
+                   "sh_ms": (t2 - t1) * 1e3, "shade_ms": shade_ms,
+                   "background_ms": background_ms, "scatter_ms": scatter_ms,
+                   "kernel_ms": shade_ms + background_ms + scatter_ms,
+                   "counted_kernel_ms": shade_ms, "setup_ms": (t2 - t0) * 1e3,
+                   "total_ms": (t3 - t0) * 1e3}
+        notes = [] if face_object is None else back_face_notes(
+            "sg", gbuffer.back, face_object[gbuffer.face], list(scene.objects))
+        return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, notes,
+                     kernel_bytes=kernel_bytes(tables, gbuffer.corner))
+
+    return frame
+
+
+def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
+                component: str = "all") -> Callable[[Scene], Frame]:
+    """The method's renderer factory (pipeline/method.py): tables loaded once from the
+    artifacts of ``geometry``, ``sg.relax``, ``sg.diffuse``, ``sg.env_prefilter``; the
+    map for the background and the SH lighting from the scene's environment file."""
+    geo = artifacts["geometry"]
+    vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
+    tables = load_tables(artifacts, len(vertices))
+    env_map = read_environment(environment_light(scene)["file"])
+    return sg_frames(tables, vertices, faces, env_map, lambda_blend, component,
+                     np.asarray(geo.read("face_object")))

@@ -1,0 +1,1 @@
+"""Method sg's stages (declared in pipeline/methods/sg/stages.yaml)."""

@@ -1,0 +1,260 @@
+"""Method triple's G-buffer and the per-pixel lookups it feeds (kernels/triple/triple_lookup.h).
+
+The G-buffer is what a camera sees, computed once per camera and reused by every frame
+whose camera did not change (an environment rotation, material edits, γ sweeps). Per
+shaded pixel (P of them, the pixels whose ray hits a surface, in image order):
+
+* ``normal``, ``tangent`` (P, 3): the unit shading normal and a unit tangent ⊥ normal,
+  world frame; the lighting lookup and ω_o use this shading frame (t, n × t, n). Under a
+  bump map they differ from the geometric ones; the visibility stays the texel's.
+* ``view`` (P, 3): unit world direction from the surface toward the camera;
+* ``texel_xy`` (P, 2): continuous coordinates in the object's visibility texture (x
+  right, y down, texel (i, j) centred at (j + ½, i + ½)) and ``object`` (P,);
+* ``material_a``, ``material_b`` (P,) and ``blend`` (P,) ∈ [0, 1], the weight of b:
+  ρ̃ = diffuse row × ((1 − t)·kd_a + t·kd_b) + a's glossy rows × (1 − t)·ρs_a + b's ×
+  t·ρs_b. Without a blend texture b = a and t = 0.
+
+Plus ``pixel`` (P,), each shaded pixel's flat index in the image, and ``miss`` (M, 3),
+the world directions of the pixels that see the environment (``miss_pixel`` (M,)).
+Floats are float32 (what the device reads; the NumPy twins read the same values).
+:meth:`GBuffer.angles` turns the shading frames and views into grid coordinates once per
+camera (the lookups' trigonometry); every frame's lookups start from them.
+
+:func:`lookups_numpy` is the host twin of the kernels' lookups
+(pipeline.methods.triple.frame_grids, pipeline.methods.triple.render.texel_lookups / brdf_lookups);
+:func:`device_lookups` runs ``triple_lookups`` and reads its rows back (tests, and the
+sparse path keeps them on the device).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pipeline import cl
+from pipeline.math.envmap import direction_to_uv
+from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
+from pipeline.render import WORK_GROUP
+
+if TYPE_CHECKING:
+    from pipeline.methods.triple.render import Atlas, PixelLookups, TripleTables
+    from pipeline.raytrace import Hits, Mesh
+
+
+
+@dataclass
+class GBuffer:
+    """One camera's G-buffer (module docstring); ``width``, ``height`` of the image."""
+
+    width: int
+    height: int
+    pixel: np.ndarray
+    normal: np.ndarray
+    tangent: np.ndarray
+    view: np.ndarray
+    texel_xy: np.ndarray
+    object: np.ndarray
+    material_a: np.ndarray
+    material_b: np.ndarray
+    blend: np.ndarray
+    miss_pixel: np.ndarray
+    miss: np.ndarray
+    back: np.ndarray | None = None  # (P,) bool: the pixel sees the back of its face
+    _angles: dict[tuple[FrameGrid, ViewGrid], list[Any]] = field(
+        init=False, default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("normal", "tangent", "view", "texel_xy", "blend", "miss"):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name), np.float32))
+        for name in ("object", "material_a", "material_b"):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name), np.int32))
+
+    @property
+    def count(self) -> int:
+        """P, the shaded pixels."""
+        return len(self.pixel)
+
+    @cached_property
+    def device(self) -> list[Any]:
+        """The per-frame arrays as device buffers in the kernels' order (texel_xy, object,
+        material_a, material_b, blend), uploaded once per camera."""
+        return [cl.read_only_buffer(a) for a in (
+            self.texel_xy, self.object, self.material_a, self.material_b, self.blend)]
+
+    def angles(self, frames: FrameGrid, views: ViewGrid) -> tuple[list[Any], float]:
+        """Device buffers of every pixel's frame-grid (P, 3) and view-grid (P, 2)
+        coordinates (kernel ``triple_angles``: the lookups' trigonometry, run once per
+        camera and grids) and the milliseconds that took (0 once cached)."""
+        import pyopencl as pcl
+
+        if (frames, views) in self._angles:
+            return self._angles[frames, views], 0.0
+        n = max(self.count, 1)
+        out = [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * 4) for k in (3, 2)]
+        inputs = [cl.read_only_buffer(a) for a in (self.normal, self.tangent, self.view)]
+        kernel = cl.kernel("triple.cl", "triple_angles", {"SW_LEVELS": 1})
+        event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
+                       *inputs, *(np.int32(x) for x in (frames.n_phi, frames.n_theta,
+                                                         frames.n_psi, views.n_phi,
+                                                         views.n_theta)),
+                       np.int32(self.count), *out)
+        self._angles[frames, views] = out
+        return out, cl.event_ms(event)
+
+    @cached_property
+    def pixel_device(self) -> tuple[Any, Any]:
+        """The shaded and the missing pixels' ids (P,), (M,) int32 on the device, for the
+        frame's scatter into a DeviceImage (pipeline/render/__init__.py)."""
+        return (cl.read_only_buffer(self.pixel.astype(np.int32)),
+                cl.read_only_buffer(self.miss_pixel.astype(np.int32)))
+
+    @cached_property
+    def miss_uv_device(self) -> Any:
+        """The missing rays' map coordinates (M, 2) float32 (u, v) in an unrotated map
+        (envmap.direction_to_uv), on the device: a turn of the map about +y only adds
+        turn/2π to u (kernel ``triple_background``), so the trigonometry runs once per
+        camera."""
+        u, v = direction_to_uv(self.miss.astype(np.float64))
+        return cl.read_only_buffer(np.stack([u, v], axis=-1).astype(np.float32))
+
+
+def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,
+                       pixel: np.ndarray) -> dict[str, np.ndarray]:
+    """Kernel ``triple_surface`` (kernels/triple/triple_surface.cl): the G-buffer's ``normal``,
+    ``tangent``, ``view`` (P, 3), ``texel_xy`` (P, 2) float32 and ``object`` (P,) int32
+    at the camera rays ``pixel`` (P,) of ``hits`` and unit ``directions`` (N, 3) (all
+    of them hits), from the mesh's vertex normals (blended in float32), unit face normals
+    and unit uv tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels. Its
+    NumPy twin is pipeline.raytrace.Surface with Atlas.texel_xy."""
+    import pyopencl as pcl
+
+    n = len(pixel)
+    tangent = mesh.face_tangent
+    tangent = tangent / np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    inputs = [cl.read_only_buffer(np.asarray(a, dtype)) for a, dtype in (
+        (pixel, np.int32), (hits.prim, np.int32), (hits.u, np.float32), (hits.v, np.float32),
+        (directions, np.float32), (mesh.faces, np.int32), (mesh.normals, np.float32),
+        (mesh.face_normal, np.float32), (tangent, np.float32), (face_uv, np.float32),
+        (mesh.face_object, np.int32))]
+    out = {"normal": np.empty((n, 3), np.float32), "tangent": np.empty((n, 3), np.float32),
+           "view": np.empty((n, 3), np.float32), "texel_xy": np.empty((n, 2), np.float32),
+           "object": np.empty(n, np.int32)}
+    if not n:
+        return out
+    buffers = [pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, a.nbytes)
+               for a in out.values()]
+    kernel = cl.kernel("triple_surface.cl", "triple_surface")
+    event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *inputs,
+                   np.int32(n), *buffers)
+    for a, buffer in zip(out.values(), buffers, strict=True):
+        pcl.enqueue_copy(cl.queue(), a, buffer, wait_for=[event])
+    return out
+
+
+@dataclass
+class LookupTables:
+    """What the lookups read besides the G-buffer: per object its texture
+    ``object_texture`` (objects, 3) int32 = (height, width, flat offset), per flat
+    texel its visibility row ``texel_row`` (−1: empty), per material ``glossy_base`` and
+    ``diffuse_row`` (int32) and this frame's ``kd``, ``rho_s`` (materials, 3)."""
+
+    object_texture: np.ndarray
+    texel_row: np.ndarray
+    glossy_base: np.ndarray
+    diffuse_row: np.ndarray
+    kd: np.ndarray
+    rho_s: np.ndarray
+
+    @classmethod
+    def of(cls, tables: TripleTables, atlas: Atlas, kd: np.ndarray, rho_s: np.ndarray
+           ) -> LookupTables:
+        texture = np.column_stack([atlas.size, atlas.offset]).astype(np.int32)
+        row = np.where(atlas.filled, atlas.row, -1).astype(np.int32)
+        return cls(texture, row, tables.glossy_base.astype(np.int32),
+                   tables.diffuse_row.astype(np.int32), np.asarray(kd, np.float32),
+                   np.asarray(rho_s, np.float32))
+
+
+def kernel_arguments(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
+                     turn: float, static: dict[str, Any]) -> list[Any]:
+    """The kernels' TRIPLE_GBUFFER_ARGS (kernels/triple/triple.cl): the camera's grid
+    coordinates (:meth:`GBuffer.angles`), the G-buffer's per-frame buffers, the lookup
+    tables (``static`` caches the atlas's buffers across frames) and the grids."""
+    if "texture" not in static:
+        static["texture"] = cl.read_only_buffer(lookup.object_texture)
+        static["texel_row"] = cl.read_only_buffer(lookup.texel_row)
+        static["glossy_base"] = cl.read_only_buffer(lookup.glossy_base)
+        static["diffuse_row"] = cl.read_only_buffer(lookup.diffuse_row)
+    f, v = tables.frames, tables.views
+    return [*gbuffer.angles(f, v)[0], *gbuffer.device, static["texture"],
+            static["texel_row"], static["glossy_base"], static["diffuse_row"],
+            cl.read_only_buffer(lookup.kd), cl.read_only_buffer(lookup.rho_s),
+            *(np.int32(x) for x in (f.n_phi, f.n_theta, f.n_psi, v.n_phi, v.n_theta)),
+            np.float32(turn)]
+
+
+def lookups_numpy(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
+                  turn: float) -> PixelLookups:
+    """The kernels' lookups on the host, in float64 from the G-buffer's float32 values:
+    FrameGrid.weights, texel_lookups (renormalised over filled texels), brdf_lookups
+    with the blend."""
+    from pipeline.math.brdf import to_local
+    from pipeline.methods.triple.render import PixelLookups, brdf_lookups, texel_lookups
+
+    normal, tangent = gbuffer.normal.astype(np.float64), gbuffer.tangent.astype(np.float64)
+    light_rows, light_weight = tables.frames.weights(normal, tangent, turn)
+    texture = lookup.object_texture[gbuffer.object].astype(np.int64)
+    filled = lookup.texel_row >= 0
+    texels, vis_weight = texel_lookups(gbuffer.texel_xy.astype(np.float64), texture[:, :2],
+                                       texture[:, 2], filled)
+    vis_rows = np.where(vis_weight > 0, lookup.texel_row[texels], 0)
+    wo = to_local(gbuffer.view.astype(np.float64), normal, tangent)
+    brdf_rows, brdf_weight = brdf_lookups(tables, gbuffer.material_a, wo,
+                                          lookup.kd.astype(np.float64),
+                                          lookup.rho_s.astype(np.float64),
+                                          gbuffer.material_b, gbuffer.blend.astype(np.float64))
+    return PixelLookups(light_rows, light_weight, vis_rows, vis_weight, brdf_rows,
+                        brdf_weight)
+
+
+def device_lookups(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
+                   turn: float, static: dict[str, Any] | None = None
+                   ) -> tuple[list[Any], float]:
+    """Runs ``triple_lookups``: the device buffers of the rows and weights (as
+    :class:`~pipeline.methods.triple.render.PixelLookups`' arrays, kept on the device) and the
+    kernel's milliseconds."""
+    import pyopencl as pcl
+
+    from pipeline.methods.triple.render import BRDF_ROWS, LIGHT_ROWS, VIS_ROWS
+
+    n = max(gbuffer.count, 1)
+    sizes = [(LIGHT_ROWS, 4), (LIGHT_ROWS, 4), (VIS_ROWS, 4), (VIS_ROWS, 4),
+             (BRDF_ROWS, 4), (3 * BRDF_ROWS, 4)]
+    out = [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * b) for k, b in sizes]
+    kernel = cl.kernel("triple.cl", "triple_lookups",
+                       {"SW_LEVELS": tables.basis.leaf_level})
+    args = kernel_arguments(gbuffer, tables, lookup, turn, {} if static is None else static)
+    event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *args,
+                   np.int32(gbuffer.count), *out)
+    return out, cl.event_ms(event)
+
+
+def read_lookups(buffers: list[Any], count: int) -> PixelLookups:
+    """Host copies of :func:`device_lookups`' buffers."""
+    import pyopencl as pcl
+
+    from pipeline.methods.triple.render import BRDF_ROWS, LIGHT_ROWS, VIS_ROWS, PixelLookups
+
+    shapes = [((count, LIGHT_ROWS), np.uint32), ((count, LIGHT_ROWS), np.float32),
+              ((count, VIS_ROWS), np.uint32), ((count, VIS_ROWS), np.float32),
+              ((count, BRDF_ROWS), np.uint32), ((count, BRDF_ROWS, 3), np.float32)]
+    arrays = []
+    for buffer, (shape, dtype) in zip(buffers, shapes, strict=True):
+        a = np.empty(shape, dtype)
+        if count:
+            pcl.enqueue_copy(cl.queue(), a, buffer)
+        arrays.append(a)
+    return PixelLookups(*arrays)

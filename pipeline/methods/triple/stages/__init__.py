@@ -1,0 +1,1 @@
+"""Method triple's stages (declared in pipeline/methods/triple/stages.yaml)."""
