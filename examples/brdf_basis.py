@@ -1,4 +1,4 @@
-"""Example (pipeline.inspect): a material's PCA basis (method d2i, paper 000 §4) — the
+"""Example (pipeline.engine.inspect): a material's PCA basis (method d2i, paper 000 §4) — the
 mean edited BRDF term and the first k basis rows over the PCA coordinate, the singular
 values, and the worst relative reconstruction error against k.
 
@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from _example import parser, write_figure
 
-from pipeline import inspect
+from pipeline.engine import inspect
 from pipeline.errors import PrtError
 
 

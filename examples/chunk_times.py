@@ -1,4 +1,4 @@
-"""Example (pipeline.inspect): the per-chunk bake times of one stage, as a bar chart.
+"""Example (pipeline.engine.inspect): the per-chunk bake times of one stage, as a bar chart.
 
     python examples/chunk_times.py WORKDIR STAGE [--out chunk_times.png]
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 from _example import parser, write_figure
 
-from pipeline import inspect
+from pipeline.engine import inspect
 
 
 def chunk_times_figure(workdir: Path, stage: str, out: Path) -> dict[str, float]:

@@ -1,4 +1,4 @@
-"""Example (pipeline.inspect): method sg's Gaussians over a mesh — per vertex, the lobe
+"""Example (pipeline.engine.inspect): method sg's Gaussians over a mesh — per vertex, the lobe
 count N and slot 0's width σ at the view nearest the vertex's normal, drawn at the
 vertices' positions.
 
@@ -8,7 +8,7 @@ WORKDIR a work directory baked for method sg (``prt run scenes/bunny_sg.yaml``).
 panels, vertices projected onto the world x–y plane (+y up), glossy vertices only (those
 that store a slot): N (1–3) and σ in degrees (sg_lobes: λ = 1/σ², stored in rad⁻²).
 A vertex whose σ jumps against its neighbours' is where a highlight will pop; N > 1
-marks transport one lobe could not represent (NOTES.md, issue 17).
+marks transport one lobe could not represent (decision 0032).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from _example import parser, write_figure
 
-from pipeline import inspect
+from pipeline.engine import inspect
 
 
 def normal_view_sigma(workdir: Path, stage: str = "sg.relax"

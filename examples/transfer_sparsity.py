@@ -1,4 +1,4 @@
-"""Example (pipeline.inspect): how sparse method d2i's glossy transfer T is, per PCA basis
+"""Example (pipeline.engine.inspect): how sparse method d2i's glossy transfer T is, per PCA basis
 (paper 000 §5) — for the rows of basis b0 (the mean), b1, … b_k of every glossy pixel:
 the coefficients each row keeps, how many rows' Haar coefficients reach the cap (the exact
 near entries come on top of it), and the part of the row's norm that was dropped; the
@@ -22,8 +22,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from _example import parser, write_figure
 
-from pipeline import inspect
-from pipeline.rows import place_in_runs
+from pipeline.engine import inspect
+from pipeline.engine.rows import place_in_runs
 
 
 def basis_of_rows(t_pixel: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Example (pipeline.inspect): method triple's visibility textures (paper 004 §3.1) — per
+"""Example (pipeline.engine.inspect): method triple's visibility textures (paper 004 §3.1) — per
 texel, the fraction of its upper hemisphere from which the environment reaches it (1:
 open sky, 0: fully occluded), from the stored wavelet rows, one panel per object.
 
@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from _example import parser, write_figure
 
-from pipeline import inspect
+from pipeline.engine import inspect
 from pipeline.errors import PrtError
 from pipeline.math.sphwavelet import ROOTS, wavelet_basis
 

@@ -1,4 +1,4 @@
-/* Occlusion against the implicit BVH of pipeline/bvh.py (see its docstring): node k's
+/* Occlusion against the implicit BVH of pipeline/device/bvh.py (see its docstring): node k's
  * box is lo[k], hi[k] (float4, w unused), its children 2k and 2k + 1, the `leaves`
  * leaves are nodes leaves … 2·leaves − 1, leaf j holds triangles j·BVH_LEAF … + BVH_LEAF
  * − 1, each three float4 (v0, e1, e2). Build with -D BVH_LEAF. */

@@ -13,7 +13,7 @@
  * (tests/test_kernel_sources.py checks every kernel folder). Not every function: forced
  * inlining of the radix select's 2 KB private histograms (kernels/triple/wavelet_select.cl)
  * overflowed a PoCL thread's stack, so the others keep `inline`
- * (docs/decisions/0001-kernels-under-any-opencl.md). */
+ * (decision 0001). */
 #ifndef PRT_INLINE_H
 #define PRT_INLINE_H
 

@@ -1,4 +1,4 @@
-/* Shadow rays on the device, against the BVH of pipeline/bvh.py (kernels/bvh.h). */
+/* Shadow rays on the device, against the BVH of pipeline/device/bvh.py (kernels/bvh.h). */
 #include "bvh.h"
 
 /* rays: n · (origin.xyz, tmax; direction.xyz, 0); out[i] = 1 where occluded. */

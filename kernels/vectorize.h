@@ -9,7 +9,7 @@
  * already; Intel's then runs the work-items one by one (measured on the same launches:
  * 266 ms, and the transform at PoCL's speed). A hint only: PoCL and NVIDIA's compiler
  * are free to ignore it, and the results are the kernels' own either way
- * (benchmarks/bench_opencl_cpus.py, docs/decisions/0002-opencl-device-choice.md). */
+ * (benchmarks/engine/opencl_cpus.py, decision 0002). */
 #ifndef PRT_VECTORIZE_H
 #define PRT_VECTORIZE_H
 

@@ -10,9 +10,11 @@ from pathlib import Path
 
 import click
 
+from pipeline.device.threads import available_cpus
+from pipeline.engine.executors.local import Cores, use_cores
 from pipeline.errors import PrtError
-from pipeline.executors import Cores, available_cpus, use_cores
-from pipeline.scene import MAX_IMAGE_SIDE, Scene
+from pipeline.evaluation import reference_cache
+from pipeline.scene.model import MAX_IMAGE_SIDE, Scene
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -43,7 +45,7 @@ THREADS = click.option(
 
 
 def cores_option(jobs: int | None, threads: int | None) -> Cores:
-    """The Cores setting of a command's --jobs and --threads (see pipeline/executors.py
+    """The Cores setting of a command's --jobs and --threads (see pipeline/engine/executors/local.py
     ``Cores.resolve``), applied to this process (its frames use as many threads, and
     the OpenCL CPU device no more, when fewer than the cores)."""
     cores = Cores.resolve(jobs, threads)
@@ -104,13 +106,13 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
     """Bake every stale stage, then bring the scene's frame and edit sequences up to
     date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
-    from pipeline.method import scene_methods, scene_notes
+    from pipeline.registry import scene_methods, scene_notes
 
     if scheduler is not None and jobs is not None:
         raise PrtError("--jobs", "does not apply with --scheduler (the cluster's workers "
                        "run the chunks; local:N sets their number)")
     if scheduler is not None:
-        from pipeline.dask_executor import parse_scheduler
+        from pipeline.engine.executors.dask import parse_scheduler
 
         parse_scheduler(scheduler)
     cores = cores_option(jobs, threads)
@@ -199,8 +201,8 @@ def check_exposure(ev: float) -> None:
 
 def environment_edits(scene: Scene, env_file: Path | None, env_rotate: float | None
                       ) -> Scene:
-    """``scene`` with ``--env`` and ``--env-rotate`` applied (pipeline/scene_edits.py)."""
-    from pipeline.scene_edits import with_environment_file, with_environment_rotation
+    """``scene`` with ``--env`` and ``--env-rotate`` applied (pipeline/scene/edits.py)."""
+    from pipeline.scene.edits import with_environment_file, with_environment_rotation
 
     if env_file is not None:
         scene = with_environment_file(scene, env_file)
@@ -320,7 +322,7 @@ def inspect_cmd(path, as_json) -> None:
 
 
 def _tolerance_lines(tolerances: list[dict]) -> list[str]:
-    """One line per budget a stage chose from a tolerance (pipeline/tolerance.py)."""
+    """One line per budget a stage chose from a tolerance (pipeline/engine/tolerance.py)."""
     lines = []
     for t in tolerances:
         budget = ", ".join(f"{k} {v}" for k, v in t["budget"].items())
@@ -371,7 +373,7 @@ def verify_cmd(scene, as_json, workdir, quiet) -> None:
     checksums, shapes, NaN/Inf, provenance records and chunk markers. Prints one line
     per problem with the command that re-bakes it; exit status 2 if any."""
     from pipeline import job
-    from pipeline.verify import rebake_command, verify
+    from pipeline.engine.verify import rebake_command, verify
 
     sc = job.open_scene(scene)
     wd = job.workdir_for(sc, workdir)
@@ -421,7 +423,7 @@ def parse_options(items: tuple[str, ...]) -> dict[str, str]:
 @click.option("--json", "as_json", is_flag=True, help="Print the methods as JSON.")
 def methods_cmd(as_json) -> None:
     """List the rendering methods: what each renders and reads, its options."""
-    from pipeline.method import registry
+    from pipeline.registry import registry
 
     methods = registry()
     if as_json:
@@ -457,7 +459,7 @@ def devices_cmd(as_json) -> None:
     GPU, else the first CPU implementation (Intel's CPU runtime, then PoCL) that builds
     and runs a probe kernel right; probe results are cached per machine. Exits with
     status 2 when no device works."""
-    from pipeline.devices import report
+    from pipeline.device.devices import report
 
     info = report()
     if as_json:
@@ -470,7 +472,7 @@ def devices_cmd(as_json) -> None:
 
 
 def devices_text(info: dict) -> list[str]:
-    """``prt devices``' report (pipeline/devices.py ``report``) as lines."""
+    """``prt devices``' report (pipeline/device/devices.py ``report``) as lines."""
     lines = [f"CPU: {info['cpu']}"]
     if info["registration"]["note"]:
         lines.append(info["registration"]["note"])
@@ -531,8 +533,8 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
-    from pipeline.method import check_method_scene, get_method, scene_methods, scene_notes
-    from pipeline.scene_edits import with_material_edits
+    from pipeline.registry import check_method_scene, get_method, scene_methods, scene_notes
+    from pipeline.scene.edits import with_material_edits
 
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
@@ -614,9 +616,9 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
                   edits, as_json, workdir, quiet) -> None:
     """Render a converged Monte-Carlo reference image (cached in the work directory)."""
     from pipeline import job
+    from pipeline.evaluation.reference import ReferenceSettings
     from pipeline.images import check_writable, write_exr, write_png
-    from pipeline.reference import ReferenceSettings
-    from pipeline.scene_edits import with_material_edits
+    from pipeline.scene.edits import with_material_edits
 
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
@@ -624,7 +626,7 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
     check_writable(out)
     settings = ReferenceSettings(transport=transport, tolerance=tolerance, max_spp=max_spp,
                                  seed=seed, pixel_filter=pixel_filter, lobe=lobe)
-    result = job.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)
+    result = reference_cache.reference(sc, job.workdir_for(sc, workdir), settings, quiet=quiet)
     image = result.image
     write_exr(out, image.mean)
     write_png(out.with_suffix(".png"), image.mean)
@@ -663,9 +665,10 @@ def reference_cmd(scene, transport, out, size, tolerance, max_spp, seed, pixel_f
 def evaluate_cmd(scene, method, sweeps, out, repeats, reference_max_spp, size, workdir,
                  quiet) -> None:
     """Chart a method's error against frame time, storage and bake time over budgets."""
-    from pipeline import evaluate, job
-    from pipeline.charts import CHARTS
-    from pipeline.method import get_method, scene_methods
+    from pipeline import job
+    from pipeline.evaluation import evaluate
+    from pipeline.evaluation.charts import CHARTS
+    from pipeline.registry import get_method, scene_methods
 
     sc = job.open_scene(scene, parse_size(size))
     m = get_method(method) if method else scene_methods(sc)[0]

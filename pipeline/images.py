@@ -1,5 +1,5 @@
 """Image files: linear RGB to OpenEXR, sRGB-encoded PNG previews, EXR and Radiance HDR
-reading (heat maps with a colour bar: pipeline/charts.py).
+reading (heat maps with a colour bar: pipeline/evaluation/charts.py).
 
 Images are (height, width, 3) float32 arrays of linear radiance, row 0 at the top.
 Files are written to a temporary name and renamed, so a killed run never leaves a
@@ -20,7 +20,7 @@ from pipeline.errors import PrtError
 def srgb_encode(linear: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     """sRGB-encoded values in [0, 1] (float64) of linear ``linear`` × ``exposure``: the
     sRGB transfer function (IEC 61966-2-1) of the values clipped to [0, 1]. The PNG
-    previews and the PSNR metric (pipeline/metrics.py) both use it."""
+    previews and the PSNR metric (pipeline/evaluation/metrics.py) both use it."""
     x = np.clip(np.asarray(linear, np.float64) * exposure, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 

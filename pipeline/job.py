@@ -17,16 +17,19 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.codeversion import code_version
+from pipeline.engine.codeversion import code_version
+from pipeline.engine.executors import make_executor
+from pipeline.engine.keys import digest
+from pipeline.engine.planning import StagePlan, plan
+from pipeline.engine.runner import StageRun, run
+from pipeline.engine.stagefile import StageFile, load_stagefile
+from pipeline.engine.store import Artifact, Workdir, open_artifact, read_record
 from pipeline.errors import PrtError
-from pipeline.executors import make_executor
-from pipeline.keys import digest
-from pipeline.method import Method, get_method, resolve, scene_methods, stagefile_fragments
-from pipeline.render import Frame
-from pipeline.runner import StagePlan, StageRun, plan, run
-from pipeline.scene import Scene, default_scene_path, load_scene
-from pipeline.stagefile import StageFile, load_stagefile
-from pipeline.store import Artifact, Workdir, open_artifact, read_record
+from pipeline.method import Method, resolve
+from pipeline.registry import get_method, scene_methods, stagefile_fragments
+from pipeline.render import Frame, Renderer
+from pipeline.scene.file import default_scene_path, load_scene
+from pipeline.scene.model import Scene
 
 
 def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> Scene:
@@ -43,7 +46,7 @@ def workdir_for(scene: Scene, workdir: str | Path | None,
     lit by another map (``--env``, :attr:`Scene.environment_view`) its
     environment-dependent ones under ``views/env-<map>/``, so that a preview never
     replaces the bake of the scene file."""
-    from pipeline.graph import dependent_on
+    from pipeline.engine.graph import dependent_on
 
     root = workdir or Path(".prt") / scene.name
     views = [(name, section) for name, section in ((scene.view, "camera"),
@@ -77,9 +80,10 @@ def bake(scene: Scene, workdir: Workdir, until: str | tuple[str, ...] | None = N
     """Run every stale stage that the scene's methods (or ``methods``) need, or those
     ``until`` needs; a custom ``stagefile`` runs all of its stages. Chunks run on
     ``jobs`` worker processes (1: in this process) with ``threads`` threads each; either
-    None: pipeline/executors.py ``Cores.resolve`` (``$PRT_JOBS``, ``$PRT_THREADS``, else
+    None: pipeline/engine/executors/local.py ``Cores.resolve`` (``$PRT_JOBS``,
+    ``$PRT_THREADS``, else
     chosen from the available cores); or, with ``scheduler`` (a dask scheduler's
-    address or ``local:N``), on a dask cluster's workers (pipeline/dask_executor.py).
+    address or ``local:N``), on a dask cluster's workers (pipeline/engine/executors/dask.py).
     The artifacts do not depend on any of these."""
     graph = stages(stagefile)
     targets = None if until or stagefile else baked_stages(scene, methods)
@@ -90,8 +94,8 @@ def bake(scene: Scene, workdir: Workdir, until: str | tuple[str, ...] | None = N
 
 def tolerance_warnings(report: list[StageRun]) -> list[str]:
     """One line per budget a stage of ``report`` chose from a tolerance it did not reach
-    (pipeline/tolerance.py), whether the stage ran now or was fresh."""
-    from pipeline.tolerance import unmet, warning
+    (pipeline/engine/tolerance.py), whether the stage ran now or was fresh."""
+    from pipeline.engine.tolerance import unmet, warning
 
     return [warning(r.name, t) for r in report for t in unmet({"tolerances": r.tolerances})]
 
@@ -107,11 +111,11 @@ def status(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None
 def rebake_forecast(scene: Scene, workdir: Workdir, stagefile: str | Path | None = None,
                     until: str | tuple[str, ...] | None = None) -> list[Any]:
     """What the next ``prt run`` (``until``: ``--until``) will re-bake, stage by stage,
-    with chunk counts and reasons (pipeline/rebake_plan.py), without running anything."""
-    from pipeline.rebake_plan import rebake_plan
+    with chunk counts and reasons (pipeline/engine/planning.py), without running anything."""
+    from pipeline.engine.planning import forecast
 
     graph = stages(stagefile)
-    return rebake_plan(scene, graph, workdir, _planned_stages(scene, graph, stagefile, until))
+    return forecast(scene, graph, workdir, _planned_stages(scene, graph, stagefile, until))
 
 
 def _planned_stages(scene: Scene, graph: StageFile, stagefile: str | Path | None,
@@ -119,7 +123,7 @@ def _planned_stages(scene: Scene, graph: StageFile, stagefile: str | Path | None
     """The stages ``prt status`` and a dry run plan: ``until`` (``--until``) and their
     upstream, else those the scene's methods read and their upstream; None (all) for a
     custom ``stagefile`` without ``until``."""
-    from pipeline.graph import with_upstream
+    from pipeline.engine.graph import with_upstream
 
     if isinstance(until, str):
         until = (until,)
@@ -130,9 +134,9 @@ def _planned_stages(scene: Scene, graph: StageFile, stagefile: str | Path | None
 def chunk_progress(workdir: Workdir, stage: str) -> tuple[int, int] | None:
     """(chunks written, chunks planned) of a stage whose artifact is incomplete (a run
     was interrupted, or is running): the chunk markers that carry the key the record
-    planned for them (pipeline/chunkwrite.py). None when the artifact is complete or
+    planned for them (pipeline/engine/chunkwrite.py). None when the artifact is complete or
     absent."""
-    from pipeline.chunkwrite import read_marker
+    from pipeline.engine.chunkwrite import read_marker
 
     try:
         record = read_record(workdir.artifact(stage))
@@ -179,7 +183,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
            quiet: bool = False, reuse: bool = False,
            options: dict[str, Any] | None = None, threads: int | None = None,
            exposure: float = 0.0,
-           renderer_of: Callable[[], Callable[[Scene], Frame]] | None = None,
+           renderer_of: Callable[[], Renderer] | None = None,
            baked: list[StageRun] | None = None) -> RenderResult:
     """Bake what ``method`` needs (``jobs``, ``threads``: as for :func:`bake`), render
     one frame, write ``out`` (linear EXR), a PNG preview beside it (× 2^``exposure``,
@@ -193,7 +197,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     the bake the caller has just run for this method (nothing is planned again); None:
     bake first."""
     from pipeline.images import check_writable, exposure_note
-    from pipeline.method import check_method_scene
+    from pipeline.registry import check_method_scene
 
     m = get_method(method)
     if out.suffix.lower() != ".exr":
@@ -209,7 +213,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     if reuse and output_state(meta, key, exposure)[0] == "present":
         return RenderResult(out, png, None, baked)
     renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
-    frame = checked_frame(renderer(scene), out)
+    frame = checked_frame(renderer.frame(scene), out)
     write_frame(out, frame.rgb, exposure)
     dark = exposure_note(frame.rgb, exposure)
     if dark:
@@ -231,7 +235,7 @@ def write_output_record(record: Path, key: str, files: list[Path],
                         extra: dict[str, Any]) -> None:
     """The record of written frames: their key and every file's SHA-256 (by name, files
     beside the record), written last so that a run killed earlier leaves none."""
-    from pipeline.keys import file_hash
+    from pipeline.scene.model import file_hash
 
     body = {"key": key, **extra, "files": {p.name: file_hash(p) for p in files}}
     tmp = record.with_name(f".{record.name}.tmp")
@@ -246,7 +250,7 @@ def output_state(record: Path, key: str, exposure: float | None = None
     is there with the bytes it was written with; ``("missing", why)`` when the record or
     a file is absent; ``("stale", why)`` when the inputs changed or a file changed on
     disk (truncated, overwritten)."""
-    from pipeline.keys import file_hash
+    from pipeline.scene.model import file_hash
 
     try:
         body = json.loads(record.read_text())
@@ -277,16 +281,21 @@ def checked_frame(frame: Frame, out: Path) -> Frame:
 
 
 def frame_renderer(scene: Scene, workdir: Workdir, method: str,
-                   options: dict[str, Any] | None = None) -> Callable[[Scene], Frame]:
+                   options: dict[str, Any] | None = None) -> Renderer:
     """A renderer of ``method``'s frames from the (already baked) artifacts in
-    ``workdir``, loaded once; ``options`` are the method's run-time options."""
+    ``workdir``, loaded once; ``options`` are the method's run-time options. PrtError
+    if what the method's factory gives is not a :class:`Renderer`."""
     m = get_method(method)
-    return resolve(m.renderer)(scene, method_artifacts(m, workdir), **(options or {}))
+    renderer = resolve(m.renderer)(scene, method_artifacts(m, workdir), **(options or {}))
+    if not isinstance(renderer, Renderer):
+        raise PrtError(m.renderer, f"method {m.name}'s renderer has no frame(scene) and "
+                       "edit_mode(kind, scene) (pipeline/render/__init__.py Renderer)")
+    return renderer
 
 
 def shared_renderer(scene: Scene, workdir: Workdir, method: str,
                     options: dict[str, Any] | None = None
-                    ) -> Callable[[], Callable[[Scene], Frame]]:
+                    ) -> Callable[[], Renderer]:
     """A factory of ``method``'s renderer (:func:`frame_renderer`) that builds it on
     its first call and returns the same one after: the frame and the sequences of one
     command share the artifacts it loaded (seconds on a large bake), and a command whose
@@ -299,7 +308,7 @@ def shared_renderer(scene: Scene, workdir: Workdir, method: str,
 def render_frame(scene: Scene, workdir: Workdir, method: str,
                  options: dict[str, Any] | None = None) -> Frame:
     """One frame of ``method`` (see ``frame_renderer``)."""
-    return frame_renderer(scene, workdir, method, options)(scene)
+    return frame_renderer(scene, workdir, method, options).frame(scene)
 
 
 @dataclass
@@ -359,7 +368,7 @@ def sequence_record(out: Path, kind: str) -> Path:
 def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
                     options: dict[str, Any] | None = None, exposure: float = 0.0,
                     reuse: bool = False, plan: SequencePlan | None = None,
-                    renderer_of: Callable[[], Callable[[Scene], Frame]] | None = None
+                    renderer_of: Callable[[], Renderer] | None = None
                     ) -> SequenceResult:
     """Render a sequence of edits (see :func:`plan_sequence`; ``plan`` if already made)
     from the baked artifacts, PNG previews × 2^``exposure``. A renderer with an
@@ -372,8 +381,7 @@ def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out:
     if reuse and output_state(plan.record, plan.key, exposure)[0] == "present":
         return SequenceResult(plan.kind, plan.exr, [], plan.edits, plan.description, False)
     renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
-    frame_of = renderer.edit_mode(plan.kind, scene) if hasattr(renderer, "edit_mode") \
-        else renderer
+    frame_of = renderer.edit_mode(plan.kind, scene)
     plan.record.unlink(missing_ok=True)
     timings = []
     for path, edited in zip(plan.exr, plan.scenes, strict=True):
@@ -395,9 +403,9 @@ def main_frame_path(scene: Scene, method: Method, frames: Path) -> Path:
 
 
 def check_device() -> None:
-    """Choose the OpenCL device now (pipeline/devices.py): where none works, one error
+    """Choose the OpenCL device now (pipeline/device/devices.py): where none works, one error
     line says so before any bake, not a traceback from the first kernel's chunk."""
-    from pipeline import cl
+    from pipeline.device import cl
 
     cl.device()
 
@@ -495,56 +503,6 @@ def load_geometry(scene: Scene, workdir: Workdir, quiet: bool = True) -> tuple[d
     return arrays, artifact.record["digest"]
 
 
-@dataclass
-class ReferenceResult:
-    """A reference image (from the cache or rendered now) and where it is stored."""
-
-    image: Any  # pipeline.reference.ReferenceImage
-    artifact: Path
-    cached: bool
-
-
-def reference(scene: Scene, workdir: Workdir, settings: Any, quiet: bool = False
-              ) -> ReferenceResult:
-    """The reference image for ``settings`` (a ReferenceSettings), rendered unless an
-    artifact with the same key (scene camera, lights and materials, the geometry's
-    bytes, renderer code, settings) is stored under ``workdir/reference/``."""
-    import dataclasses
-
-    from pipeline import reference as ref
-    from pipeline.schema import load_schema
-    from pipeline.store import software_versions, write_artifact
-
-    geometry, geometry_digest = load_geometry(scene, workdir, quiet)
-    parts = {"code": code_version(["pipeline.reference"]),
-             "geometry": geometry_digest, "settings": dataclasses.asdict(settings),
-             "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}}
-    key = digest(parts)
-    lobe = "" if settings.lobe == "all" else f"-{settings.lobe}"
-    path = workdir.root / "reference" / f"{settings.transport}{lobe}-{key[:16]}.zarr"
-    record = read_record(path)
-    if record is not None and record.get("key") == key:
-        stored = open_artifact(path, "reference")
-        a = stored.attrs
-        image = ref.ReferenceImage(stored.read("mean"), stored.read("variance"), a["spp"],
-                                   a["estimate"], a["seconds"], a["rays"],
-                                   [tuple(h) for h in a["history"]])
-        return ReferenceResult(image, path, True)
-    image = ref.render(scene, geometry, settings, progress=not quiet)
-    with workdir.lock():
-        write_artifact(workdir, path, load_schema("reference"),
-                       {"mean": image.mean, "variance": image.variance},
-                       {"transport": settings.transport,
-                        "settings": dataclasses.asdict(settings), "spp": image.spp,
-                        "estimate": float(image.estimate), "seconds": image.seconds,
-                        "rays": int(image.rays),
-                        "history": [list(map(float, h)) for h in image.history]},
-                       {"stage": "reference", "key": key, "key_parts": parts,
-                        "seconds": image.seconds, "software": software_versions()},
-                       {"tile": 64})
-    return ReferenceResult(image, path, False)
-
-
 def clean(workdir: Workdir) -> int:
     """Delete a work directory; returns the bytes freed. PrtError if there is none."""
     root = workdir.root
@@ -604,9 +562,9 @@ def inspect_workdir(root: Path) -> dict[str, Any]:
     """A summary of every artifact under ``root`` (nested work directories, such as
     evaluate's sweeps and the reference cache, included), from the provenance records
     and file sizes only: kind, stage, complete or partial (chunks written / planned),
-    stored bytes, seconds, the tolerance results (pipeline/tolerance.py) and a warning
+    stored bytes, seconds, the tolerance results (pipeline/engine/tolerance.py) and a warning
     per tolerance not reached."""
-    from pipeline.tolerance import unmet, warning
+    from pipeline.engine.tolerance import unmet, warning
 
     root = Path(root)
     if not root.is_dir():

@@ -3,7 +3,7 @@ sbrdf_bump.yaml); run from anywhere: ``python scenes/make_surface_detail_assets.
 
 * ``meshes/uv_sphere.obj``: a unit sphere with latitude-longitude uv, 64 segments ×
   32 rings. u = φ/2π (φ the azimuth about +y from +x towards −z), v = 1 − θ/π (θ from
-  +y): dP/du, the tangent every renderer uses (pipeline/raytrace.py ``Surface.tangent``),
+  +y): dP/du, the tangent every renderer uses (pipeline/device/raytrace.py ``Surface.tangent``),
   follows the circles of latitude eastwards (the anisotropic Ward's αx axis), dP/dv the
   meridians north. The seam (u = 0 = 1, the +x meridian) is split (its vertices
   doubled); the scenes' cameras on +z see it edge-on at the sphere's right silhouette.

@@ -27,8 +27,9 @@ FRAMES = {"direct": ("d2i", {}), "d2i": ("d2i", {"layout": "cpu"}),
 
 
 def main(work: Path, out: Path) -> None:
-    from pipeline import cl, job
-    from pipeline.devices import implementation
+    from pipeline import job
+    from pipeline.device import cl
+    from pipeline.device.devices import implementation
 
     frames = {}
     for name, (scene_of, options) in FRAMES.items():

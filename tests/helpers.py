@@ -55,7 +55,7 @@ TOY_STAGES = ("geometry", "gbuffer", "per_object", "total", "tiles")
 def artifact_bytes(workdir: Any, stages: tuple[str, ...] = TOY_STAGES
                    ) -> dict[str, dict[str, bytes]]:
     """Every array of every stage's artifact in ``workdir`` (a Workdir), as raw bytes."""
-    from pipeline.store import open_artifact
+    from pipeline.engine.store import open_artifact
 
     return {s: {n: a.tobytes() for n, a in open_artifact(workdir.artifact(s)).read_all().items()}
             for s in stages}
@@ -71,7 +71,7 @@ def write_scene(folder: Path, doc: dict[str, Any], name: str = "scene.yaml") -> 
 def scene_geometry(folder: Path, doc: dict[str, Any]) -> tuple[Any, dict]:
     """Write ``doc`` into ``folder``, bake its geometry there; (scene, geometry arrays)."""
     from pipeline import job
-    from pipeline.scene import load_scene
+    from pipeline.scene.file import load_scene
 
     scene = load_scene(write_scene(folder, doc))
     geometry, _ = job.load_geometry(scene, job.workdir_for(scene, folder / "work"))

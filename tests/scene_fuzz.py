@@ -15,7 +15,7 @@ stage parameter, in and out of its limits); the methods; and the command line
 (``--size``, ``--exposure``, ``--option``, ``--set``, ``--env-rotate``).
 
 Used by tests/test_scene_fuzzer.py (a fixed-seed budget in CI) and
-benchmarks/fuzz_scenes.py (the long run, whose findings become regression tests).
+benchmarks/engine/fuzz.py (the long run, whose findings become regression tests).
 """
 
 from __future__ import annotations

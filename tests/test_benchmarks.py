@@ -1,27 +1,54 @@
-"""Benchmark scripts run end to end on tiny inputs, so that a renamed artifact or option
-does not leave them broken until someone needs their numbers (it happened once:
-benchmarks/d2i_breakdown.py read a renamed artifact). Timings are not checked — only
-that every part ran and what must hold whatever the machine."""
+"""Every benchmark runs end to end at its tiny size (``python -m benchmarks run NAME
+--tiny``), so that a renamed artifact or option does not leave one broken until someone
+needs its numbers (it happened once: a benchmark read a renamed artifact). Timings are
+not checked — only that every part ran and what must hold whatever the machine."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
+import pytest
 from helpers import PROJECT
 
+from benchmarks.__main__ import benchmarks
 
-def test_bench_d2i_runs_and_its_shadow_rays_agree(tmp_path):
-    """bench_d2i at 24², 256 gathers: frame timings for every mode, storage of T, D and
+CHECKED_APART = ("d2i.frames", "engine.rebake")  # smoke-tested below, with their facts
+
+
+def run_tiny(name: str, folder) -> dict:
+    """``name`` run at its tiny size into ``folder`` (its bakes there too, not in the
+    project's .prt/benchmarks); its result."""
+    env = {**os.environ, "PRT_BENCH_CACHE": str(folder / "cache")}
+    done = subprocess.run([sys.executable, "-m", "benchmarks", "run", name, "--tiny",
+                           "--out", str(folder)], cwd=PROJECT, capture_output=True,
+                          text=True, env=env)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads((folder / f"{name}.json").read_text())
+
+
+def test_the_runner_lists_every_suite_and_refuses_an_unknown_name():
+    names = benchmarks()
+    assert {n.partition(".")[0] for n in names} == {"engine", "d2i", "triple", "sg"}
+    assert all(doc for doc in names.values()), "every benchmark says what it measures"
+    done = subprocess.run([sys.executable, "-m", "benchmarks", "run", "no.such"],
+                          cwd=PROJECT, capture_output=True, text=True)
+    assert done.returncode != 0 and "no benchmark 'no.such'" in done.stderr
+
+
+@pytest.mark.parametrize("name", [n for n in benchmarks() if n not in CHECKED_APART])
+def test_every_benchmark_runs_at_its_tiny_size(name, tmp_path):
+    result = run_tiny(name, tmp_path)
+    assert result["benchmark"] == name and result["machine"]["cores"] >= 1
+
+
+def test_d2i_frames_run_and_their_shadow_rays_agree(tmp_path):
+    """d2i.frames at its tiny size: frame timings for every mode, storage of T, D and
     Ms, the bandwidth probe, and the shadow-ray comparison — the device's BVH and
-    Embree give the same answer for every ray of the scene's lights (the Cornell box:
-    axis-aligned quads, nothing grazes an edge)."""
-    out = tmp_path / "bench.json"
-    subprocess.run([sys.executable, "benchmarks/bench_d2i.py", "--size", "24", "--gathers",
-                    "256", "--workdir", str(tmp_path / "w"), "--skip-breakdown",
-                    "--out", str(out)], cwd=PROJECT, check=True, capture_output=True)
-    result = json.loads(out.read_text())
+    Embree give the same answer for every ray of the scene's lights."""
+    result = run_tiny("d2i.frames", tmp_path)
     assert set(result["frames"]) == {"light_edit_point", "light_edit_area16", "brdf_edit"}
     assert all(f["total_ms"] > 0 for f in result["frames"].values())
     assert set(result["storage"]) == {"T", "D", "Ms"}
@@ -29,18 +56,12 @@ def test_bench_d2i_runs_and_its_shadow_rays_agree(tmp_path):
     assert result["bandwidth_probe"]["opencl_copy_gbs"] > 0
 
 
-def test_bench_rebake_reruns_only_the_edited_materials_chunks(tmp_path):
-    """bench_rebake at 24², 256 gathers, two γ-range re-bakes without waiting for quiet:
-    the edit re-runs the box's basis and only some chunks of d2i.transfer_t and
-    d2i.truncate_t (its own), nothing else; the narrower range needs no larger basis
-    than the full bake's, and the range toggled back needs the full bake's; the moved
-    box re-runs its own geometry chunk of several."""
-    out = tmp_path / "rebake.json"
-    subprocess.run([sys.executable, "benchmarks/bench_rebake.py", "--size", "24", "--tile",
-                    "8", "--gathers", "256", "--repeats", "2", "--no-quiet", "--workdir",
-                    str(tmp_path / "w"), "--out", str(out)], cwd=PROJECT, check=True,
-                   capture_output=True)
-    result = json.loads(out.read_text())
+def test_engine_rebake_reruns_only_the_edited_materials_chunks(tmp_path):
+    """engine.rebake at its tiny size: the γ-range edit re-runs the box's basis and only
+    some chunks of d2i.transfer_t and d2i.truncate_t (its own), nothing else; the
+    narrower range needs no larger basis than the full bake's, and the range toggled
+    back needs the full bake's; the moved box re-runs its own geometry chunk of several."""
+    result = run_tiny("engine.rebake", tmp_path)
     edit = result["gamma_range_edit"]
     assert set(edit["ran"]) == {"brdf_basis", "d2i.transfer_t", "d2i.truncate_t"}
     assert edit["ran"]["brdf_basis"]["chunks"] == 1
@@ -51,3 +72,41 @@ def test_bench_rebake_reruns_only_the_edited_materials_chunks(tmp_path):
     assert narrower["k"] <= edit["full_bake_k"] == back["k"]
     moved = result["moved_small_box"]["ran"]["geometry"]
     assert moved["chunks"] == 1 < moved["of"]
+
+
+def test_the_table_generator_fills_a_method_page(tmp_path, monkeypatch):
+    """``python -m benchmarks table`` writes docs/results.md, replaces a method page's
+    generated section with the method's accuracy table and the README's with a row per
+    method (here from a hand-made result, into stand-ins for the pages)."""
+    from benchmarks import table
+
+    docs = tmp_path / "docs"
+    (docs / "methods").mkdir(parents=True)
+    page = docs / "methods" / "d2i.md"
+    page.write_text("# d2i\n\n## Current figures\n\n" + table.MARKER.format(m="d2i")
+                    + "\n\nold figures\n\n## After\n\nkept\n")
+    results = tmp_path / "results" / "d2i"
+    results.mkdir(parents=True)
+    readme = tmp_path / "README.md"
+    readme.write_text("## Which method\n\n" + table.README_MARKER + "\n\nold\n\n"
+                      "Which to use: d2i.\n")
+    record = {"budget": {"gather.count": 4096}, "default": True, "headline": "rel_rmse",
+              "width": 96, "height": 96,
+              "frame_ms": 12.5, "rel_rmse": 0.021, "reference_rel_rmse": 0.004,
+              "storage_bytes": 3e6, "bake_s": 40.0, "pathtrace_ms_equal_error": 900.0}
+    (results / "accuracy.json").write_text(json.dumps({
+        "method": "d2i", "scene": "scenes/cornell_box.yaml", "size": [96, 96],
+        "machine": {"cpu": "a CPU", "cores": 2, "opencl_device": "a device"},
+        "finished": "2026-11-29T00:00:00", "load": [[1.0, 1, 1], [2.0, 2, 2]],
+        "budgets": [record]}))
+    monkeypatch.setattr(table, "DOCS", docs)
+    written = table.write_tables(tmp_path / "results")
+    text = page.read_text()
+    assert "old figures" not in text and "## After\n\nkept" in text
+    assert "| gather.count=4096 (default) | 12.5 | 2.1 % | 0.4 % | 3.0 | 40 | 900 |" in text
+    assert docs / "results.md" in written and readme in written
+    assert "| `d2i` | `cornell_box.yaml` | 96×96 | 2.1 % | 0.4 % | 12.5 | 40 | a CPU, " \
+        "2026-11-29 |" in readme.read_text()
+    assert "old" not in readme.read_text() and "Which to use: d2i." in readme.read_text()
+    assert "Not measured: run `python -m benchmarks run triple.accuracy`" in \
+        (docs / "results.md").read_text()

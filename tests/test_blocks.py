@@ -45,7 +45,7 @@ def _pixel_rows(rng, width, height, length, near_from):
 
 def _stored(cut, columns):
     """Dense rows of a cut (d_count, d_index, float16 d_value over d_scale)."""
-    from pipeline.rows import expand_values
+    from pipeline.engine.rows import expand_values
 
     value = expand_values(cut["d_count"], cut["d_value"], cut["d_scale"])
     return _dense({"count": cut["d_count"], "index": cut["d_index"], "value": value}, columns)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline import cl
+from pipeline.device import cl
 from pipeline.math.brdf import (
     MODELS,
     BrdfParams,
@@ -171,7 +171,7 @@ def test_directional_albedo_at_most_one(model):
 
 def test_non_conserving_models_as_measured():
     """The paper's normalisations that do not conserve energy, pinned to their measured
-    values (NOTES.md): Blinn-Phong's (γ+2)/2π on the half vector reflects ≈ 4ρs at normal
+    values (decision 0013): Blinn-Phong's (γ+2)/2π on the half vector reflects ≈ 4ρs at normal
     incidence for large γ; Cook-Torrance 1982 is 4× a normalised microfacet model (albedo
     → 4 F for smooth surfaces); Ward-Dür's 1/(N·L N·V) exceeds 1 at grazing angles."""
     def albedo(model, gamma, theta):

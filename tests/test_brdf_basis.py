@@ -10,12 +10,12 @@ import pytest
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams, edited_term
 from pipeline.methods.d2i.brdf_pca import PAPER_GAMMA_RANGES, build_basis, read_basis
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 
 RANGES = PAPER_GAMMA_RANGES
 

@@ -1,4 +1,4 @@
-"""The device BVH's shadow rays (pipeline/bvh.py, kernels/bvh.h) against Embree's.
+"""The device BVH's shadow rays (pipeline/device/bvh.py, kernels/bvh.h) against Embree's.
 
 Both intersect float32 triangles in float32 arithmetic, by different formulas: a ray
 that passes within rounding of a triangle's edge (or touches a vertex, or ends on a
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from helpers import SHARED_DATA
 
-from pipeline.bvh import LEAF, Bvh, morton_codes, occluded
-from pipeline.meshio import read_mesh
-from pipeline.raytrace import RayTracer
+from pipeline.device.bvh import LEAF, Bvh, morton_codes, occluded
+from pipeline.device.raytrace import RayTracer
+from pipeline.scene.meshio import read_mesh
 
 EDGE_EPSILON = 1e-5  # relative to the scene's size: a few float32 ulps of a coordinate
 
@@ -132,7 +132,7 @@ def test_light_visibility_on_the_device_equals_embree():
     """DeviceShadows against render/shadows.py's Embree path: point, spot, directional
     and a 16-sample quad, the same samples (pixel ids), equal except on rays that are
     unstable as above (counted over all samples: ≤ 1 in 2,000)."""
-    from pipeline import cl
+    from pipeline.device import cl
     from pipeline.math.lights import pack_lights
     from pipeline.render.shadows import DeviceShadows, light_visibility
 

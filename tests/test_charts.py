@@ -1,4 +1,4 @@
-"""Charts of evaluate records (pipeline/charts.py) and the evaluate summary table, on
+"""Charts of evaluate records (pipeline/evaluation/charts.py) and the evaluate summary table, on
 synthetic records: no bake, a few seconds."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
-from pipeline.charts import bake_costs, heatmap, write_charts
-from pipeline.evaluate import summary_lines
+from pipeline.evaluation.charts import bake_costs, heatmap, write_charts
+from pipeline.evaluation.evaluate import summary_lines
 
 
 def _record(tolerance: float, error: float, frame_ms: float, truncate_s: float,
@@ -79,7 +79,7 @@ def test_point_labels_never_overlap():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.charts import _place_labels
+    from pipeline.evaluation.charts import _place_labels
 
     labels = [f"gather.count={g}, truncate.tolerance={t}"
               for g in (4096, 16384) for t in (0.005, 0.01, 0.02, 0.04)]

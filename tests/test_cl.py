@@ -1,4 +1,4 @@
-"""pipeline/cl.py: the OpenCL context's effect on the process, and the kernel cache."""
+"""pipeline/device/cl.py: the OpenCL context's effect on the process, and the kernel cache."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pyopencl as pcl
 import pytest
 from threadpoolctl import threadpool_info
 
-from pipeline import cl
+from pipeline.device import cl
 
 
 def test_a_cpu_context_leaves_blas_one_thread():

@@ -11,8 +11,9 @@ import pytest
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.graph import topological_order, with_upstream
-from pipeline.scene import load_scene
+from pipeline.engine.graph import topological_order, with_upstream
+from pipeline.evaluation import reference_cache
+from pipeline.scene.file import load_scene
 
 
 def needed_stages(scene) -> set[str]:
@@ -156,22 +157,22 @@ def test_reference_cache_outlives_a_geometry_rebake_with_the_same_bytes(tmp_path
     setting that re-runs that stage without changing what it writes (the zarr chunk
     length of its arrays) leaves the reference cached; geometry that changes (a moved
     object) renders a new one."""
-    from pipeline.reference import ReferenceSettings
-    from pipeline.store import read_record
+    from pipeline.engine.store import read_record
+    from pipeline.evaluation.reference import ReferenceSettings
 
     doc = small_scene_dict(8)
     scene = load_scene(write_scene(tmp_path, doc))
     workdir = job.workdir_for(scene, tmp_path / "w")
     settings = ReferenceSettings("direct", tolerance=0.0, min_spp=1, max_spp=1)
-    first = job.reference(scene, workdir, settings, quiet=True)
+    first = reference_cache.reference(scene, workdir, settings, quiet=True)
     key = read_record(workdir.artifact("geometry"))["key"]
     rechunked = scene.with_settings({"geometry.vertex_chunk": 1024})
-    again = job.reference(rechunked, workdir, settings, quiet=True)
+    again = reference_cache.reference(rechunked, workdir, settings, quiet=True)
     assert read_record(workdir.artifact("geometry"))["key"] != key  # the stage re-ran
     assert again.cached and again.artifact == first.artifact
     doc["objects"]["ball"]["transform"]["translate"] = [0.5, 0.35, 0.2]
     moved = load_scene(write_scene(tmp_path, doc, "moved.yaml"))
-    assert not job.reference(moved, workdir, settings, quiet=True).cached
+    assert not reference_cache.reference(moved, workdir, settings, quiet=True).cached
 
 
 def test_evaluate_writes_records_and_charts(baked, tmp_path):

@@ -20,12 +20,13 @@ from helpers import (
 )
 
 from pipeline import job
+from pipeline.engine.executors.local import InProcessExecutor, LocalPoolExecutor
+from pipeline.engine.planning import plan
+from pipeline.engine.runner import run
+from pipeline.engine.stagefile import load_stagefile
+from pipeline.engine.store import Workdir, open_artifact, read_record
 from pipeline.errors import PrtError
-from pipeline.executors import InProcessExecutor, LocalPoolExecutor
-from pipeline.runner import plan, run
-from pipeline.scene import default_scene_path, load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.store import Workdir, open_artifact, read_record
+from pipeline.scene.file import default_scene_path, load_scene
 
 STAGEFILE = TOY_STAGEFILE
 STAGES = TOY_STAGES

@@ -9,16 +9,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline import cl, job, metrics
+from pipeline import job
+from pipeline.device import cl
+from pipeline.engine.rows import Rows, quantise_values
+from pipeline.engine.store import open_artifact
 from pipeline.errors import PrtError
-from pipeline.method import get_method
+from pipeline.evaluation import metrics, reference_cache
+from pipeline.evaluation.reference import ReferenceSettings
 from pipeline.methods.d2i.blocks import unblock
 from pipeline.methods.d2i.render import D2iRenderer
-from pipeline.reference import ReferenceSettings
-from pipeline.rows import Rows, quantise_values
-from pipeline.scene import default_scene_path, load_scene
-from pipeline.scene_edits import with_light_offset, with_material_edits
-from pipeline.store import open_artifact
+from pipeline.registry import get_method
+from pipeline.scene.edits import with_light_offset, with_material_edits
+from pipeline.scene.file import default_scene_path, load_scene
 
 SIZE, GATHERS = 24, 1024
 
@@ -52,7 +54,7 @@ def test_brdf_edit_mode_gives_the_full_render(baked):
     for edit in ("glossy_floor.gamma=80", "glossy_floor.gamma=5", "glossy_floor.specular=0.05",
                  "white.albedo=0.5,0.5,0.5"):
         edited = with_material_edits(scene, [edit])
-        _close(frame(edited).rgb, renderer.render(edited).rgb)
+        _close(frame(edited).rgb, renderer.frame(edited).rgb)
 
 
 def test_light_edit_mode_gives_the_full_render(baked):
@@ -60,7 +62,7 @@ def test_light_edit_mode_gives_the_full_render(baked):
     frame = renderer.light_edits(scene)
     for offset in ((60.0, 0.0, 0.0), (-40.0, 0.0, 80.0)):
         moved = with_light_offset(scene, 0, offset)
-        _close(frame(moved).rgb, renderer.render(moved).rgb)
+        _close(frame(moved).rgb, renderer.frame(moved).rgb)
     with pytest.raises(PrtError, match="frozen"):
         frame(with_material_edits(scene, ["glossy_floor.gamma=80"]))
 
@@ -79,8 +81,8 @@ def test_gamma_edit_and_light_move_equal_a_fresh_bake(baked, tmp_path):
         assert a.record["key"] == b.record["key"]
         for array in a.names:
             np.testing.assert_array_equal(a.read(array), b.read(array))
-    np.testing.assert_array_equal(renderer.render(edited).rgb,
-                                  D2iRenderer(edited, d2i_artifacts(fresh_dir)).render(edited).rgb)
+    np.testing.assert_array_equal(renderer.frame(edited).rgb,
+                                  D2iRenderer(edited, d2i_artifacts(fresh_dir)).frame(edited).rgb)
 
 
 def test_unblock_kernel_matches_numpy(baked):
@@ -106,7 +108,7 @@ def test_unblock_kernel_matches_numpy(baked):
 
 def test_sparse_product_and_combination_kernels_match_numpy(baked):
     """The products, one work-item per row and a work-group per row — of the
-    renderer's size and of the smallest and largest that benchmarks/bench_d2i.py sweeps
+    renderer's size and of the smallest and largest that benchmarks/d2i/frames.py sweeps
     on a GPU —, and the combination, against NumPy."""
     scene, _, renderer = baked
     rng = np.random.default_rng(0)
@@ -141,7 +143,7 @@ def test_sparse_product_and_combination_kernels_match_numpy(baked):
 
     materials = pack_materials(scene_brdfs(scene, renderer.material_names))
     c = renderer.coefficients(scene)
-    from pipeline import cl
+    from pipeline.device import cl
 
     out, _ = renderer.combine(*(cl.read_only_buffer(a) for a in (direct, dl, tl)), materials, c,
                               frozen=False)
@@ -190,11 +192,11 @@ def test_frame_matches_the_reference_d2i_transport(baked):
     asserted under 8 %. With truncate.tolerance 0.05 the surface error was 9.2 %: this test
     watches truncation too."""
     scene, workdir, renderer = baked
-    frame = renderer.render(scene).rgb
+    frame = renderer.frame(scene).rgb
     direct = job.render_frame(scene, workdir, "direct").rgb
-    ref = job.reference(scene, workdir, ReferenceSettings(
+    ref = reference_cache.reference(scene, workdir, ReferenceSettings(
         "first-glossy", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image
-    ref_indirect = job.reference(scene, workdir, ReferenceSettings(
+    ref_indirect = reference_cache.reference(scene, workdir, ReferenceSettings(
         "first-glossy-indirect", tolerance=0.0, min_spp=512, max_spp=512), quiet=True).image.mean
     surfaces = renderer.direct.object_id.reshape(SIZE, SIZE) != \
         renderer.direct.object_names.index("luminaire")
@@ -211,9 +213,9 @@ def test_bounce_tail_extrapolation_matches_iterating_to_convergence(baked, monke
 
     scene, workdir, _ = baked
     direct = job.render_frame(scene, workdir, "direct").rgb
-    fast = D2iRenderer(scene, d2i_artifacts(workdir), bounce_tolerance=1e-6).render(scene)
+    fast = D2iRenderer(scene, d2i_artifacts(workdir), bounce_tolerance=1e-6).frame(scene)
     monkeypatch.setattr(d2i, "RATIO_SETTLED", -1.0)  # never settles: iterate
-    slow = D2iRenderer(scene, d2i_artifacts(workdir), bounce_tolerance=1e-6).render(scene)
+    slow = D2iRenderer(scene, d2i_artifacts(workdir), bounce_tolerance=1e-6).frame(scene)
     assert fast.timings["bounces"] < slow.timings["bounces"]
     assert metrics.relative_rmse(fast.rgb - direct, slow.rgb - direct) < 2e-3
 
@@ -232,7 +234,7 @@ def test_kernel_bytes_and_counted_time_cover_the_same_kernels(baked):
     a BRDF edit that reuses its products counts none, a light edit counts its frozen
     rows."""
     scene, _, renderer = baked
-    frame = renderer.render(scene)
+    frame = renderer.frame(scene)
     t = frame.timings
     launch = 16 * renderer.size  # the float4 radiance vector of each launch
 
@@ -267,7 +269,7 @@ def test_light_sequence_moves_the_luminaire(baked):
     for a move along +x (the camera looks along +z), a part of the baked luminaire
     (130 mm wide, moved by 96 mm) no longer emits, and their count stays within a
     factor of two (perspective)."""
-    from pipeline.methods.d2i import sequence
+    from pipeline.methods.d2i.hooks import sequence
 
     scene, workdir, renderer = baked
     radiance = scene.lights[0].params["radiance"][0]
@@ -276,7 +278,7 @@ def test_light_sequence_moves_the_luminaire(baked):
     frame = renderer.light_edits(scene)
     # an emitter pixel shows the radiance (18.4; plus its own small indirect light at
     # rest), every other pixel less than 2
-    rest = renderer.render(scene).rgb[..., 0] > radiance / 2
+    rest = renderer.frame(scene).rgb[..., 0] > radiance / 2
     moved = frame(scenes[0]).rgb[..., 0] > radiance / 2  # +x by 0.1 × the diagonal
     assert rest.sum() > 0 and 0.5 < moved.sum() / rest.sum() < 2
     assert (rest & ~moved).any() and (moved & ~rest).any()  # it left a part, took another
@@ -287,7 +289,7 @@ def test_light_sequence_moves_the_luminaire(baked):
 def _read(buffer, shape):
     import pyopencl
 
-    from pipeline import cl
+    from pipeline.device import cl
 
     out = np.empty(shape, np.float32)
     pyopencl.enqueue_copy(cl.queue(), out, buffer)
@@ -351,7 +353,7 @@ def test_the_gpu_layout_renders_the_cpu_layout_s_frames(baked):
     assert not cpu.half_values and cpu.d.value.dtype == np.float32
     moved = with_light_offset(scene, 0, (30.0, 0.0, 0.0))
     edited = with_material_edits(scene, ["glossy_floor.gamma=60"])
-    for a, b in ((gpu.render(scene), cpu.render(scene)),
+    for a, b in ((gpu.frame(scene), cpu.frame(scene)),
                  (gpu.light_edits(scene)(moved), cpu.light_edits(scene)(moved)),
                  (gpu.brdf_edits(scene)(edited), cpu.brdf_edits(scene)(edited))):
         assert metrics.relative_rmse(a.rgb, b.rgb) < 1e-5
@@ -398,10 +400,10 @@ def test_frames_are_bit_identical_run_after_run(baked, layout):
     different garbage from render to render before kernels/inline.h)."""
     scene, workdir, _ = baked
     renderer = D2iRenderer(scene, d2i_artifacts(workdir), layout=layout)
-    first = renderer.render(scene).rgb
+    first = renderer.frame(scene).rgb
     assert np.isfinite(first).all() and first.max() > 0
     for _ in range(19):
-        assert renderer.render(scene).rgb.tobytes() == first.tobytes()
+        assert renderer.frame(scene).rgb.tobytes() == first.tobytes()
     moved = with_light_offset(scene, 0, (30.0, 0.0, 0.0))
     edited = with_material_edits(scene, ["glossy_floor.gamma=60"])
     light, brdf = renderer.light_edits(scene), renderer.brdf_edits(scene)
@@ -413,17 +415,17 @@ def test_frames_are_bit_identical_run_after_run(baked, layout):
 
 def test_device_shadow_rays_give_embree_s_frame(baked):
     """A d2i frame with its shadow rays traced on the OpenCL device (the BVH of
-    pipeline/bvh.py, as a GPU frame traces them) equals the Embree frame except where a
+    pipeline/device/bvh.py, as a GPU frame traces them) equals the Embree frame except where a
     ray grazes an edge (tests/test_bvh.py): the images are within 1e-3 relative RMSE;
     its light-edit frames equal its full renders."""
     scene, workdir, _ = baked
     device = D2iRenderer(scene, d2i_artifacts(workdir), shadows="device")
     embree = D2iRenderer(scene, d2i_artifacts(workdir), shadows="embree")
     assert device.device_shadows is not None and embree.device_shadows is None
-    a, b = device.render(scene), embree.render(scene)
+    a, b = device.frame(scene), embree.frame(scene)
     assert metrics.relative_rmse(a.rgb, b.rgb) < 1e-3
     frame = device.light_edits(scene)(with_light_offset(scene, 0, (30.0, 0.0, 0.0)))
-    _close(frame.rgb, device.render(with_light_offset(scene, 0, (30.0, 0.0, 0.0))).rgb)
+    _close(frame.rgb, device.frame(with_light_offset(scene, 0, (30.0, 0.0, 0.0))).rgb)
     with pytest.raises(PrtError, match="shadows="):
         D2iRenderer(scene, d2i_artifacts(workdir), shadows="optix")
 
@@ -437,8 +439,8 @@ def test_proportional_budgets_keep_near_entries_and_their_own_counts(tmp_path):
     stored rows are byte-identical). Upstream, D's, T's and Ms's near-lossless rows are
     capped by their own parameters (``transfer.d_max_coefficients``,
     ``transfer.max_coefficients``, ``bounce.max_coefficients``)."""
+    from pipeline.engine.store import open_artifact
     from pipeline.methods.d2i.blocks import pixel_blocks
-    from pipeline.store import open_artifact
 
     caps = {"d2i.transfer": 300, "d2i.transfer_t": 100, "d2i.bounce": 200}
     scene = _scene(16).with_settings({"gather.count": 512, "truncate.coefficients": 40,

@@ -1,4 +1,4 @@
-"""Chunk tasks on a dask.distributed LocalCluster (pipeline/dask_executor.py): the same
+"""Chunk tasks on a dask.distributed LocalCluster (pipeline/engine/executors/dask.py): the same
 bytes as an in-process bake, a worker killed mid-stage changes nothing, bad
 ``--scheduler`` values are refused in one line, and ``prt status`` never loads dask.
 (A killed client: tests/test_crash_safety.py, ``local:2``.)"""
@@ -16,12 +16,12 @@ import pytest
 from helpers import D2I_STAGES, TOY_STAGEFILE, artifact_bytes, small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.dask_executor import MALLOC_TRIM, DaskExecutor, parse_scheduler
+from pipeline.engine.executors.dask import MALLOC_TRIM, DaskExecutor, parse_scheduler
+from pipeline.engine.runner import run
+from pipeline.engine.stagefile import load_stagefile
+from pipeline.engine.store import Workdir, read_record
 from pipeline.errors import PrtError
-from pipeline.runner import run
-from pipeline.scene import default_scene_path, load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.store import Workdir, read_record
+from pipeline.scene.file import default_scene_path, load_scene
 
 
 def test_default_scene_on_two_workers_is_bit_identical(tmp_path):
@@ -131,7 +131,7 @@ def faults_per_array(_task=None) -> tuple[str | None, float]:
 
 def undo_then_count(undo: bool) -> tuple[bool | None, float]:
     """(``heap_as_glibc_default``'s answer, or None without it; faults per array)."""
-    from pipeline.dask_executor import heap_as_glibc_default
+    from pipeline.engine.executors.dask import heap_as_glibc_default
 
     undone = heap_as_glibc_default() if undo else None
     return undone, faults_per_array()[1]
@@ -195,7 +195,7 @@ def test_bad_scheduler_values_are_refused(text):
 def test_unreachable_scheduler_is_one_line(monkeypatch):
     """A scheduler address nobody listens on: a one-line PrtError naming it, as the
     executor is made (before a run touches any stage)."""
-    import pipeline.dask_executor as dask_executor
+    import pipeline.engine.executors.dask as dask_executor
 
     monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT", "2s")
     with pytest.raises(PrtError, match="cannot reach the dask scheduler at "
@@ -231,7 +231,7 @@ def test_a_worker_with_other_code_refuses_its_chunks(tmp_path):
     executor that hands the chunks over with another code part."""
     import dataclasses
 
-    from pipeline.executors import InProcessExecutor
+    from pipeline.engine.executors.local import InProcessExecutor
 
     class OtherCode(InProcessExecutor):
         def map_unordered(self, fn, tasks):

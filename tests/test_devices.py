@@ -1,4 +1,4 @@
-"""pipeline/devices.py: the OpenCL device chosen by proof, the fallback when an
+"""pipeline/device/devices.py: the OpenCL device chosen by proof, the fallback when an
 implementation cannot build, ``prt devices``, the Intel runtime's registration.
 
 A CPU that PoCL's LLVM does not know (AMD Zen 5) is simulated without touching the
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline import devices
+from pipeline.device import devices
 
 POCL_BROKEN = {"POCL_EXTRA_BUILD_FLAGS": "-target-cpu generic"}
 INTEL_BROKEN = {"CL_CONFIG_CPU_TARGET_ARCH": "bogus"}
@@ -100,7 +100,7 @@ def test_intel_that_cannot_start_falls_back_to_pocl(here, tmp_path):
 
 def test_where_both_work_the_faster_is_used(here, tmp_path):
     """The order of devices.CPU_ORDER (Intel's runtime first:
-    benchmarks/bench_opencl_cpus.py)."""
+    benchmarks/engine/opencl_cpus.py)."""
     need(here, "intel-cpu", "pocl")
     if any(d["kind"] == "gpu" for d in here.values()):
         pytest.skip("a GPU works here")
@@ -138,7 +138,7 @@ def test_a_named_device_whose_probe_fails_is_refused(here, tmp_path):
 
 def test_the_probe_cache_key_follows_the_runtime_settings(here, monkeypatch):
     need(here, "pocl")
-    from pipeline import cl
+    from pipeline.device import cl
 
     device = cl.device()
     key = devices.probe_key(device)

@@ -10,15 +10,15 @@ import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 
 from pipeline import job
+from pipeline.device.raytrace import RayTracer
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.job import render_frame
 from pipeline.math.brdf import evaluate_world, scene_brdfs
 from pipeline.math.lights import pack_lights, quad_emission, shade_direct
 from pipeline.math.sampling import lowbias32, stratified_square
-from pipeline.raytrace import RayTracer
 from pipeline.render.shadows import light_visibility
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 
 
 def bake_and_render(scene_path, workdir):
@@ -227,7 +227,7 @@ def test_light_row_layout_is_one_table_for_python_and_opencl():
     import math
     import re
 
-    from pipeline import cl
+    from pipeline.device import cl
     from pipeline.errors import PrtError
     from pipeline.math.lights import (
         LIGHT_FLOATS,

@@ -11,19 +11,17 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.errors import PrtError
-from pipeline.executors import (
+from pipeline.device.raytrace import RayTracer
+from pipeline.device.threads import (
     OPENCL_THREAD_VARIABLES,
-    Cores,
-    InProcessExecutor,
-    LocalPoolExecutor,
     available_cpus,
-    make_executor,
     map_slices,
     task_threads,
     threads_per_task,
 )
-from pipeline.raytrace import RayTracer
+from pipeline.engine.executors import make_executor
+from pipeline.engine.executors.local import Cores, InProcessExecutor, LocalPoolExecutor
+from pipeline.errors import PrtError
 
 
 @pytest.mark.parametrize("cpus, expected", [

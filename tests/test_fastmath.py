@@ -20,7 +20,7 @@ __kernel void fastmath_eval(__global const float* x, __global float* e,
 def _run(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     import pyopencl as cl_
 
-    from pipeline import cl
+    from pipeline.device import cl
 
     program = cl_.Program(cl.context(), SOURCE).build(options=["-I", str(cl.kernel_dir())])
     e, lg = np.empty_like(x), np.empty_like(x)
@@ -73,7 +73,7 @@ def test_fast_atan2_matches_float64_to_its_stated_bound():
     error ≤ 1e-6 for small angles (the BRDF coordinate δ near the mirror direction)."""
     import pyopencl as cl_
 
-    from pipeline import cl
+    from pipeline.device import cl
 
     rng = np.random.default_rng(5)
     angle = rng.uniform(-np.pi, np.pi, 200000)

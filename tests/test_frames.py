@@ -15,12 +15,13 @@ import pytest
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.graph import dependent_on, with_upstream
+from pipeline.engine.graph import dependent_on, with_upstream
+from pipeline.engine.store import Workdir, read_record
 from pipeline.images import read_exr
 from pipeline.render.emitters import EmitterOverlay, moved_quads
-from pipeline.scene import Camera, load_scene
-from pipeline.scene_edits import with_light_offset
-from pipeline.store import Workdir, read_record
+from pipeline.scene.edits import with_light_offset
+from pipeline.scene.file import load_scene
+from pipeline.scene.model import Camera
 
 
 def prt(*args, cwd=None) -> subprocess.CompletedProcess:
@@ -269,7 +270,7 @@ def test_emitter_overlay_draws_a_moved_quad_where_it_is():
                                "material": "grey"}
     doc["lights"] = [{"type": "quad", "corner": [-0.5, -0.5, -2.0], "edge_u": [1, 0, 0],
                       "edge_v": [0, 1, 0], "radiance": [5.0, 5.0, 5.0], "object": "panel"}]
-    from pipeline.scene_validation import scene_from_document
+    from pipeline.scene.file import scene_from_document
 
     scene = scene_from_document(__import__("pathlib").Path("s.yaml"), doc)
     rgb = np.zeros((size * size, 3), np.float32)

@@ -1,4 +1,4 @@
-"""What the scene fuzzer's long run found (benchmarks/fuzz_scenes.py), each case cut
+"""What the scene fuzzer's long run found (benchmarks/engine/fuzz.py), each case cut
 down to the mutation that broke the invariant and kept as a regression test: it must
 now exit 0 with a finite frame or exit 2 with one error line (tests/scene_fuzz.py)."""
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from pipeline import job
+from pipeline.engine.store import open_artifact
 from pipeline.math.spacecurve import chart_order, hilbert_index
 from pipeline.methods.d2i.transfer import disk_pattern, subarea_points
-from pipeline.scene import default_scene_path, load_scene
-from pipeline.store import open_artifact
+from pipeline.scene.file import default_scene_path, load_scene
 
 COUNT = 2048
 

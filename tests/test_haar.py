@@ -99,8 +99,8 @@ def test_truncate_stage_cut_agrees_with_truncating_from_scratch():
     """The d2i.truncate stage cuts stored rows (kept near-losslessly, with their residual) to a
     tolerance; that gives the same counts as truncating the full rows to that tolerance,
     and its CSR prefix cut keeps exactly those coefficients."""
+    from pipeline.engine.rows import cut_rows
     from pipeline.methods.d2i.stages.truncate import kept_counts
-    from pipeline.rows import cut_rows
 
     rows = np.cumsum(np.random.default_rng(6).normal(size=(8, 512)), axis=1)
     w = haar.forward(rows)
@@ -138,8 +138,8 @@ def test_cut_keeps_the_coarsest_coefficients_so_a_spike_cannot_take_the_mean():
     and a row without its mean (detail coefficients sum to zero) has no product with a
     uniform radiance at all (measured: 0.0). The truncate stage keeps the coefficients
     below COARSE_KEPT whatever their size: the product is kept (measured: exact)."""
+    from pipeline.engine.rows import expand_values
     from pipeline.methods.d2i.stages.truncate import COARSE_KEPT, cut_to_budget, kept_counts
-    from pipeline.rows import expand_values
 
     length = 1 << 16
     row = 0.02 * (1.0 + 0.4 * np.sin(np.linspace(0.0, 6.0, length)))[None]  # the field
@@ -159,11 +159,11 @@ def test_cut_keeps_the_coarsest_coefficients_so_a_spike_cannot_take_the_mean():
 
 
 def test_stored_values_round_trip_within_float16_over_the_row_rms():
-    """pipeline/rows.py quantise_values / expand_values: rows with near entries 10^3 ×
+    """pipeline/engine/rows.py quantise_values / expand_values: rows with near entries 10^3 ×
     their far coefficients, an all-zero row and an empty row. Each value comes back to
     2^-11 of itself or 2^-24 × its row's RMS (float16 subnormals), whichever is larger;
     nothing overflows; zero rows stay zero."""
-    from pipeline.rows import expand_values, quantise_values
+    from pipeline.engine.rows import expand_values, quantise_values
 
     rng = np.random.default_rng(4)
     far = rng.normal(0.0, 1e-2, 500) * np.exp(-np.arange(500) / 100.0)  # decaying sizes
@@ -184,7 +184,7 @@ def test_stored_values_round_trip_within_float16_over_the_row_rms():
 def test_place_in_runs_numbers_each_pixels_rows_from_zero():
     """A T row's basis index is its place in its pixel's run of rows: 0, 1, ... within
     each run of equal pixel ids (a repeated id after another run starts again at 0)."""
-    from pipeline.rows import place_in_runs
+    from pipeline.engine.rows import place_in_runs
 
     pixel = np.array([7, 7, 7, 3, 9, 9, 7, 7])
     np.testing.assert_array_equal(place_in_runs(pixel), [0, 1, 2, 0, 0, 1, 0, 1])

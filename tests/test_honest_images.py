@@ -13,7 +13,7 @@ from tiny_scenes import tiny_scene
 
 from pipeline import job
 from pipeline.images import exposure_note
-from pipeline.scene import load_scene
+from pipeline.scene.file import load_scene
 
 TETRAHEDRON = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
 OUTWARD = [(1, 3, 2), (1, 2, 4), (1, 4, 3), (2, 3, 4)]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from helpers import SHARED_DATA
 
-from pipeline import metrics
+from pipeline.evaluation import metrics
 from pipeline.images import read_hdr
 from pipeline.math.envmap import EnvironmentMap, direction_to_uv, uv_to_direction
 

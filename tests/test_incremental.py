@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
-from pipeline.chunk import Chunk, make_chunk
-from pipeline.chunkwrite import read_marker
-from pipeline.executors import InProcessExecutor
-from pipeline.runner import longest_first, plan, run
-from pipeline.scene import load_scene
-from pipeline.stagefile import load_stagefile
-from pipeline.store import Workdir, open_artifact, read_record
+from pipeline.engine.chunk import Chunk, make_chunk
+from pipeline.engine.chunkwrite import read_marker
+from pipeline.engine.executors.local import InProcessExecutor
+from pipeline.engine.planning import plan
+from pipeline.engine.runner import longest_first, run
+from pipeline.engine.stagefile import load_stagefile
+from pipeline.engine.store import Workdir, open_artifact, read_record
+from pipeline.scene.file import load_scene
 
 STAGEFILE = TESTS / "toy" / "stages.yaml"
 
@@ -289,7 +290,7 @@ def test_a_chunk_cut_anew_under_the_same_id_re_runs(tmp_path, monkeypatch):
     same ids over other vertices (new chunker code, same params and inputs), those chunks
     re-run, `prt status` says why, and the artifact equals a bake from scratch (before the
     fix, the old pieces were reused and the artifact held the old runs' vertices)."""
-    from pipeline import chunking
+    from pipeline.engine import chunking
 
     doc = small_scene_dict()
     scene = load_scene(write_scene(tmp_path, doc))
@@ -352,7 +353,7 @@ def test_tile_material_chunks_split_tiles_and_read_only_their_parent_tile(tmp_pa
     (a changed digest of one tile re-keys exactly that tile's chunks), and its own
     material's sections only (an albedo edit of one material re-runs exactly its
     chunks, and the result equals a bake from scratch)."""
-    from pipeline.runner import plan_stage, stage_params
+    from pipeline.engine.planning import plan_stage, stage_params
 
     doc = small_scene_dict(size=24)
     doc["materials"]["grey"] = {"model": "ward", "albedo": [0.5, 0.5, 0.5],

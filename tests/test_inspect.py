@@ -1,4 +1,4 @@
-"""pipeline.inspect: a work directory's artifacts as lazy xarray Datasets."""
+"""pipeline.engine.inspect: a work directory's artifacts as lazy xarray Datasets."""
 
 from __future__ import annotations
 
@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 from helpers import PROJECT, small_scene_dict, write_scene
 
-from pipeline import inspect, job
+from pipeline import job
+from pipeline.engine import inspect
+from pipeline.engine.runner import run
+from pipeline.engine.schema import load_schema
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.errors import PrtError
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.schema import load_schema
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 
 sys.path.insert(0, str(PROJECT / "examples"))  # the example scripts' functions
 

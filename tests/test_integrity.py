@@ -15,9 +15,9 @@ import pytest
 from helpers import D2I_STAGES, small_scene_dict, write_scene
 
 from pipeline import job
+from pipeline.engine.store import Workdir, open_artifact, read_record
 from pipeline.errors import PrtError
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact, read_record
+from pipeline.scene.file import load_scene
 
 
 @pytest.fixture(scope="module")
@@ -113,8 +113,8 @@ def test_verify_reports_markers_records_and_nan(baked, tmp_path):
     interrupted run, resumes) it."""
     import zarr
 
-    from pipeline import chunkwrite
-    from pipeline.verify import rebake_command, verify
+    from pipeline.engine import chunkwrite
+    from pipeline.engine.verify import rebake_command, verify
 
     root = tmp_path / "w"
     shutil.copytree(baked[1].root, root)
@@ -139,7 +139,7 @@ def test_verify_reports_markers_records_and_nan(baked, tmp_path):
 def test_verify_refuses_while_a_run_writes(baked):
     """A run holding the work directory's lock makes verify refuse (its chunks would
     read as corrupt half-way through a write), naming the work directory."""
-    from pipeline.verify import verify
+    from pipeline.engine.verify import verify
 
     with baked[1].lock(), pytest.raises(PrtError, match="a prt run is writing"):
         verify(baked[1], progress=False)
@@ -206,7 +206,7 @@ def test_the_printed_command_repairs_the_damage(baked, tmp_path):
 def test_rebake_command_of_a_view_names_its_size(tmp_path):
     """An artifact baked for another image size (WORKDIR/views/WxH/) is re-baked with
     that --size; one of the file's own size without it."""
-    from pipeline.verify import Problem, rebake_command
+    from pipeline.engine.verify import Problem, rebake_command
 
     view = Problem(tmp_path / "views" / "32x16" / "gbuffer.zarr", "depth", "0,0", "bad",
                    "gbuffer")
@@ -221,8 +221,8 @@ def test_a_chunk_for_an_array_the_begun_artifact_lacks_is_refused_by_name(tmp_pa
     it lacks: a one-line error naming the array and the fix, not zarr's KeyError."""
     import dataclasses
 
-    from pipeline import chunkwrite
-    from pipeline.schema import load_schema
+    from pipeline.engine import chunkwrite
+    from pipeline.engine.schema import load_schema
 
     schema = load_schema("compressed_bounce")
     older = dataclasses.replace(schema, arrays={k: v for k, v in schema.arrays.items()

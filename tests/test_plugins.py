@@ -22,9 +22,10 @@ import numpy as np
 import pytest
 from helpers import TESTS, small_scene_dict, write_scene
 
-from pipeline import codeversion, job
+from pipeline import job
+from pipeline.engine import codeversion
+from pipeline.engine.planning import stage_code
 from pipeline.images import read_exr
-from pipeline.runner import stage_code
 
 
 @pytest.fixture()

@@ -1,10 +1,10 @@
-"""pipeline/raytrace.py: surface attributes at hits (surface_at)."""
+"""pipeline/device/raytrace.py: surface attributes at hits (surface_at)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline.raytrace import Mesh, RayTracer, surface_at
+from pipeline.device.raytrace import Mesh, RayTracer, surface_at
 
 
 def _mesh(normal_dtype=None) -> Mesh:

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from pipeline import job
-from pipeline.graph import with_upstream
+from pipeline.engine.graph import with_upstream
 from pipeline.math.brdf import MATERIAL_PARAMETERS
-from pipeline.method import get_method, registry
+from pipeline.registry import get_method, registry
 
 README = (Path(__file__).resolve().parent.parent / "README.md").read_text()
 

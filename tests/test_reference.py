@@ -8,7 +8,7 @@ the mean of z² has a standard deviation of about √(2/N) ≈ 0.07, so the acce
 (seeds are fixed, so each test's outcome is deterministic anyway).
 
 The stopping estimate covers the surface pixels, not those whose camera ray sees a light
-(the Cornell luminaire, an environment's background): see pipeline/reference.py.
+(the Cornell luminaire, an environment's background): see pipeline/evaluation/reference.py.
 Radiance is in W/(m² sr); errors and tolerances are relative RMSEs (fractions).
 """
 
@@ -21,9 +21,9 @@ import pytest
 from helpers import PROJECT, constant_environment, scene_geometry
 
 from pipeline import job
+from pipeline.evaluation.metrics import relative_rmse
+from pipeline.evaluation.reference import ReferenceSettings, relative_rmse_estimate, render
 from pipeline.math.camera import camera_rays
-from pipeline.metrics import relative_rmse
-from pipeline.reference import ReferenceSettings, relative_rmse_estimate, render
 
 
 def _camera(position, look_at, size, fov=40.0):

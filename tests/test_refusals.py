@@ -139,8 +139,8 @@ def test_duplicate_key_in_a_stage_file(tmp_path):
     """stages.yaml with a stage declared twice (the second used to replace the first)."""
     text = (PROJECT / "stages.yaml").read_text()
     stages = tmp_path / "stages.yaml"
-    block = text[text.index("  gbuffer:\n"):text.index("  brdf_basis:\n")]
-    assert "impl: gbuffer" in block
+    block = text[text.index("  gbuffer:\n"):]  # the file's last stage
+    assert "impl: gbuffer" in block and block.endswith("\n")
     stages.write_text(text.replace(block, block + block, 1))
     scene = write_scene(tmp_path, small_scene_dict(size=8))
     message = error_line(prt("run", scene, "--stages", stages, "--workdir", tmp_path / "w",
@@ -212,7 +212,7 @@ def test_malformed_obj_files(tmp_path, data, problem):
     """Each malformed OBJ is one PrtError naming the file and the line (trimesh crashed on
     some, with ModuleNotFoundError or a NumPy broadcast error, and silently read
     another mesh from others)."""
-    from pipeline.meshio import read_mesh
+    from pipeline.scene.meshio import read_mesh
 
     path = tmp_path / "m.obj"
     path.write_bytes(data)
@@ -224,7 +224,7 @@ def test_malformed_obj_files(tmp_path, data, problem):
 def test_well_formed_obj_reads_the_same(tmp_path):
     """The checked reader gives trimesh's mesh for a well-formed OBJ, with negative,
     v/vt and v//vn corners."""
-    from pipeline.meshio import read_mesh
+    from pipeline.scene.meshio import read_mesh
 
     path = tmp_path / "m.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 1\nvn 0 0 1\n"
@@ -239,7 +239,7 @@ def test_weld_joins_per_face_normal_splits_keeps_uv_seams(tmp_path):
     positions back, in order of first appearance, but keeps vertices that differ in uv
     (a texture seam) apart. The shared bunny_6.6kf.obj is 19,794 faceted vertices for
     3,301 positions."""
-    from pipeline.meshio import read_mesh, weld
+    from pipeline.scene.meshio import read_mesh, weld
 
     quad = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
     path = tmp_path / "flat.obj"
@@ -367,8 +367,8 @@ def test_a_material_or_feature_a_method_does_not_render(tmp_path):
     render it."""
     import dataclasses
 
-    from pipeline.method import check_method_scene, get_method
-    from pipeline.scene import load_scene
+    from pipeline.registry import check_method_scene, get_method
+    from pipeline.scene.file import load_scene
 
     diffuse_only = dataclasses.replace(get_method("direct"), name="diffuse_only",
                                        materials=("lambert",), features=())

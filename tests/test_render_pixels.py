@@ -24,7 +24,7 @@ def test_scatter_pixels_equals_fancy_indexing():
 def test_device_image_scatter_equals_numpy_twin():
     """DeviceImage (kernel scatter_rgb) against scatter_pixels: the same rows, scaled —
     bit for bit with scale 1 (a copy), to one float32 rounding with another scale."""
-    from pipeline import cl
+    from pipeline.device import cl
     from pipeline.render import DeviceImage
 
     rng = np.random.default_rng(5)

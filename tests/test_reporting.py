@@ -10,9 +10,9 @@ import pytest
 from helpers import small_scene_dict, write_scene
 from test_cli import prt
 
-from pipeline import chunkwrite
-from pipeline.store import Workdir, read_record
-from pipeline.tolerance import ToleranceResult, unmet, warning
+from pipeline.engine import chunkwrite
+from pipeline.engine.store import Workdir, read_record
+from pipeline.engine.tolerance import ToleranceResult, unmet, warning
 
 
 @pytest.fixture(scope="module")

@@ -1,12 +1,12 @@
-"""pipeline.rows: the CSR row helpers the d2i stages and renderer share."""
+"""pipeline.engine.rows: the CSR row helpers the d2i stages and renderer share."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipeline import rows as rows_module
-from pipeline.rows import sort_rows
+from pipeline.engine import rows as rows_module
+from pipeline.engine.rows import sort_rows
 
 
 @pytest.mark.parametrize("piece", [3, 1 << 22])

@@ -10,13 +10,14 @@ import pytest
 from helpers import PROJECT, SHARED_DATA, small_scene_dict, write_scene
 
 from pipeline import job
+from pipeline.engine.keys import digest
+from pipeline.engine.planning import plan
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.errors import PrtError
-from pipeline.keys import digest
 from pipeline.math.brdf import MATERIAL_PARAMETERS
-from pipeline.runner import plan, run
-from pipeline.scene import load_scene
-from pipeline.scene_edits import with_material_edits
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.edits import with_material_edits
+from pipeline.scene.file import load_scene
 
 
 def test_cornell_box_scene():

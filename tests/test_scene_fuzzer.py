@@ -1,7 +1,7 @@
 """The scene fuzzer's CI budget (tests/scene_fuzz.py): a fixed-seed set of generated
 scenes and command lines, each of which must exit 0 with a finite frame or exit 2 with
 one ``error:`` line, leaving a work directory that still answers ``prt status``. The
-long run is benchmarks/fuzz_scenes.py; what it finds becomes a regression test."""
+long run is benchmarks/engine/fuzz.py; what it finds becomes a regression test."""
 
 from __future__ import annotations
 

@@ -192,7 +192,7 @@ def test_formula_kernel_matches_numpy():
     E ≥ −40 (smaller ones are below 1e-17 and compared absolutely) carries the float32
     rounding of E, a few ulps of |E| ≤ 40 · 6e-8 · 4 ≈ 1e-5 relative; tolerance 3e-5
     (measured 4.4e-6). The product mean within 1e-6 (float32 normalisation)."""
-    from pipeline import cl
+    from pipeline.device import cl
 
     rng = np.random.default_rng(7)
     n = 2000
@@ -221,7 +221,7 @@ def test_env_kernel_matches_numpy(prefiltered):
     level coordinate's float32 log (~1e-6 of a level → as much of the step between
     levels) and envmap.h's lookup (1e-4 of the map's largest texel, test_triple_tables);
     measured 4e-7."""
-    from pipeline import cl
+    from pipeline.device import cl
 
     _, levels, stack = prefiltered
     mu, lam, w = random_lobes(500, levels, seed=9)

@@ -11,9 +11,9 @@ import pytest
 from pipeline import job
 from pipeline.math import sh
 from pipeline.math.brdf import BrdfParams
-from pipeline.meshio import primitive_mesh
 from pipeline.methods.sg import diffuse as sg_diffuse
 from pipeline.methods.sg.vertex_scene import VertexScene
+from pipeline.scene.meshio import primitive_mesh
 
 
 def scene_of(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
@@ -178,9 +178,10 @@ def test_stage_writes_the_transfer_and_ignores_glossy_edits(tmp_path):
     fresh (its key holds only kd); editing kd makes it stale."""
     from helpers import constant_environment, write_scene
 
-    from pipeline.runner import plan, run
-    from pipeline.scene import load_scene
-    from pipeline.store import Workdir, open_artifact
+    from pipeline.engine.planning import plan
+    from pipeline.engine.runner import run
+    from pipeline.engine.store import Workdir, open_artifact
+    from pipeline.scene.file import load_scene
 
     doc = {
         "format": "prt-scene/1", "name": "tiny_sg",

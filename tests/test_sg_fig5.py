@@ -1,4 +1,4 @@
-"""The pieces of benchmarks/sg_fig5.py (paper 003 Fig. 5) at tiny size: each
+"""The pieces of studies/sg_fig5.py (paper 003 Fig. 5) at tiny size: each
 representation reproduces a function it can represent exactly (error 0) and not one it
 cannot; Haar's error is the dropped coefficients' norm; welded normals ignore how a mesh
 file split its vertices."""
@@ -14,7 +14,7 @@ from helpers import PROJECT
 from pipeline.math import sg, sh
 from pipeline.math.sphwavelet import wavelet_basis
 
-_SPEC = importlib.util.spec_from_file_location("sg_fig5", PROJECT / "benchmarks" / "sg_fig5.py")
+_SPEC = importlib.util.spec_from_file_location("sg_fig5", PROJECT / "studies" / "sg_fig5.py")
 fig5 = importlib.util.module_from_spec(_SPEC)
 sys.modules["sg_fig5"] = fig5  # dataclasses look their module up there
 _SPEC.loader.exec_module(fig5)

@@ -11,6 +11,8 @@ from test_sg import sg_lights_map
 from test_sg_fit import DIRECTIONS, SOLID_ANGLES, random_lobes, tabulate
 
 from pipeline import job
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.images import write_exr
 from pipeline.math import sg
 from pipeline.methods.sg import coherence as sg_coherence
@@ -18,9 +20,7 @@ from pipeline.methods.sg import fit as sg_fit
 from pipeline.methods.sg import support as sg_support
 from pipeline.methods.sg.stages import fit as stage
 from pipeline.methods.sg.transport import view_directions
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -138,9 +138,9 @@ def test_relax_stage_removes_flips_across_batches():
     one batch to the other: every edge across the batches (0-2, 1-2, 1-3) flips at
     every view, none inside. After the stage none is left, and each (vertex, view)
     keeps the same lobes (only their slots change), counts and errors untouched."""
-    from pipeline.chunk import make_chunk
+    from pipeline.engine.chunk import make_chunk
+    from pipeline.engine.stage import ChunkContext
     from pipeline.methods.sg.stages import relax as sg_relax
-    from pipeline.stages import ChunkContext
 
     views = view_directions()
     lobes = np.zeros((4, 92, 3, 7), np.float32)

@@ -13,15 +13,15 @@ from helpers import PROJECT, small_scene_dict, write_scene
 from test_sg import sg_lights_map
 
 from pipeline import job
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment, write_exr
 from pipeline.math import sg
-from pipeline.method import check_method_scene, get_method
 from pipeline.methods.sg import prefilter as sg_prefilter
 from pipeline.methods.sg.stages.env_prefilter import read_stack
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.registry import check_method_scene, get_method
+from pipeline.scene.file import load_scene
 
 STAGEFILE = job.stages()
 
@@ -148,7 +148,7 @@ def test_evaluate_measures_the_glossy_and_diffuse_parts_apart(tmp_path):
     """``prt evaluate --method sg`` records, beside the whole frame's error against the
     first-glossy reference, the error of its glossy lobes and of its SH diffuse term,
     each against that transport with one lobe of the BRDF at the first surface
-    (pipeline/methods/sg.py components), for a sweep of the lobe count."""
+    (pipeline/methods/sg/__init__.py components), for a sweep of the lobe count."""
     import json
 
     map_path = write_map(tmp_path / "env.exr", spiky_map(9, 18, 5))

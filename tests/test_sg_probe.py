@@ -8,15 +8,15 @@ from helpers import small_scene_dict, write_scene
 from test_sg import sg_lights_map
 
 from pipeline import job
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math.brdf import BrdfParams, glossy, to_local
 from pipeline.math.frames import tangent_from_normal
 from pipeline.methods.sg.stages.probe import probe_vertices
 from pipeline.methods.sg.transport import view_directions
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 
 
 def bake_probe(tmp_path, vertices):

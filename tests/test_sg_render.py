@@ -15,7 +15,7 @@ from pipeline.math.envmap import direction_to_uv, rotation_y, uv_to_direction
 from pipeline.methods.sg import render
 from pipeline.methods.sg.prefilter import prefilter
 from pipeline.methods.sg.transport import view_directions
-from pipeline.scene_edits import with_environment_rotation
+from pipeline.scene.edits import with_environment_rotation
 from tests.helpers import scene_geometry, small_scene_dict
 
 
@@ -217,9 +217,9 @@ def sg_scene(tmp_path_factory, small_map):
 
 
 def frame_of(scene, geometry, tables, rgb, degrees=0.0, component="all"):
-    frames = render.sg_frames(tables, geometry["vertices"], geometry["faces"], rgb,
+    frames = render.SgRenderer(tables, geometry["vertices"], geometry["faces"], rgb,
                               component=component)
-    return frames(with_environment_rotation(scene, degrees))
+    return frames.frame(with_environment_rotation(scene, degrees))
 
 
 def test_the_glossy_and_diffuse_components_add_up_to_the_frame_less_its_background(
@@ -321,13 +321,13 @@ def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, Fak
 
 def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_scene,
                                                                            small_map):
-    """sg_renderer on artifacts in the contract's layout renders what sg_frames renders
+    """sg_renderer on artifacts in the contract's layout renders what SgRenderer renders
     from the same tables; a transfer of the wrong vertex count and a sharpness ≤ 0 are
     refused with one line naming the artifact."""
     scene, geometry, _ = sg_scene
     tables = random_tables(len(geometry["vertices"]), small_map, seed=6)
     artifacts = contract_artifacts(geometry, tables)
-    frame = render.sg_renderer(scene, artifacts)(scene)
+    frame = render.sg_renderer(scene, artifacts).frame(scene)
     np.testing.assert_array_equal(frame.rgb, frame_of(scene, geometry, tables, small_map).rgb)
     artifacts["sg.diffuse"] = FakeArtifact({"transfer": tables.transfer[:-1]})
     with pytest.raises(PrtError, match="sg.diffuse: transfer: shape"):
@@ -341,7 +341,7 @@ def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_s
 
 
 def test_sequences_are_an_environment_rotation_and_a_camera_orbit(sg_scene):
-    from pipeline.methods import sg as method
+    from pipeline.methods.sg import hooks as method
 
     scene, _, _ = sg_scene
     kind, scenes, labels, _ = method.sequence(scene, {}, "rotate:4")

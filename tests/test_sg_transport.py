@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from pipeline.device.raytrace import RayTracer
 from pipeline.math import sg, sh
 from pipeline.math.brdf import BrdfParams, directional_albedo, glossy
 from pipeline.math.geodesic import icosahedron
-from pipeline.meshio import primitive_mesh
 from pipeline.methods.sg.transport import (
     direct_glossy,
     glossy_transport,
@@ -21,7 +21,7 @@ from pipeline.methods.sg.transport import (
     visibility,
 )
 from pipeline.methods.sg.vertex_scene import VertexScene
-from pipeline.raytrace import RayTracer
+from pipeline.scene.meshio import primitive_mesh
 
 SHINY = BrdfParams("blinn_phong", (0.2, 0.2, 0.2), (0.3, 0.5, 0.7), gamma=20.0)
 

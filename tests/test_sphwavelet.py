@@ -41,7 +41,7 @@ def test_hierarchy_areas_and_nesting():
         child = fine.corners.reshape(-1, 4, 3, 3)
         for corner in range(3):
             assert np.allclose(child[:, corner, corner], parent[:, corner])
-    # The figures DESIGN.md quotes: unequal children, 1.30 between extreme leaves.
+    # The geodesic grid's figures: unequal children, 1.30 between extreme leaves.
     first = levels[1].areas.reshape(-1, 4)
     assert first[:, 3] / first[:, 0] == pytest.approx(1.2031, abs=1e-4)
     assert levels[4].areas.max() / levels[4].areas.min() == pytest.approx(1.2989, abs=1e-4)
@@ -204,7 +204,7 @@ def test_triple_product_kernel_matches_numpy():
     rows per function (tables of RGB, grey and RGB values) against the dense float64
     tree sum per channel. Tolerance: float32 sums of ~10³ terms of order 1: ~10² ulp,
     relative 1e-5 of the sum of the terms' magnitudes (found 4e-7)."""
-    cl = pytest.importorskip("pipeline.cl")
+    cl = pytest.importorskip("pipeline.device.cl")
     level, n, rows_max = 3, 64, 8
     basis = wavelet_basis(level)
     keys = depth_first_keys(level)

@@ -10,16 +10,17 @@ from helpers import small_scene_dict, write_scene
 from PIL import Image
 
 from pipeline import job
+from pipeline.device.raytrace import Hits, Mesh, surface_at
 from pipeline.errors import PrtError
+from pipeline.evaluation.reference import PathTracer, _brdf, _brdf_pdf, _Vertex
 from pipeline.images import read_texture, write_exr
 from pipeline.math.brdf import BrdfParams
 from pipeline.math.textures import sample
-from pipeline.method import check_method_scene, get_method
-from pipeline.methods.triple.render import PixelLookups, brdf_lookups, shade, shade_numpy
-from pipeline.raytrace import Hits, Mesh, surface_at
-from pipeline.reference import PathTracer, _brdf, _brdf_pdf, _Vertex
+from pipeline.methods.triple.render import shade, shade_numpy
+from pipeline.methods.triple.tables import PixelLookups, brdf_lookups
+from pipeline.registry import check_method_scene, get_method
 from pipeline.render.surface_detail import SceneDetail
-from pipeline.scene import load_scene
+from pipeline.scene.file import load_scene
 
 # --------------------------------------------------------------------------- textures
 
@@ -337,7 +338,7 @@ def test_the_grazing_view_row_of_a_ward_table_is_finite():
 
 def test_run_time_material_edits_keep_the_blend_and_the_bump(tmp_path):
     """`--set` re-validates the edited material alone: its blend and bump survive."""
-    from pipeline.scene_edits import with_material_edits
+    from pipeline.scene.edits import with_material_edits
 
     png(tmp_path / "t.png", np.zeros((2, 2)))
     scene = detail_scene(tmp_path, blend={"material": "shiny", "texture": "t.png"},

@@ -1,5 +1,6 @@
 """The d2i transfer estimators (pipeline/methods/d2i/transfer.py) against brute-force
-integration over the gather disks (DESIGN §7: area measure, squared distance)."""
+integration over the gather disks (the area measure, with the squared distance that the
+paper's pdf drops)."""
 
 from __future__ import annotations
 

@@ -10,7 +10,10 @@ import pytest
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
-from pipeline.chunkwrite import segment_name
+from pipeline.engine.chunkwrite import segment_name
+from pipeline.engine.planning import plan
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.math.sphwavelet import wavelet_basis
 from pipeline.methods.triple.stages.visibility import (
     RAY_EPSILON,
@@ -18,9 +21,7 @@ from pipeline.methods.triple.stages.visibility import (
     visibility_leaf_means,
 )
 from pipeline.methods.triple.texels import COVERED, DILATED, EMPTY
-from pipeline.runner import plan, run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 
 STAGEFILE = job.stages()
 LEVEL, REFINE = 2, 1

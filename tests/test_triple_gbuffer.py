@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_triple_render import LEVEL, random_rows, synthetic_tables
 
-from pipeline import cl
+from pipeline.device import cl
 from pipeline.math.envmap import EnvironmentMap
 from pipeline.math.geodesic import geodesic_levels
 from pipeline.methods.triple.dense import (
@@ -28,7 +28,8 @@ from pipeline.methods.triple.gbuffer import (
     lookups_numpy,
     read_lookups,
 )
-from pipeline.methods.triple.render import Atlas, shade_gbuffer, shade_numpy
+from pipeline.methods.triple.render import shade_gbuffer, shade_numpy
+from pipeline.methods.triple.tables import Atlas
 
 TURN = 0.7  # radians: an environment rotation that is not a multiple of the grid step
 
@@ -201,8 +202,8 @@ def test_renderer_caches_the_camera_and_follows_gamma_edits(tmp_path):
     from test_triple_method import sky, triple_scene
 
     from pipeline import job
-    from pipeline.method import get_method
-    from pipeline.scene_edits import (
+    from pipeline.registry import get_method
+    from pipeline.scene.edits import (
         with_camera_position,
         with_environment_rotation,
         with_material_edits,
@@ -215,7 +216,7 @@ def test_renderer_caches_the_camera_and_follows_gamma_edits(tmp_path):
     def renderer():
         return job.frame_renderer(scene, workdir, "triple", {"budget": 80})
 
-    render = renderer()
+    render = renderer().frame
     first = render(scene)
     turned = render(with_environment_rotation(scene, 45.0))
     assert first.timings["gbuffer_cached"] == 0 and turned.timings["gbuffer_cached"] == 1
@@ -225,7 +226,7 @@ def test_renderer_caches_the_camera_and_follows_gamma_edits(tmp_path):
                                                   ("back", scene))}
     assert np.array_equal(frames["back"], first.rgb)
     for name, edited in (("g60", g60), ("g100", g100)):
-        fresh = renderer()(edited).rgb
+        fresh = renderer().frame(edited).rgb
         assert np.array_equal(frames[name], fresh), name
         assert np.abs(fresh - first.rgb).max() > 1e-3 * np.abs(first.rgb).max()
     moved = render(with_camera_position(scene, tuple(np.add(scene.camera.position,
@@ -244,11 +245,11 @@ def test_surface_kernel_matches_the_numpy_gbuffer(tmp_path):
     from test_surface_detail import detail_scene, png
 
     from pipeline import job
+    from pipeline.device.raytrace import Mesh, RayTracer
+    from pipeline.engine.store import open_artifact
     from pipeline.methods.triple.render import camera_gbuffer, camera_gbuffer_numpy
-    from pipeline.raytrace import Mesh, RayTracer
     from pipeline.render.surface_detail import SceneDetail
-    from pipeline.scene_edits import with_camera_position
-    from pipeline.store import open_artifact
+    from pipeline.scene.edits import with_camera_position
 
     png(tmp_path / "ramp.png", np.tile(np.arange(16) / 15, (4, 1)))
     scene = detail_scene(tmp_path, bump={"texture": "ramp.png", "height": 0.3,

@@ -1,4 +1,4 @@
-"""Method triple end to end (pipeline/methods/triple.py): against the reference
+"""Method triple end to end (pipeline/methods/triple/): against the reference
 renderer's env-direct transport, and an environment rotation against a rotated map."""
 
 from __future__ import annotations
@@ -12,15 +12,16 @@ import yaml
 from helpers import small_scene_dict, write_scene
 
 from pipeline import job
+from pipeline.device.raytrace import RayTracer
 from pipeline.errors import PrtError
+from pipeline.evaluation import reference_cache
+from pipeline.evaluation.reference import ReferenceSettings
 from pipeline.images import write_exr
 from pipeline.math.camera import camera_rays
-from pipeline.method import get_method
 from pipeline.methods.triple.render import load_tables
-from pipeline.raytrace import RayTracer
-from pipeline.reference import ReferenceSettings
-from pipeline.scene import load_scene
-from pipeline.scene_edits import with_environment_rotation, with_material_edits
+from pipeline.registry import get_method
+from pipeline.scene.edits import with_environment_rotation, with_material_edits
+from pipeline.scene.file import load_scene
 
 # Small settings so a bake takes seconds: 1280 leaves (~6° cells), a coarse frame and
 # view grid, rows of at most 320 coefficients; 4 texels per pixel (at 1, the default,
@@ -63,7 +64,7 @@ def camera_hits(scene, workdir) -> np.ndarray:
 def error_against_reference(scene, workdir, rgb: np.ndarray) -> float:
     """Relative RMSE of ``rgb`` against a converged env-direct reference (≤ 0.5 %
     estimated error, at most 2048 spp) over the pixels that see a surface."""
-    ref = job.reference(scene, workdir, ReferenceSettings("env-direct", tolerance=0.005,
+    ref = reference_cache.reference(scene, workdir, ReferenceSettings("env-direct", tolerance=0.005,
                                                           max_spp=2048), quiet=True).image.mean
     surface = camera_hits(scene, workdir)
     return float(np.linalg.norm((rgb - ref)[surface]) / np.linalg.norm(ref[surface]))
@@ -115,7 +116,7 @@ def test_a_gamma_edit_at_run_time_equals_a_fresh_bake(tmp_path):
     job.bake(scene, workdir, quiet=True, methods=[get_method("triple")])
     edited = with_material_edits(scene, ["shiny.gamma=60"])
     renderer = job.frame_renderer(scene, workdir, "triple", {})
-    frame = renderer(edited)
+    frame = renderer.frame(edited)
     assert frame.timings["resample_ms"] > 0
     triple_scene(tmp_path, env, "g60.yaml")
     doc = yaml.safe_load((tmp_path / "g60.yaml").read_text())
@@ -123,14 +124,14 @@ def test_a_gamma_edit_at_run_time_equals_a_fresh_bake(tmp_path):
     fresh = load_scene(write_scene(tmp_path, doc, "g60.yaml"))
     baked = render(fresh, tmp_path / "w60", tmp_path / "g60.exr").rgb
     assert np.abs(frame.rgb - baked).max() <= 1e-5 * np.abs(baked).max()
-    assert np.abs(renderer(scene).rgb - baked).max() > 1e-3 * np.abs(baked).max()
+    assert np.abs(renderer.frame(scene).rgb - baked).max() > 1e-3 * np.abs(baked).max()
 
 
 def test_sequences_rotate_orbit_and_gamma(tmp_path):
     """The three sequence specs: the map turns from the scene's rotation, the camera
     circles its look_at at constant distance and height, γ sweeps the gamma_range; a bad
     spec is one PrtError naming it."""
-    from pipeline.methods.triple import sequence
+    from pipeline.methods.triple.hooks import sequence
 
     scene = triple_scene(tmp_path, sky(tmp_path / "sky.exr"))
     kind, scenes, labels, _ = sequence(scene, {}, "rotate:4")
@@ -187,7 +188,7 @@ def test_a_run_time_budget_reports_the_bytes_of_the_rows_it_keeps(tmp_path):
     stored, atlas = load_tables(artifacts, list(artifacts["geometry"].attrs["material_names"]))
     read = {}
     for options in ({}, {"budget": 80}, {"budget": 20}, {"budget": 20, "selection": "adaptive"}):
-        frame = job.frame_renderer(scene, workdir, "triple", options)(scene)
+        frame = job.frame_renderer(scene, workdir, "triple", options).frame(scene)
         tables = stored.truncated(options.get("selection", "top-only"), options["budget"]) \
             if options else stored
         assert frame.read_bytes == tables.nbytes + atlas.nbytes

@@ -1,4 +1,4 @@
-"""Method triple refuses a bad environment map up front (pipeline/methods/triple.py
+"""Method triple refuses a bad environment map up front (pipeline/methods/triple/hooks.py
 ``check_scene``), through the CLI: ``prt run`` with the map in the scene file and ``prt
 render --env FILE`` each exit 2 with one line naming the file, before anything is baked.
 (``prt reference`` is tested in tests/test_integrity.py, the lighting stage itself in

@@ -8,14 +8,13 @@ import pytest
 
 from pipeline.math.sphwavelet import depth_first_keys, wavelet_basis
 from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
-from pipeline.methods.triple.render import (
+from pipeline.methods.triple.render import shade, shade_numpy
+from pipeline.methods.triple.tables import (
     PixelLookups,
     TripleTables,
     WaveletRows,
     brdf_lookups,
     read_rows,
-    shade,
-    shade_numpy,
     texel_lookups,
 )
 from pipeline.methods.triple.wavelet_rows import select_rows, to_half

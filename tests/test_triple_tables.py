@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from pipeline import job
+from pipeline.engine.runner import run
+from pipeline.engine.store import Workdir, open_artifact
 from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math.brdf import BrdfParams, glossy
@@ -19,9 +21,7 @@ from pipeline.methods.triple.brdf_tables import diffuse_leaf_means, glossy_leaf_
 from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
 from pipeline.methods.triple.light_grid import frame_leaf_means, prefilter
 from pipeline.methods.triple.wavelet_rows import from_half, rows_to_dense, select_rows
-from pipeline.runner import run
-from pipeline.scene import load_scene
-from pipeline.store import Workdir, open_artifact
+from pipeline.scene.file import load_scene
 from tests.helpers import small_scene_dict, write_scene
 
 LEVEL = 2  # 320 leaves
@@ -44,7 +44,7 @@ def test_envmap_kernel_matches_environment_map():
     texel here, and the bilinear sums round at ~1e-7."""
     import pyopencl as cl_
 
-    from pipeline import cl
+    from pipeline.device import cl
 
     rgb = _random_map(16, 32)
     rng = np.random.default_rng(2)
@@ -85,7 +85,7 @@ def test_light_kernel_matches_numpy_twin(n_psi):
 def test_forward_kernel_matches_numpy():
     """kernels/wavelet_forward.cl against WaveletBasis.forward; float32 sums of four
     terms per level: 1e-6 of the largest coefficient."""
-    from pipeline.sphwavelet_cl import forward
+    from pipeline.device.sphwavelet_cl import forward
 
     values = np.random.default_rng(3).random((5, 3, 320))
     expected = wavelet_basis(LEVEL).forward(values)

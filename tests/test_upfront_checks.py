@@ -39,11 +39,11 @@ def test_a_stage_writing_inf_is_an_error_and_stores_nothing(tmp_path):
     float32) is refused: PrtError naming the stage and chunk; nothing of it is stored."""
     from helpers import TESTS
 
+    from pipeline.engine.runner import run
+    from pipeline.engine.stagefile import load_stagefile
+    from pipeline.engine.store import Workdir
     from pipeline.errors import PrtError
-    from pipeline.runner import run
-    from pipeline.scene import load_scene
-    from pipeline.stagefile import load_stagefile
-    from pipeline.store import Workdir
+    from pipeline.scene.file import load_scene
 
     doc = small_scene_dict()
     doc["settings"] = {"toy.scale": 1e39}

@@ -8,14 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.chunk import make_chunk
+from pipeline.device.sphwavelet_cl import forward
+from pipeline.engine.chunk import make_chunk
+from pipeline.engine.stage import ChunkContext
 from pipeline.math.envmap import LUMINANCE
 from pipeline.methods.triple.stages import brdf_tables as brdf_stage
 from pipeline.methods.triple.stages import light_rotations as light_stage
 from pipeline.methods.triple.wavelet_rows import depth_first_order, from_half, select_rows, to_half
 from pipeline.methods.triple.wavelet_select_cl import select_rows as select_rows_cl
-from pipeline.sphwavelet_cl import forward
-from pipeline.stages import ChunkContext
 
 LEVEL = 3  # 1280 coefficients
 
@@ -181,7 +181,7 @@ def test_half_values_equal_to_half_of_the_float_rows(channels):
     spanning 25 octaves. Bit for bit where the device divides correctly rounded (PoCL);
     OpenCL allows a float division 2.5 ulp (NVIDIA's driver uses that), which can move a
     quotient across a float16 rounding boundary: then one float16 step, on few values."""
-    from pipeline import cl
+    from pipeline.device import cl
     from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
 
     rng = np.random.default_rng(5)

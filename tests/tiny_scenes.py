@@ -36,7 +36,7 @@ def sky_map(path: Path) -> Path:
 def tiny_scene(work: Path, method: str, size: int = 8):
     """``method``'s tiny scene written under ``work/<method>/`` and loaded (the
     environment-lit methods under ``work/sky.exr``)."""
-    from pipeline.scene import load_scene
+    from pipeline.scene.file import load_scene
 
     doc = small_scene_dict(size)
     doc["name"], doc["methods"], doc["settings"] = method, [method], SETTINGS[method]

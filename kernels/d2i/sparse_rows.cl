@@ -4,7 +4,7 @@
  *
  * Defines: INDEX_T = the type of the row indices (ushort where the radiance vector has
  *          at most 2^16 entries, else int); VALUE_HALF = 1 where values are float16 over
- *          a float32 scale per row (pipeline/rows.py quantise_values: 4 bytes per entry
+ *          a float32 scale per row (pipeline/engine/rows.py quantise_values: 4 bytes per entry
  *          instead of 6), 0 for float32 values (scale unused). */
 
 #if VALUE_HALF
@@ -20,7 +20,7 @@ typedef float row_value_t;
  * accumulator would chain every add on the previous one (latency-bound: 45 against 25
  * ms for the 400² bake's D rows on PoCL's CPU device), so the loop keeps several loads
  * in flight; it then streams the rows at about three quarters of the copy probe's rate
- * (benchmarks/bench_d2i.py). Written as mul + add: fma() was slower on PoCL. */
+ * (benchmarks/d2i/frames.py). Written as mul + add: fma() was slower on PoCL. */
 __kernel void sparse_rows(__global const int* offsets, __global const INDEX_T* index,
                           __global const row_value_t* value, __global const float* scale,
                           __global const float4* radiance, const int rows,

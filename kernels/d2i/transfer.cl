@@ -7,7 +7,7 @@
  * the others in deferred[k]; transfer_pairs takes those (sub-area samples, the exact
  * polygon integral). Measured on 128 of the box's pixels at 16k gathers (PoCL, one
  * core): 89-144 ms per launch with one work-item per pair, the invisible ones
- * included, against 28-55 ms so (NOTES.md, fourteenth session). transfer_points is
+ * included, against 28-55 ms so (decision 0016). transfer_points is
  * written for PoCL's vectoriser (scalar arithmetic, padded pairs, only the stores
  * guarded, no libm call: kernels/triple/brdf_tables.cl; that it is vectorised is not
  * confirmed; the rewrite measured 14-20 % faster); its values match the general path's

@@ -1,6 +1,6 @@
 /* Method triple's G-buffer surface attributes, one work-item per shaded pixel, from the
  * camera ray's first hit (face, barycentrics u, v of the face's vertices 1 and 2).
- * NumPy twin: pipeline.raytrace.Surface (normal, tangent) and Atlas.texel_xy, as
+ * NumPy twin: pipeline.device.raytrace.Surface (normal, tangent) and Atlas.texel_xy, as
  * pipeline/methods/triple/render.py camera_gbuffer_numpy assembles them. All float32, world
  * frame; flat arrays of 3-vectors (x, y, z) and 2-vectors.
  *
@@ -17,7 +17,7 @@
  * branches, and on PoCL clang's __builtin_sqrtf (PoCL's sqrt is an out-of-line call,
  * which stops the vectorizer; this is the same IEEE sqrt). 0.6× the CPU time of the
  * float3 version. The builtin is not OpenCL C (Oclgrind cannot run the LLVM intrinsic it
- * becomes), so elsewhere it is sqrt: pipeline/cl.py defines PRT_POCL on PoCL. */
+ * becomes), so elsewhere it is sqrt: pipeline/device/cl.py defines PRT_POCL on PoCL. */
 #ifdef PRT_POCL
 #define SURFACE_SQRT __builtin_sqrtf
 #else

@@ -16,8 +16,8 @@ Fresnel (Cook-Torrance, Ashikhmin-Shirley): Schlick's approximation
 F = F0 + (1 − F0)(1 − V·H)⁵, with F0 = ``f0`` or ((ior − 1)/(ior + 1))², default 0.04.
 G (Cook-Torrance): min{1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)} (Torrance-Sparrow).
 
-Normalizations as in the paper, which are not all energy conserving (see NOTES.md for
-measured directional albedos): Blinn-Phong uses the Phong lobe's (γ + 2)/2π on the half
+Normalizations as in the paper, which are not all energy conserving (measured directional
+albedos: decision 0013): Blinn-Phong uses the Phong lobe's (γ + 2)/2π on the half
 vector (albedo up to ≈ 4ρs at normal incidence for large γ); Cook-Torrance keeps the
 1982 paper's 1/π with a Beckmann D without 1/π (4/π times microfacet theory's 1/4).
 
@@ -353,8 +353,8 @@ def specular_albedo_bound(model: str, gamma_max: float) -> float | None:
     can be edited to), with Fresnel F ≤ 1: a material with kd + ρs · bound ≤ 1 per channel
     never reflects more than it receives. None where no finite bound exists.
 
-    Measured with :func:`directional_albedo` (1024 × 256, θo = 0..89°, ρs = F0 = 1; see
-    NOTES.md): Blinn-Phong peaks at normal incidence, where its albedo is the closed form
+    Measured with :func:`directional_albedo` (1024 × 256, θo = 0..89°, ρs = F0 = 1;
+    decision 0013): Blinn-Phong peaks at normal incidence, where its albedo is the closed form
     below (1.37 at γ = 1, 3.95 at γ = 300, → 4); Cook-Torrance's 1982 normalisation
     reaches 4 for smooth surfaces (and near grazing for any roughness); Ward ≤ 0.993,
     anisotropic Ward ≤ 0.965, Lafortune 1.000 (normal incidence, Phong lobe),

@@ -9,7 +9,7 @@ u across the columns (0 = left edge), v down the rows. So the centre column of t
 (u = ½) lies along +z, a quarter of the width (u = ¼) along +x. Radiance is interpolated
 bilinearly between texels, column j centred at u = (j + ½)/W (wrapping), row i at
 v = i/(H − 1) (row 0 the +y pole, row H − 1 the −y pole), as Mitsuba 3 does (measured
-with its ``emitter.eval``; pipeline/mitsuba.py), and multiplied by ``scale``.
+with its ``emitter.eval``; pipeline/evaluation/mitsuba.py), and multiplied by ``scale``.
 Units: W/(m² sr).
 
 Importance sampling picks a texel with probability ∝ its luminance × sin θ (the texel's

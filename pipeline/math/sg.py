@@ -3,7 +3,7 @@ rotation, and the integral against an environment map prefiltered by SGs.
 
 **The lobe.** Paper 003 writes a transport function as Σ_k w_k G(ω; μ_k, σ_k), "a 2D
 spherical Gaussian centred around μ_k with standard deviation σ_k", without a formula.
-Here (as in DESIGN.md §7)
+Here
 
     G(ω; μ, λ) = exp(λ (μ·ω − 1)),      ω, μ unit vectors, λ ≥ 0 the sharpness,
 

@@ -1,5 +1,5 @@
 """Hilbert curves in 2D and 3D, for ordering points so that neighbours in order are
-neighbours in space (gather samples, DESIGN §7: rows of T, D and Ms then vary smoothly
+neighbours in space (gather samples: rows of T, D and Ms then vary smoothly
 along the gather index and 1D Haar wavelets compress them well).
 
 :func:`chart_order` orders points on surfaces: by group (an object), then by chart (the

@@ -1,2 +1,2 @@
-"""Built-in method plug-ins: every module here defines ``METHOD = Method(...)``
-(pipeline/method.py). The core reads them through the registry and names none."""
+"""The built-in rendering methods, one folder each (a descriptor in its ``__init__.py``;
+pipeline/registry.py finds them and the plug-ins named by ``PRT_PLUGINS``)."""

@@ -1,17 +1,21 @@
-"""What every method's renderer shares: the :class:`Frame` it produces, device images,
-back-face notes; the shared direct-light renderer (``direct``), shadows, emitters,
-surface detail and edit sequences live beside this module."""
+"""What every method's renderer is (:class:`Renderer`) and shares: the :class:`Frame` it
+produces, device images, back-face notes; the shared direct-light renderer (``direct``),
+shadows, emitters, surface detail and edit sequences live beside this module."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
 
-WORK_GROUP = 64  # work-items per group of the per-pixel kernels (pipeline.cl.run's local)
+if TYPE_CHECKING:
+    from pipeline.scene.model import Scene
+
+WORK_GROUP = 64  # work-items per group of the per-pixel kernels (pipeline.device.cl.run's local)
 
 
 @dataclass
@@ -40,6 +44,23 @@ class Frame:
     @property
     def width(self) -> int:
         return int(self.rgb.shape[1])
+
+
+@runtime_checkable
+class Renderer(Protocol):
+    """A method's renderer: built once (``Method.renderer`` names its factory, called as
+    ``factory(scene, artifacts, **options)`` with the opened artifacts of the method's
+    ``reads``), it keeps what it loaded and every cache it fills as named attributes,
+    and renders edited copies of the scene it was built for (run-time edits:
+    pipeline/scene/edits.py; what is edited at run time is read from each scene).
+
+    ``frame(scene)``: the frame of ``scene``, its timings leaving out the loading;
+    ``edit_mode(kind, scene)``: the frame function for a sequence of ``kind`` edits that
+    starts at ``scene`` (a faster path where the method has one, else ``frame``)."""
+
+    def frame(self, scene: Scene) -> Frame: ...
+
+    def edit_mode(self, kind: str, scene: Scene) -> Callable[[Scene], Frame]: ...
 
 
 def camera_key(cam) -> tuple:

@@ -18,15 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
+from pipeline.device.raytrace import RayTracer
+from pipeline.engine.store import Artifact
 from pipeline.math.brdf import pack_materials, scene_brdfs
 from pipeline.math.lights import LIGHT_FLOATS, light_defines, pack_lights, total_samples
-from pipeline.raytrace import RayTracer
 from pipeline.render import Frame
 from pipeline.render.emitters import EmitterOverlay, object_bounds, unbound_lights
 from pipeline.render.shadows import DeviceShadows, light_visibility
-from pipeline.scene import Camera, Scene
-from pipeline.store import Artifact
+from pipeline.scene.model import Camera, Scene
 
 
 def packed_scene_lights(scene: Scene, object_names: list[str], moved: Sequence[int] = ()
@@ -126,14 +126,20 @@ class DirectShader:
         return out, ms, moved
 
 
-def direct_renderer(scene: Scene, artifacts: Mapping[str, Artifact]
-                    ) -> Callable[[Scene], Frame]:
-    """Frames of direct lighting from artifacts loaded once (``gbuffer``, ``geometry``;
-    the Embree scene): each call traces the scene's lights and shades its camera view;
-    its timings leave out the loading."""
-    shader = DirectShader(artifacts, scene.camera)
+class DirectRenderer:
+    """Method direct's renderer (pipeline/render/__init__.py ``Renderer``): frames of
+    direct lighting from ``gbuffer`` and ``geometry`` (and their Embree scene), loaded
+    once in the :class:`DirectShader`; each frame traces the scene's lights and shades
+    its camera view; its timings leave out the loading. No cache between frames."""
 
-    def frame(scene: Scene) -> Frame:
+    def __init__(self, scene: Scene, artifacts: Mapping[str, Artifact]) -> None:
+        self.shader = DirectShader(artifacts, scene.camera)
+
+    def edit_mode(self, kind: str, scene: Scene) -> Callable[[Scene], Frame]:
+        return self.frame
+
+    def frame(self, scene: Scene) -> Frame:
+        shader = self.shader
         t0 = time.perf_counter()
         packed, notes = shader.packed_lights(scene)
         materials = pack_materials(scene_brdfs(scene, shader.material_names))
@@ -149,6 +155,3 @@ def direct_renderer(scene: Scene, artifacts: Mapping[str, Artifact]
                    "total_ms": (t3 - t0) * 1e3}
         return Frame("direct", rgb.reshape(shader.height, shader.width, 3), timings, notes,
                      moved)
-
-    return frame
-

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.math.camera import camera_rays
-from pipeline.scene import Camera, Scene
+from pipeline.scene.model import Camera, Scene
 
 ON_OBJECT = 0.05  # corners this far (× the quad's diagonal) from the object's box: on it
 TIE = 1e-4  # relative depth within which the moved emitter wins over the G-buffer

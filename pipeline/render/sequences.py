@@ -13,12 +13,12 @@ import numpy as np
 
 from pipeline.errors import PrtError
 from pipeline.method import NotApplicable
-from pipeline.scene import Scene
-from pipeline.scene_edits import (
+from pipeline.scene.edits import (
     with_camera_position,
     with_environment_rotation,
     with_material_edits,
 )
+from pipeline.scene.model import Scene
 
 Sequence = tuple[str, list[Scene], list[str], str]
 
@@ -30,8 +30,7 @@ def turns(count: int) -> np.ndarray:
 
 def rotate(scene: Scene, count: int) -> Sequence:
     """The environment map turns once about +y from the scene's rotation."""
-    start = next(light for light in scene.lights
-                 if light.type == "environment").params.get("rotation", 0.0)
+    start = scene.environment.rotation
     angles = [start + a for a in turns(count)]
     return ("rotate", [with_environment_rotation(scene, a) for a in angles],
             [f"environment rotation {a:.4g}°" for a in angles],

@@ -1,5 +1,5 @@
 """Shadow rays toward every light sample, traced each frame: with Embree on the host
-(:func:`light_visibility`), or on the OpenCL device against pipeline/bvh.py's hierarchy
+(:func:`light_visibility`), or on the OpenCL device against pipeline/device/bvh.py's hierarchy
 (:class:`DeviceShadows`, kernel ``light_visibility`` of kernels/shadow_rays.cl: the same
 rays, so that a GPU frame's visibility never crosses the bus)."""
 
@@ -9,9 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
-from pipeline.bvh import LEAF, Bvh
-from pipeline.executors import map_slices
+from pipeline.device import cl
+from pipeline.device.bvh import LEAF, Bvh
+from pipeline.device.raytrace import RayTracer
+from pipeline.device.threads import map_slices
 from pipeline.math.lights import (
     TYPE_CODES,
     LightRow,
@@ -19,7 +20,6 @@ from pipeline.math.lights import (
     light_sample_points,
     total_samples,
 )
-from pipeline.raytrace import RayTracer
 
 SHADOW_EPSILON = 1e-4  # ray origin offset along the normal, relative to the scene diagonal
 POINT_BATCH = 16384  # points per thread: ray set-up in NumPy and Embree both release the GIL

@@ -1,7 +1,7 @@
 """Surface detail at hits: spatially varying BRDFs (a blend of two materials by a
 texture) and bump maps (paper 004 §4.2), for every renderer that shades hits.
 
-Per hit of a :class:`~pipeline.raytrace.Surface` (N hits), :meth:`SceneDetail.at`
+Per hit of a :class:`~pipeline.device.raytrace.Surface` (N hits), :meth:`SceneDetail.at`
 returns a :class:`SurfaceDetail`:
 
 * ``material_a`` the hit's own material, ``material_b`` the material it blends with
@@ -30,11 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.device.raytrace import Mesh, Surface
 from pipeline.images import read_texture
 from pipeline.math.frames import orthonormalize
 from pipeline.math.textures import bumped_normal, sample, uv_gradients
-from pipeline.raytrace import Mesh, Surface
-from pipeline.scene import Scene, TextureMap
+from pipeline.scene.model import Scene, TextureMap
 
 AXES = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
 

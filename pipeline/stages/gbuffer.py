@@ -3,7 +3,7 @@
 Per pixel tile (one chunk each) it stores the hit position, the shading normal
 (barycentric blend of vertex normals, turned to face the camera), a tangent (along +u of
 the mesh's uv where that is well defined, else a frame from the normal), object and
-material ids, interpolated uv (all from ``pipeline.raytrace.surface_at``; the normal
+material ids, interpolated uv (all from ``pipeline.device.raytrace.surface_at``; the normal
 normalised in float32) and camera-space depth. Schema ``gbuffer``.
 """
 
@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.math.camera import camera_frame, camera_rays
-from pipeline.raytrace import surface_at
-from pipeline.stages import (
+from pipeline.device.raytrace import surface_at
+from pipeline.engine.stage import (
     AssembleContext,
     Block,
     Chunk,
@@ -22,6 +21,7 @@ from pipeline.stages import (
     Output,
     tile_blocks,
 )
+from pipeline.math.camera import camera_frame, camera_rays
 from pipeline.stages.geometry import traced_geometry
 
 

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.device.raytrace import RAY_EPSILON, Mesh, RayTracer
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
+from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
-from pipeline.meshio import weld
-from pipeline.raytrace import RAY_EPSILON, Mesh, RayTracer
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
-from pipeline.store import Artifact
+from pipeline.scene.meshio import weld
 
 DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
 

@@ -1,6 +1,6 @@
 """Record the kernel launches of a run, to replay them under Oclgrind (replay.py).
 
-``capturing(folder)`` wraps ``pipeline.cl.kernel`` so that every launch of a kernel it
+``capturing(folder)`` wraps ``pipeline.device.cl.kernel`` so that every launch of a kernel it
 hands out is recorded before it runs: the kernel file, name and defines, the include
 folders, the global and local sizes, and every argument — a buffer's bytes as they are
 at that moment (so an input is the data the kernel really read), a local-memory size,
@@ -83,9 +83,9 @@ class _RecordingKernel:
 
 @contextmanager
 def capturing(folder: Path, per_kernel: int = 2) -> Iterator[_Recorder]:
-    """Record the launches of every kernel handed out by ``pipeline.cl.kernel`` inside
+    """Record the launches of every kernel handed out by ``pipeline.device.cl.kernel`` inside
     the block into ``folder``."""
-    from pipeline import cl
+    from pipeline.device import cl
 
     recorder, original = _Recorder(folder, per_kernel), cl.kernel
 

@@ -38,8 +38,9 @@ TESTS_OF_TEST_KERNELS = (
 def run_all(folder: Path, work: Path) -> None:
     import pytest
 
-    from pipeline import bandwidth, bvh, job
-    from pipeline.scene_edits import with_light_offset, with_material_edits
+    from pipeline import job
+    from pipeline.device import bandwidth, bvh
+    from pipeline.scene.edits import with_light_offset, with_material_edits
 
     with capturing(folder):
         bandwidth.probe(megabytes=1, repeats=1)
@@ -49,9 +50,9 @@ def run_all(folder: Path, work: Path) -> None:
         job.render_frame(sc, wd, "direct")
         for layout in ("cpu", "gpu"):
             render = job.frame_renderer(sc, wd, "d2i", {"layout": layout, "shadows": "device"})
-            render(sc)
-            render(with_light_offset(sc, 0, (0.1, 0.0, 0.0)))
-            render(with_material_edits(sc, ["shiny.gamma=50"]))
+            render.frame(sc)
+            render.frame(with_light_offset(sc, 0, (0.1, 0.0, 0.0)))
+            render.frame(with_material_edits(sc, ["shiny.gamma=50"]))
         geometry, _ = job.load_geometry(sc, wd)
         rays = np.random.default_rng(0).normal(size=(64, 3))
         bvh.occluded(bvh.Bvh.build(geometry["vertices"], geometry["faces"]),

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from pipeline.stages import Output
+from pipeline.engine.stage import Output
 
 
 def run_chunk(ctx):

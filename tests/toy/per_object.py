@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.stages import Block, Layout, Output
+from pipeline.engine.stage import Block, Layout, Output
 
 
 def layout(ctx):

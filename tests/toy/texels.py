@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.stages import Output
+from pipeline.engine.stage import Output
 
 
 def run_chunk(ctx):

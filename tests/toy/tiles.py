@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from pipeline.stages import Layout, Output, tile_blocks
+from pipeline.engine.stage import Layout, Output, tile_blocks
 
 
 def layout(ctx):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.stages import Output
+from pipeline.engine.stage import Output
 
 
 def run_chunk(ctx):

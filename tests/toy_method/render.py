@@ -6,31 +6,36 @@ import time
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
 from pipeline.render import Frame
 
 
-def renderer(scene, artifacts, gain=1.0):
-    import pyopencl as pcl
+class ToyRenderer:
+    """Reads ``toy.shade`` and ``toy.level`` once; no cache between frames."""
 
-    shade = artifacts["toy.shade"].read("shade")
-    level = float(artifacts["toy.level"].read("level")[0])
+    def __init__(self, scene, artifacts, gain=1.0):
+        self.shade = artifacts["toy.shade"].read("shade")
+        self.level = float(artifacts["toy.level"].read("level")[0])
+        self.gain = gain
 
-    def frame(scene):
+    def edit_mode(self, kind, scene):
+        return self.frame
+
+    def frame(self, scene):
+        import pyopencl as pcl
+
         t0 = time.perf_counter()
-        flat = np.ascontiguousarray(shade.reshape(-1), np.float32)
+        flat = np.ascontiguousarray(self.shade.reshape(-1), np.float32)
         rgb = np.empty((len(flat), 3), np.float32)
         buf = pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, rgb.nbytes)
         event = cl.kernel("toy_gain.cl", "toy_gain")(
-            cl.queue(), (len(flat),), None, cl.read_only_buffer(flat), np.float32(gain),
-            np.float32(0.1 * level), buf, np.int32(len(flat)))
+            cl.queue(), (len(flat),), None, cl.read_only_buffer(flat), np.float32(self.gain),
+            np.float32(0.1 * self.level), buf, np.int32(len(flat)))
         pcl.enqueue_copy(cl.queue(), rgb, buf, wait_for=[event])
         ms = cl.event_ms(event)
         total = (time.perf_counter() - t0) * 1e3
-        return Frame("toy", rgb.reshape(*shade.shape, 3), {
+        return Frame("toy", rgb.reshape(*self.shade.shape, 3), {
             "setup_ms": total - ms, "kernel_ms": ms, "total_ms": total})
-
-    return frame
 
 
 def sequence(scene, artifacts, spec):

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import cl
-from pipeline.stages import Layout, Output, tile_blocks
+from pipeline.device import cl
+from pipeline.engine.stage import Layout, Output, tile_blocks
 
 
 def run_chunk(ctx):

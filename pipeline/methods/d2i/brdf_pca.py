@@ -7,7 +7,8 @@ values over its domain: δ evenly spaced on [0, π/2] (the paper's choice; it we
 lobe's peak more than solid angle would); Lafortune's x on the paper's [ε, 1 − ε],
 ε = 1e-3, evenly spaced in the angle arccos x rather than in x, so that its lobe x^γ is
 sampled like Blinn-Phong's cos^γδ (evenly in x, the γ = 300 lobe's half width spans 2.4
-samples of 1024 and linear interpolation alone errs by 7.6e-3; see NOTES.md).
+samples of 1024 and linear interpolation alone errs by 7.6e-3;
+decision 0018).
 
 Basis. P (k' × h) stacks p_i = f_E(γ_i, x_1..h); b0 is the mean row; the SVD
 P − b0 = U S Vᵀ gives the orthonormal basis rows b_1..b_k = the first k rows of Vᵀ;
@@ -152,7 +153,7 @@ def build_basis(params: BrdfParams, gamma_range: tuple[float, float], tolerance:
 
 def read_basis(artifact: Any, material: str, params: BrdfParams) -> BrdfBasis | None:
     """The basis of ``material`` from a brdf_basis artifact (any object with the
-    ``attrs`` and ``read(name, region)`` of pipeline.store.Artifact; ``None`` for
+    ``attrs`` and ``read(name, region)`` of pipeline.engine.store.Artifact; ``None`` for
     Lambertian materials); ``params`` are the material's current BRDF parameters."""
     names = artifact.attrs["material_names"]
     if material not in names:

@@ -51,7 +51,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
+from pipeline.engine.rows import Rows, place_in_runs, quantise_values, sort_rows
+from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.math import haar
 from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
@@ -61,9 +63,7 @@ from pipeline.methods.d2i.brdf_pca import read_basis
 from pipeline.render import Frame
 from pipeline.render.direct import DirectShader
 from pipeline.render.shadows import DeviceShadows, light_visibility
-from pipeline.rows import Rows, place_in_runs, quantise_values, sort_rows
-from pipeline.scene import Scene
-from pipeline.store import Artifact
+from pipeline.scene.model import Scene
 
 GATHER_ID_OFFSET = 1 << 26  # light-sample hash ids of gather samples, apart from pixels
 RATIO_SETTLED = 0.02  # bounce power ratios this close on two bounces: extrapolate the rest
@@ -469,15 +469,12 @@ class D2iRenderer:
 
     # ------------------------------------------------------------------------ frames
 
-    def __call__(self, scene: Scene) -> Frame:
-        return self.render(scene)
-
     def edit_mode(self, kind: str, scene: Scene) -> Callable[[Scene], Frame]:
         """Frames of a sequence of ``kind`` edits of ``scene``: ``light`` (light-edit
         mode) or ``gamma`` (BRDF-edit mode)."""
         return {"light": self.light_edits, "gamma": self.brdf_edits}[kind](scene)
 
-    def render(self, scene: Scene) -> Frame:
+    def frame(self, scene: Scene) -> Frame:
         """A full frame for ``scene``'s lights and materials (nothing cached)."""
         t0 = time.perf_counter()
         self._count_from_here()
@@ -585,13 +582,3 @@ def _check_lights(packed: np.ndarray) -> None:
     if not np.all(np.isfinite(packed)):
         raise PrtError(None, "a light has a non-finite parameter (position, direction, "
                        "intensity or radiance): cannot light the scene")
-
-
-def d2i_renderer(scene: Scene, artifacts: Mapping[str, Artifact], max_bounces: int = 32,
-                 bounce_tolerance: float = 1e-3, shadows: str = "auto",
-                 layout: str = "auto") -> D2iRenderer:
-    """Full d2i frames (any lights and materials, nothing cached between them) from
-    artifacts loaded once (call it with a scene); their timings leave out the loading.
-    ``edit_mode(kind, scene)`` gives the faster frames of a light or γ sequence."""
-    return D2iRenderer(scene, artifacts, max_bounces, bounce_tolerance, shadows, layout)
-

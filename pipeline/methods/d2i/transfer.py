@@ -11,7 +11,7 @@ on the disk, ω = (q − x)/|q − x| and the geometry term of the area measure 
 
 (Paper 000 writes the estimator in solid angle with the pdf |x − g| / (|A_g| |N_g·ω|);
 the change of measure dω = cosθ_q dA / r² needs the square of the distance, which the
-paper's pdf drops (DESIGN §7). With q uniform on K_g the area-measure form below is exact
+paper's pdf drops. With q uniform on K_g the area-measure form below is exact
 in expectation.)
 
 Estimators, with q_1..q_n the first n points of g's sub-area sample set (pipeline/stages/
@@ -296,7 +296,7 @@ def fill_sourceless(rows: np.ndarray, area: np.ndarray, length: int) -> np.ndarr
     the radiance is not zero. On the Tableau (64k gathers, 5.4 % of them without area)
     the first bounce came out 3.6 % dark and the indirect mean −5.9 %; with the holes
     filled and the areas stratified (pipeline/methods/d2i/stages/gather.py), −1.4 % and −2.05 %
-    (NOTES.md)."""
+    (decision 0015)."""
     count = rows.shape[1]
     source = np.flatnonzero(area[:count] > 0)
     out = np.empty((len(rows), length), rows.dtype)

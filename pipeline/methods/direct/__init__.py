@@ -10,7 +10,7 @@ from pipeline.method import Method
 METHOD = Method(
     name="direct",
     description="direct light only (point, spot, directional and quad lights, shadows)",
-    renderer="pipeline.render.direct:direct_renderer",
+    renderer="pipeline.render.direct:DirectRenderer",
     reads=("geometry", "gbuffer"),
     reference="direct",
     headline="rel_rmse",

@@ -30,15 +30,9 @@ front: methods ``direct`` and ``d2i`` render them).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
-from pipeline.errors import PrtError
-from pipeline.method import Component, Method, Option, check_one_environment
-from pipeline.render import sequences
-from pipeline.render.sequences import Sequence
-from pipeline.scene import Scene
-from pipeline.store import Artifact
+from pipeline.method import Component, Method, Option
 
 METHOD = Method(
     name="sg",
@@ -54,7 +48,7 @@ METHOD = Method(
                     "all, glossy or diffuse: the whole frame, or the light reflected by "
                     "the lobes or by the SH term alone (no background)",
                     choices=("all", "glossy", "diffuse"))),
-    sequences="pipeline.methods.sg:sequence",
+    sequences="pipeline.methods.sg.hooks:sequence",
     sequence_forms=("rotate:N", "orbit:N"),
     main_sequences=("rotate:8", "orbit:8"),
     # paper 003 models direct and indirect glossy at the first vertex and diffuse light
@@ -69,67 +63,5 @@ METHOD = Method(
     evaluate_size=64,
     evaluate_reference_spp=1024,
     lights=("environment",),
-    check_scene="pipeline.methods.sg:check_scene",
+    check_scene="pipeline.methods.sg.hooks:check_scene",
 )
-
-
-def check_scene(scene: Scene) -> None:
-    """Exactly one environment light, whose map reads as a valid latitude-longitude map,
-    and glossy lobes the fit's grid can sample (checked before anything is baked)."""
-    check_one_environment(scene, "sg")
-    check_lobe_widths(scene)
-
-
-def check_lobe_widths(scene: Scene) -> None:
-    """PrtError naming the material when a glossy lobe is too sharp for the fit's grid.
-
-    sg.fit tabulates each vertex's transport on the lat-long grid ``sg.fit_grid`` =
-    [rows, columns] (pole +y): samples Δθ = π/(rows − 1) and Δφ = 2π/columns apart, so a
-    direction lies up to d = ½ √(Δθ² + Δφ²) from the nearest sample (on the equator).
-    A lobe whose half width at half maximum (at normal view, measured on the BRDF) is
-    under d/2 can fall between the samples: its tabulation is a fraction of its peak, or
-    zero (γ 20000 on a [9, 18] grid divided by a zero norm mid-bake)."""
-    import math
-
-    import numpy as np
-
-    from pipeline import job
-    from pipeline.math.brdf import glossy, scene_brdfs
-    from pipeline.runner import stage_params
-
-    rows, columns = (int(n) for n in stage_params(job.stages(), scene)["sg.fit_grid"])
-    spacing = 0.5 * math.hypot(math.pi / max(rows - 1, 1), 2 * math.pi / max(columns, 1))
-    used = sorted({o.material for o in scene.objects.values()})
-    t = np.geomspace(1e-5, math.pi / 2, 4000)
-    wi = np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], axis=-1)  # away from the normal
-    wo = np.array([0.0, 0.0, 1.0])
-    for name, brdf in zip(used, scene_brdfs(scene, used), strict=True):
-        if brdf.model == "lambert" or max(brdf.specular) <= 0:
-            continue
-        lobe = glossy(wi, wo, brdf)
-        below = np.flatnonzero(lobe < 0.5 * lobe[0])
-        width = t[below[0]] if len(below) else math.pi / 2
-        if width < 0.5 * spacing:
-            raise PrtError(scene.path, f"materials.{name}: its glossy lobe (half width "
-                           f"{math.degrees(width):.2g}° at normal view) is too sharp for "
-                           f"sg.fit_grid {[rows, columns]}, whose samples lie up to "
-                           f"{math.degrees(spacing):.2g}° apart: give a broader lobe (a "
-                           f"smaller gamma) or a finer sg.fit_grid (about "
-                           f"{_rows_for(width)} rows)")
-
-
-def _rows_for(width: float) -> int:
-    """The rows (columns = 2 × rows) whose largest distance to a sample is 2 × ``width``
-    radians: d = ½ √(Δθ² + Δφ²) with Δθ ≈ Δφ ≈ π/(rows − 1) gives rows ≈ π/(2√2 w) + 1."""
-    import math
-
-    return math.ceil(math.pi / (2 * math.sqrt(2) * width)) + 1
-
-
-def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str) -> Sequence:
-    """``rotate:N`` (the environment turns about +y) or ``orbit:N`` (the camera circles
-    its look_at point; pipeline/render/sequences.py)."""
-    kind, _, count = spec.partition(":")
-    if kind not in ("rotate", "orbit") or not count.isdigit() or int(count) < 1:
-        raise PrtError(None, f"--frames {spec}: expected rotate:N or orbit:N (N ≥ 1 frames)")
-    return (sequences.rotate if kind == "rotate" else sequences.orbit)(scene, int(count))

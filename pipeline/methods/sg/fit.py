@@ -27,7 +27,7 @@ lobes (pipeline/math/sg.py) sharing mean and sharpness across channels:
 β, γ, δ default to 0. The tests check all four terms' Jacobians and that β and γ place
 an occluded view's lobes; fits of real data so far use D alone.
 
-**Parameters and bounds** (DESIGN §7: bounded parameters keep batched fits stable and
+**Parameters and bounds** (bounded parameters keep batched fits stable and
 lobes from swapping). Lobe k moves in a chart around its initial mean m_k:
 μ_k = (m_k + a_k t_k + b_k b̂_k)/‖·‖ with (t_k, b̂_k) a tangent basis of m_k and
 |a_k|, |b_k| ≤ tan(max_shift); ρ_k = log λ_k between log(1/σ_max²) and
@@ -103,7 +103,7 @@ class FitOptions:
     default_sigma: float = 0.5     # σ of the lobes of a zero function (radians)
     batch: int = 256               # functions per batched step (memory: batch · 4N · S)
     # dtype of the fields Φ and their Gram matrix ("float32": exp and products in single
-    # precision, energies and steps in float64; benchmarks/sg_fit_coarse.py --float32)
+    # precision, energies and steps in float64; studies/sg_fit_coarse.py --float32)
     fields: str = "float64"
 
 

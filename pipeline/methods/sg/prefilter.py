@@ -48,7 +48,7 @@ Two cases of ĝ:
 Cost per level: (row pairs) × (n exp + one FFT) + (row pairs) × (W_ℓ/2) × 3 complex
 multiply-adds; row pairs ≈ H_ℓ · (2√(2 REACH) σ_ℓ/Δθ) ≈ const per level once H_ℓ
 follows σ_ℓ, halved by the equator's mirror symmetry (:func:`_level`). A 1024 × 512
-map's 39 levels: ``benchmarks/sg_prefilter_speed.py``.
+map's 39 levels: ``studies/sg_prefilter_speed.py``.
 """
 
 from __future__ import annotations

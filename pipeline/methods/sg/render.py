@@ -51,7 +51,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
+from pipeline.device.raytrace import RayTracer
+from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math import sg, sh
@@ -61,7 +63,6 @@ from pipeline.math.geodesic import icosahedron
 from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
 from pipeline.methods.sg.transport import view_directions
-from pipeline.raytrace import RayTracer
 from pipeline.render import (
     WORK_GROUP,
     DeviceImage,
@@ -70,8 +71,7 @@ from pipeline.render import (
     camera_key,
     sees_back,
 )
-from pipeline.scene import Scene
-from pipeline.store import Artifact
+from pipeline.scene.model import Scene
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
 LAMBDA_BLENDS = ("log", "linear")
@@ -409,74 +409,80 @@ def camera_gbuffer(tracer: RayTracer, vertices: np.ndarray, faces: np.ndarray, c
                      trace_ms, lookup_ms, back, hits.prim[hit])
 
 
-def environment_light(scene: Scene) -> dict[str, Any]:
-    """The params of the scene's one environment light."""
-    return next(light for light in scene.lights if light.type == "environment").params
+class SgRenderer:
+    """Method sg's frames over loaded tables (pipeline/render/__init__.py ``Renderer``):
+    each frame traces its scene's camera, reads the environment's rotation and scale,
+    and shades (timings: gbuffer (trace + view lookup), sh (SH rotation and the
+    vertices' diffuse radiance), shade, background). ``component`` (one of
+    :data:`COMPONENTS`): ``all``, or the reflected light of one part, ``glossy`` (the
+    lobes) or ``diffuse`` (the SH term), without the background (as ``prt reference
+    --lobe``). With ``face_object`` (F,), a frame notes the objects whose pixels see the
+    backs of faces (:func:`pipeline.render.back_face_notes`).
 
+    Caches: ``gbuffers`` the last camera's G-buffer, ``images`` the last image size's
+    device image, ``static`` the map's device buffer."""
 
-def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
-              env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
-              face_object: np.ndarray | None = None) -> Callable[[Scene], Frame]:
-    """The frame function over loaded tables: each call traces its scene's camera (kept
-    while the camera stays), reads the environment's rotation and scale, and shades
-    (timings: gbuffer (trace + view lookup), sh (SH rotation and the vertices' diffuse
-    radiance), shade, background). ``component`` (one of :data:`COMPONENTS`): ``all``,
-    or the reflected light of one part, ``glossy`` (the lobes) or ``diffuse`` (the SH
-    term), without the background (as ``prt reference --lobe``). With ``face_object``
-    (F,), a frame notes the objects whose pixels see the backs of faces
-    (:func:`pipeline.render.back_face_notes`)."""
-    if lambda_blend not in LAMBDA_BLENDS:
-        raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
-                       f"{', '.join(LAMBDA_BLENDS)}")
-    if component not in COMPONENTS:
-        raise PrtError("--option", f"component={component!r}: expected one of "
-                       f"{', '.join(COMPONENTS)}")
-    if component == "diffuse":  # no lobe slot runs
-        tables = replace(tables, count=np.zeros_like(tables.count))
-    tracer = RayTracer(vertices, faces)
-    device = SgDevice(tables, lambda_blend)
-    env_map = np.ascontiguousarray(env_map, np.float32)
-    order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
-    map_sh = sh.project_latlong(env_map, order=order)  # (order², 3), unrotated
-    if component == "glossy":
-        map_sh = np.zeros_like(map_sh)
-    static: dict[str, Any] = {}
-    cached: dict[tuple, SgGBuffer] = {}
-    images: dict[int, DeviceImage] = {}  # the last image size's device image
+    def __init__(self, tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
+                 env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
+                 face_object: np.ndarray | None = None) -> None:
+        if lambda_blend not in LAMBDA_BLENDS:
+            raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
+                           f"{', '.join(LAMBDA_BLENDS)}")
+        if component not in COMPONENTS:
+            raise PrtError("--option", f"component={component!r}: expected one of "
+                           f"{', '.join(COMPONENTS)}")
+        if component == "diffuse":  # no lobe slot runs
+            tables = replace(tables, count=np.zeros_like(tables.count))
+        self.tables, self.vertices, self.faces = tables, vertices, faces
+        self.component, self.face_object = component, face_object
+        self.tracer = RayTracer(vertices, faces)
+        self.device = SgDevice(tables, lambda_blend)
+        self.env_map = np.ascontiguousarray(env_map, np.float32)
+        order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
+        self.map_sh = sh.project_latlong(self.env_map, order=order)  # (order², 3), unrotated
+        if component == "glossy":
+            self.map_sh = np.zeros_like(self.map_sh)
+        self.static: dict[str, Any] = {}
+        self.gbuffers: dict[tuple, SgGBuffer] = {}
+        self.images: dict[int, DeviceImage] = {}
 
-    def frame(scene: Scene) -> Frame:
+    def edit_mode(self, kind: str, scene: Scene) -> Callable[[Scene], Frame]:
+        """Every edit takes the one frame path (the camera's G-buffer is kept)."""
+        return self.frame
+
+    def frame(self, scene: Scene) -> Frame:
+        env_map = self.env_map
         t0 = time.perf_counter()
         cam = scene.camera
         key = camera_key(cam)
-        was_cached = key in cached
+        was_cached = key in self.gbuffers
         if not was_cached:
-            cached.clear()
-            cached[key] = camera_gbuffer(tracer, vertices, faces, cam)
-        gbuffer = cached[key]
+            self.gbuffers.clear()
+            self.gbuffers[key] = camera_gbuffer(self.tracer, self.vertices, self.faces, cam)
+        gbuffer = self.gbuffers[key]
         pixels = gbuffer.buffers()
         t1 = time.perf_counter()
-        light = environment_light(scene)
-        degrees, scale = float(light.get("rotation", 0.0)), float(light.get("scale", 1.0))
-        vertex_diffuse = device.vertex_diffuse(sh.rotate_y(map_sh, degrees))
+        degrees, scale = scene.environment.rotation, scene.environment.scale
+        vertex_diffuse = self.device.vertex_diffuse(sh.rotate_y(self.map_sh, degrees))
         t2 = time.perf_counter()
         # shading, background and their scatter stay on the device (render.DeviceImage)
-        image = DeviceImage.of_size(images, cam.width * cam.height)
+        image = DeviceImage.of_size(self.images, cam.width * cam.height)
         shade_ms = background_ms = scatter_ms = 0.0
-        background = len(gbuffer.miss_pixel) > 0 and component == "all"
+        background = len(gbuffer.miss_pixel) > 0 and self.component == "all"
         if not background:  # the pixels that miss stay black
             image.clear()
         if len(gbuffer.pixel):
             shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * len(gbuffer.pixel))
-            _, shade_ms = device.shade(pixels, len(gbuffer.pixel), vertex_diffuse, degrees,
-                                       scale, out_buffer=shaded)
+            _, shade_ms = self.device.shade(pixels, len(gbuffer.pixel), vertex_diffuse,
+                                            degrees, scale, out_buffer=shaded)
             scatter_ms += image.scatter(shaded, pixels["pixel"], len(gbuffer.pixel))
         if background:
-            if "map" not in static:
-                static["map"] = cl.read_only_buffer(env_map)
+            if "map" not in self.static:
+                self.static["map"] = cl.read_only_buffer(env_map)
             miss = cl.scratch_buffer(image.buffers, "miss", 12 * len(gbuffer.miss_pixel))
             a = np.radians(degrees)
             background_ms = cl.run(cl.kernel("sg_render.cl", "sg_background"),
-                                   len(gbuffer.miss_pixel), static["map"],
+                                   len(gbuffer.miss_pixel), self.static["map"],
                                    np.int32(env_map.shape[1]), np.int32(env_map.shape[0]),
                                    pixels["miss_direction"], np.float32(np.cos(a)),
                                    np.float32(np.sin(a)), np.float32(scale),
@@ -494,22 +500,20 @@ def sg_frames(tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                    "kernel_ms": shade_ms + background_ms + scatter_ms,
                    "counted_kernel_ms": shade_ms, "setup_ms": (t2 - t0) * 1e3,
                    "total_ms": (t3 - t0) * 1e3}
-        notes = [] if face_object is None else back_face_notes(
-            "sg", gbuffer.back, face_object[gbuffer.face], list(scene.objects))
+        notes = [] if self.face_object is None else back_face_notes(
+            "sg", gbuffer.back, self.face_object[gbuffer.face], list(scene.objects))
         return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, notes,
-                     kernel_bytes=kernel_bytes(tables, gbuffer.corner))
-
-    return frame
+                     kernel_bytes=kernel_bytes(self.tables, gbuffer.corner))
 
 
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
-                component: str = "all") -> Callable[[Scene], Frame]:
+                component: str = "all") -> SgRenderer:
     """The method's renderer factory (pipeline/method.py): tables loaded once from the
     artifacts of ``geometry``, ``sg.relax``, ``sg.diffuse``, ``sg.env_prefilter``; the
     map for the background and the SH lighting from the scene's environment file."""
     geo = artifacts["geometry"]
     vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
     tables = load_tables(artifacts, len(vertices))
-    env_map = read_environment(environment_light(scene)["file"])
-    return sg_frames(tables, vertices, faces, env_map, lambda_blend, component,
+    env_map = read_environment(scene.environment.file)
+    return SgRenderer(tables, vertices, faces, env_map, lambda_blend, component,
                      np.asarray(geo.read("face_object")))

@@ -36,7 +36,7 @@ only; paths whose second vertex reflects glossily (glossy–glossy, e.g. the bun
 its own highlight) are dropped, as is the glossy part of the light leaving y. The paper
 keeps them and gives no figure for their share; what is dropped is at most the glossy
 albedo of y (≤ 4ρs for Blinn-Phong, brdf.py) times the share of x's lobe that lands on
-glossy surfaces, measured for bunny_sg in NOTES.md (issue 17, third session).
+glossy surfaces, measured for bunny_sg (decision 0030).
 """
 
 from __future__ import annotations
@@ -45,12 +45,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from pipeline.device.raytrace import RayTracer
 from pipeline.math import brdf_sampling, sh
 from pipeline.math.brdf import BrdfParams, glossy, to_local
 from pipeline.math.frames import tangent_from_normal
 from pipeline.math.geodesic import icosahedron
 from pipeline.methods.sg.vertex_scene import VertexScene
-from pipeline.raytrace import RayTracer
 
 VIEW_FREQUENCY = 3  # 10 f² + 2 = 92 views
 

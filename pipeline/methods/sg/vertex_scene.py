@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.device.raytrace import RAY_EPSILON, Hits, RayTracer
 from pipeline.math.brdf import BrdfParams
-from pipeline.raytrace import RAY_EPSILON, Hits, RayTracer
 
 UNSEEN = BrdfParams("lambert", (0.0, 0.0, 0.0))  # a material whose section a chunk lacks
 

@@ -17,7 +17,7 @@ Run-time options (``prt render --option NAME=VALUE``):
   320 top-only render on the dense path, about 60× faster than the stored rows' sparse
   path and less accurate: on bunny_grace at 128², shading 16 ms (320) and 7 ms (80)
   against 970 ms as stored, frames 4.7 % and 16 % (relative L² over the surfaces) from
-  the stored rows' (NOTES.md, sixth session) — ``budget=320`` for interactive sequences;
+  the stored rows' (decision 0024) — ``budget=320`` for interactive sequences;
 * ``selection`` (str, ``top-only``): which coefficients a budget keeps: ``top-only``
   (the first ``budget`` of the layout, coarse levels first; exact up to 320 from the
   stored rows) or ``adaptive`` (the largest by area-weighted magnitude).
@@ -37,22 +37,16 @@ front: methods ``direct`` and ``d2i`` render them).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
-from pipeline.errors import PrtError
-from pipeline.method import Method, Option, check_one_environment
-from pipeline.render import sequences
-from pipeline.render.sequences import Sequence
-from pipeline.scene import Scene
-from pipeline.store import Artifact
+from pipeline.method import Method, Option
 
 METHOD = Method(
     name="triple",
     stagefile=Path(__file__).with_name("stages.yaml"),
     description="paper 004: environment light with all-frequency shadows, wavelet triple "
                 "products in local frames",
-    renderer="pipeline.methods.triple.render:triple_renderer",
+    renderer="pipeline.methods.triple.render:TripleRenderer",
     reads=("geometry", "triple.atlas", "triple.visibility", "triple.light_rotations",
            "triple.brdf_tables"),
     reference="env-direct",
@@ -63,40 +57,17 @@ METHOD = Method(
         Option("selection", str, "top-only", "top-only or adaptive: which a budget keeps",
                choices=("top-only", "adaptive")),
     ),
-    sequences="pipeline.methods.triple:sequence",
+    sequences="pipeline.methods.triple.hooks:sequence",
     sequence_forms=("rotate:N", "orbit:N", "gamma[:MATERIAL]:N"),
     main_sequences=("rotate:8",),
     # issue 16: 20, 80, 320 coefficients top-only and adaptive, and the default (as
     # stored) added by prt evaluate; run-time cuts of one bake. At 64² (1024-spp
     # references: 3.1 % noise against errors ≥ 9.8 %) the 7 budgets took 22 min on the
-    # 2 shared cores at load 15–20; benchmarks/triple_accuracy.py studies 128²
+    # 2 shared cores at load 15–20; studies/triple_accuracy.py studies 128²
     evaluate_sweep={"render.budget": [20, 80, 320], "render.selection": ["top-only", "adaptive"]},
     evaluate_size=64,
     evaluate_reference_spp=1024,
     lights=("environment",),
     features=("blends", "bumps"),
-    check_scene="pipeline.methods.triple:check_scene",
+    check_scene="pipeline.methods.triple.hooks:check_scene",
 )
-
-SEQUENCE_KINDS = ("rotate", "orbit", "gamma")
-
-
-def check_scene(scene: Scene) -> None:
-    """Exactly one environment light, whose map reads as a valid latitude-longitude map."""
-    check_one_environment(scene, "triple")
-
-
-def sequence(scene: Scene, artifacts: Mapping[str, Artifact], spec: str) -> Sequence:
-    """The edit kind, edited scenes, a label per frame and the path in words
-    (pipeline/render/sequences.py)."""
-    parts = spec.split(":")
-    kind, count_text = parts[0], parts[-1]
-    if kind not in SEQUENCE_KINDS or len(parts) not in (2, 3) or not count_text.isdigit() \
-            or int(count_text) < 1 or (len(parts) == 3 and kind != "gamma"):
-        raise PrtError(None, f"--frames {spec}: expected rotate:N, orbit:N or "
-                       "gamma[:MATERIAL]:N (N ≥ 1 frames)")
-    count = int(count_text)
-    if kind == "gamma":
-        return sequences.gamma_sweep(scene, parts[1] if len(parts) == 3 else None, count,
-                                     ", each table re-sampled at run time")
-    return sequences.rotate(scene, count) if kind == "rotate" else sequences.orbit(scene, count)

@@ -32,16 +32,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache, cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
 from pipeline.math.geodesic import ROOTS, geodesic_levels
 from pipeline.math.sphwavelet import WaveletBasis, wavelet_basis
-
-if TYPE_CHECKING:
-    from pipeline.methods.triple.render import PixelLookups, TripleTables, WaveletRows
+from pipeline.methods.triple.tables import PixelLookups, TripleTables, WaveletRows
 
 DENSE_MAX = 320  # 20·4^2: the largest top-only budget the dense path serves
 BELOW_HORIZON_TOLERANCE = 1e-3  # BRDF value on a left-out triangle / the row's largest
@@ -180,7 +178,7 @@ def _kept_for(brdf: np.ndarray, leaf_level: int, level: int) -> np.ndarray:
 
 def shade_dense_numpy(dense: DenseTables, lookups: PixelLookups) -> np.ndarray:
     """The dense kernel's sums Σ_t (A_t L_t) V_t ρ̃_t (P, 3) in float64 for host lookups
-    (:class:`~pipeline.methods.triple.render.PixelLookups`): the NumPy twin."""
+    (:class:`~pipeline.methods.triple.tables.PixelLookups`): the NumPy twin."""
     light = np.einsum("pr,prct->ptc", lookups.light_weight,
                       dense.light[lookups.light_rows].astype(np.float64))
     vis = np.einsum("pr,prt->pt", lookups.vis_weight,

@@ -21,7 +21,7 @@ Floats are float32 (what the device reads; the NumPy twins read the same values)
 camera (the lookups' trigonometry); every frame's lookups start from them.
 
 :func:`lookups_numpy` is the host twin of the kernels' lookups
-(pipeline.methods.triple.frame_grids, pipeline.methods.triple.render.texel_lookups / brdf_lookups);
+(pipeline.methods.triple.frame_grids, pipeline.methods.triple.tables.texel_lookups / brdf_lookups);
 :func:`device_lookups` runs ``triple_lookups`` and reads its rows back (tests, and the
 sparse path keeps them on the device).
 """
@@ -30,19 +30,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
+from pipeline.device.raytrace import Hits, Mesh
+from pipeline.math.brdf import to_local
 from pipeline.math.envmap import direction_to_uv
 from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
+from pipeline.methods.triple.tables import (
+    BRDF_ROWS,
+    LIGHT_ROWS,
+    VIS_ROWS,
+    Atlas,
+    PixelLookups,
+    TripleTables,
+    brdf_lookups,
+    texel_lookups,
+)
 from pipeline.render import WORK_GROUP
-
-if TYPE_CHECKING:
-    from pipeline.methods.triple.render import Atlas, PixelLookups, TripleTables
-    from pipeline.raytrace import Hits, Mesh
-
 
 
 @dataclass
@@ -128,7 +135,7 @@ def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: 
     at the camera rays ``pixel`` (P,) of ``hits`` and unit ``directions`` (N, 3) (all
     of them hits), from the mesh's vertex normals (blended in float32), unit face normals
     and unit uv tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels. Its
-    NumPy twin is pipeline.raytrace.Surface with Atlas.texel_xy."""
+    NumPy twin is pipeline.device.raytrace.Surface with Atlas.texel_xy."""
     import pyopencl as pcl
 
     n = len(pixel)
@@ -201,8 +208,6 @@ def lookups_numpy(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
     """The kernels' lookups on the host, in float64 from the G-buffer's float32 values:
     FrameGrid.weights, texel_lookups (renormalised over filled texels), brdf_lookups
     with the blend."""
-    from pipeline.math.brdf import to_local
-    from pipeline.methods.triple.render import PixelLookups, brdf_lookups, texel_lookups
 
     normal, tangent = gbuffer.normal.astype(np.float64), gbuffer.tangent.astype(np.float64)
     light_rows, light_weight = tables.frames.weights(normal, tangent, turn)
@@ -224,11 +229,10 @@ def device_lookups(gbuffer: GBuffer, tables: TripleTables, lookup: LookupTables,
                    turn: float, static: dict[str, Any] | None = None
                    ) -> tuple[list[Any], float]:
     """Runs ``triple_lookups``: the device buffers of the rows and weights (as
-    :class:`~pipeline.methods.triple.render.PixelLookups`' arrays, kept on the device) and the
+    :class:`~pipeline.methods.triple.tables.PixelLookups`' arrays, kept on the device) and the
     kernel's milliseconds."""
     import pyopencl as pcl
 
-    from pipeline.methods.triple.render import BRDF_ROWS, LIGHT_ROWS, VIS_ROWS
 
     n = max(gbuffer.count, 1)
     sizes = [(LIGHT_ROWS, 4), (LIGHT_ROWS, 4), (VIS_ROWS, 4), (VIS_ROWS, 4),
@@ -246,7 +250,6 @@ def read_lookups(buffers: list[Any], count: int) -> PixelLookups:
     """Host copies of :func:`device_lookups`' buffers."""
     import pyopencl as pcl
 
-    from pipeline.methods.triple.render import BRDF_ROWS, LIGHT_ROWS, VIS_ROWS, PixelLookups
 
     shapes = [((count, LIGHT_ROWS), np.uint32), ((count, LIGHT_ROWS), np.float32),
               ((count, VIS_ROWS), np.uint32), ((count, VIS_ROWS), np.float32),

@@ -25,7 +25,7 @@ resampled bilinearly to W = n_φ·⌈W₀/n_φ⌉ columns, H = W/2 rows (the sam
 convention, rows at v = i/(H − 1)) only when its width W₀ is not a multiple of n_φ.
 (Resampling it to two texels per spacing, for the kernel's cache, raised the leaf
 means' error on Grace from 3.6 % to 4.8 % at r = 1 and from 11 % to 15 % at r = 0.)
-benchmarks/bench_triple_tables.py measures the leaf
+benchmarks/triple/tables.py measures the leaf
 means' error against a finely sampled reference with and without it.
 """
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
 from pipeline.methods.triple.wavelet_rows import depth_first_order
 
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.math.frames import tangent_from_normal
 from pipeline.methods.d2i.stages.transfer import (
     PIXEL_BATCH,
@@ -22,8 +24,6 @@ from pipeline.methods.d2i.stages.transfer import (
     scene_tools,
 )
 from pipeline.methods.d2i.transfer import Receivers
-from pipeline.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:

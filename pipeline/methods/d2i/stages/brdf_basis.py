@@ -12,9 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.math.brdf import BrdfParams
-from pipeline.methods.d2i.brdf_pca import BASIS_FIELDS, build_basis, gamma_test_grid
-from pipeline.stages import (
+from pipeline.engine.stage import (
     AssembleContext,
     Block,
     Chunk,
@@ -23,6 +21,8 @@ from pipeline.stages import (
     Output,
     ToleranceResult,
 )
+from pipeline.math.brdf import BrdfParams
+from pipeline.methods.d2i.brdf_pca import BASIS_FIELDS, build_basis, gamma_test_grid
 
 _FIELDS = BASIS_FIELDS
 
@@ -83,7 +83,7 @@ def _tolerance(ctx: AssembleContext, name: str) -> float:
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     """Attributes per material, and per glossy material whether its k met the
-    tolerance (pipeline/tolerance.py)."""
+    tolerance (pipeline/engine/tolerance.py)."""
     names = [chunk.material for chunk, _ in metas]
     models = [_material_section(ctx, n, "model") for n in names]
     max_k = int(ctx.params["brdf_basis.max_k"])

@@ -21,7 +21,7 @@ the side of the surface that was seen.
 Order. Samples are sorted by object, then by the chart of their normal (its largest
 component's axis and sign), then along a 2D Hilbert curve in that chart's plane
 (pipeline/math/spacecurve.py, ``chart_order``), so that rows of T, D and Ms are smooth in
-the gather index (DESIGN §7) and runs of samples fill squares on planar surfaces.
+the gather index and runs of samples fill squares on planar surfaces.
 
 Areas |A_g|. Stratified surface samples (``_surface_samples``), one on every triangle
 plus more in proportion to area (``gather.area_samples`` per gather sample in all), each
@@ -57,13 +57,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pipeline.device.raytrace import RAY_EPSILON, Mesh, RayTracer, surface_at
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math.brdf_sampling import cos_power_direction, frame_to_world
 from pipeline.math.frames import tangent_from_normal
 from pipeline.math.spacecurve import chart_order
 from pipeline.methods.d2i.transfer import disk_pattern
-from pipeline.raytrace import RAY_EPSILON, Mesh, RayTracer, surface_at
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 NEIGHBOURS = 8     # gather samples considered for each surface sample
 FACING = 0.5       # least n_g · n_s for a surface sample to join gather sample g

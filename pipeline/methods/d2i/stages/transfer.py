@@ -36,8 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
-from pipeline.executors import map_slices
+from pipeline.device import cl
+from pipeline.device.raytrace import RAY_EPSILON, RayTracer
+from pipeline.device.threads import map_slices
+from pipeline.engine.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays, sort_rows
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.math import haar
 from pipeline.math.brdf import MODEL_CODES, BrdfParams, pack_materials
 from pipeline.methods.d2i.transfer import (
@@ -51,15 +54,12 @@ from pipeline.methods.d2i.transfer import (
     split_near,
     subarea_points,
 )
-from pipeline.raytrace import RAY_EPSILON, RayTracer
-from pipeline.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays, sort_rows
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 # The work-group size of both kernels, fixed: PoCL compiles a kernel once per
 # work-group size, and left to choose, it picks one that divides each launch's pair
 # count — a new compile (0.1-1 s) for most batches. That was the first re-bake's extra
-# 2-9 s after a full bake (a basis of a new size: new kernels; NOTES.md, fourteenth
-# session).
+# 2-9 s after a full bake (a basis of a new size: new kernels;
+# decision 0016).
 LAUNCH_GROUP = 64
 PIXEL_BATCH = 128    # receivers per kernel launch (memory: batch × |G| × rows floats)
 COMPRESS_BLOCK = 128  # rows per compression task: its temporaries stay in cache

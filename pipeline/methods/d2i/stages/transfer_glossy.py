@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams
 from pipeline.methods.d2i.brdf_pca import read_basis
@@ -31,7 +32,6 @@ from pipeline.methods.d2i.stages.transfer import (
 )
 from pipeline.methods.d2i.stages.transfer import layout as transfer_layout
 from pipeline.methods.d2i.transfer import GlossyTable, Receivers
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 
 def glossy_table(ctx: AssembleContext, name: str) -> GlossyTable:

@@ -31,7 +31,8 @@ the mean: the pixel's D L fell from 1.27 to 0.006 (a black pixel; Tableau, 128²
     material), at least a quarter of it. Paper 000 used (250, 150, 150, 100, 100, 100,
     100) for its Cornell floor. At equal storage this rule erred about half as much as
     the tolerance on the Cornell box, and at 500 beat the tolerance 0.02 in error and
-    storage on the Cornell box, the Tableau and the Still-life (NOTES.md, issue 19).
+    storage on the Cornell box, the Tableau and the Still-life
+    (decision 0019).
 
 D is cut per block of ``truncate.d_block``² pixels rather than per row
 (:func:`cut_pixel_blocks`): the block's rows are first transformed across its pixels (2D
@@ -43,7 +44,7 @@ keeps. ``truncate.shared_budget``: ``chunk`` (the default) pools the budget of a
 blocks of the tile — the tile keeps its largest entries —, ``block`` gives each block
 its own. On the Cornell box at 128², 125 coefficients per pixel, D L against the
 transfer stage's rows: per row 4.9 % (3.3 % dark), per block 1.4 %, pooled over the
-tile 0.85 % (the mean kept to 0.02 %) (NOTES.md, issue 19, tenth session).
+tile 0.85 % (the mean kept to 0.02 %) (decision 0012).
 """
 
 from __future__ import annotations
@@ -53,11 +54,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from pipeline.engine.rows import ROW_CHUNKS, cut_rows, quantise_values
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math.selection import smallest_per_row
 from pipeline.methods.d2i.blocks import block_transform, pixel_blocks
-from pipeline.rows import ROW_CHUNKS, cut_rows, quantise_values
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 BUDGETS = ("tolerance", "proportional")
 COARSE_KEPT = 16  # Haar coefficients 0..15 (scaling and 4 coarsest levels) always kept
@@ -130,7 +131,7 @@ def cut_to_budget(params: dict[str, Any], prefix: str, arrays: dict[str, np.ndar
     """The rows ``{prefix}_count/_index/_value`` (and ``_residual``) cut by
     ``truncate.budget``: to ``truncate.tolerance``, or to ``proportional`` (else
     ``truncate.coefficients``) entries besides their near ones (index ≥ haar_length);
-    values stored as float16 over a float32 scale per row (pipeline.rows.quantise_values),
+    values stored as float16 over a float32 scale per row (pipeline.engine.rows.quantise_values),
     each row's kept entries by ascending index (:func:`by_index`)."""
     rule = budget_rule(params)
     count = arrays[f"{prefix}_count"]
@@ -169,8 +170,8 @@ def by_index(count: np.ndarray, index: np.ndarray, value: np.ndarray
     """CSR rows' entries (index, value) reordered to ascending ``index`` within each row
     (the counts do not change): the stored order of every cut row. A row's indices then
     rise in small steps, which zstd packs 3.5× tighter than in the order kept (D of the
-    Cornell box at 400²: 27.1 → 7.8 MB, T 44.9 → 12.8 MB; NOTES.md, issue 19, twelfth
-    session), and the products read the radiance vector in order."""
+    Cornell box at 400²: 27.1 → 7.8 MB, T 44.9 → 12.8 MB;
+    decision 0014), and the products read the radiance vector in order."""
     order = _row_index_order(np.repeat(np.arange(len(count)), np.asarray(count, np.int64)),
                              index)
     return index[order], value[order]

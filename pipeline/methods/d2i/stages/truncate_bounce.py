@@ -5,7 +5,7 @@ for the proportional rule; near entries always kept), after a Haar transform acr
 blocks of ``truncate.ms_block`` consecutive rows, as D's rows are cut across pixel blocks:
 on the Cornell box (16k gathers) blocks of 16 at 125 coefficients per row erred 1.1 % in
 the bounce product Ms L with its mean kept to 0.04 %, single rows 4.2 % and 2.6 % low
-(NOTES.md, issue 19, tenth session). One chunk per block of gather rows of the bounce
+(decision 0012). One chunk per block of gather rows of the bounce
 stage, each reading only its twin block. Schema ``compressed_bounce``.
 """
 
@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.rows import ROW_CHUNKS
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.math import haar
 from pipeline.methods.d2i.stages.truncate import block_size, cut_blocks, pooled_budget
-from pipeline.rows import ROW_CHUNKS
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 
 def _haar_length(ctx: ChunkContext | AssembleContext) -> int:

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.rows import place_in_runs
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.methods.d2i.stages.truncate import cut_attrs, cut_to_budget
 from pipeline.methods.d2i.stages.truncate import layout as truncate_layout
-from pipeline.rows import place_in_runs
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 MIN_RATIO = 0.25  # a basis row keeps at least this share of b0's budget
 

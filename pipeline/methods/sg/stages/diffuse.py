@@ -1,13 +1,13 @@
 """Stage ``sg.diffuse``: per vertex, the diffuse transfer of method sg in spherical
-harmonics of order ``sg.diffuse_order`` (5: paper 003's 25 coefficients), shadows and
+harmonics of order ``sg.diffuse_order`` (8; paper 003's 5: 25 coefficients), shadows and
 ``sg.diffuse_bounces`` diffuse interreflections included (pipeline/methods/sg/diffuse.py).
 Schema ``sg_diffuse``; one chunk, the whole scene.
 
 **Order.** Under a map with small bright sources (Grace's windows) order 5 misses much
 of the shadowed diffuse light: on bunny_sg's bunny the blue channel, which Grace keeps
 mostly in its windows, comes out ≈ 0 at order 5 (per-vertex relative RMS 96 %; red 11 %),
-8 gives 42 % / 5.5 %, 12 gives 20 % / 3 %, against ray-traced direct light (NOTES.md,
-issue 17, third session). The renderer takes the order from the artifact's ``order``
+8 gives 42 % / 5.5 %, 12 gives 20 % / 3 %, against ray-traced direct light
+(decision 0028). The renderer takes the order from the artifact's ``order``
 attribute, so raising the param needs no other change.
 
 **Why one chunk.** Bounce b at a vertex gathers bounce b − 1 at the hits of its rays,
@@ -18,8 +18,8 @@ product with a (V, 75) array: milliseconds. So the whole stage is one pass of
 ``sg.diffuse_samples`` rays per vertex (traced ``BATCH`` vertices at a time, Embree on
 all of the task's threads) plus the products, in one chunk; splitting it into a
 vertex-batch direct stage and a bounce stage would have to store G (12 bytes per ray:
-≈ 50 MB for bunny_sg) to save nothing but progress granularity. NOTES.md (issue 17,
-third session) has the cost on bunny_sg.
+≈ 50 MB for bunny_sg) to save nothing but progress granularity. Its cost on bunny_sg:
+decision 0028.
 
 The key holds the geometry, the materials' albedos kd (the glossy part of the light
 leaving a surface is not part of this transfer) and the params: editing a model, ρs or
@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Output
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams
 from pipeline.methods.sg import diffuse as sg_diffuse
 from pipeline.methods.sg.vertex_scene import VertexScene
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Output
 
 BATCH = 1024  # vertices per tracing batch: 1024 × samples rays
 

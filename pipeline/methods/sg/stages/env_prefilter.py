@@ -12,18 +12,18 @@ does.
 
 One chunk rather than one per level: the level count follows from the map's height,
 which a chunker could know only by reading the map, and the whole stack of a 1024 × 512
-map takes seconds (benchmarks/sg_prefilter_speed.py).
+map takes seconds (studies/sg_prefilter_speed.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
+from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.math.sg import PrefilterLevels, pack_stack, prefilter_levels
 from pipeline.methods.sg.prefilter import prefilter
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
-from pipeline.store import Artifact
 
 TEXEL_CHUNK = 1 << 16  # stored texels per zarr chunk
 

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math import sg
 from pipeline.math.brdf import BrdfParams
@@ -60,7 +61,6 @@ from pipeline.methods.sg import support as sg_support
 from pipeline.methods.sg.fit import FitOptions, FitTargets, SGFit
 from pipeline.methods.sg.transport import glossy_transport, view_directions
 from pipeline.methods.sg.vertex_scene import UNSEEN, VertexScene
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.stages.geometry import traced_geometry
 
 GROUP = 4             # vertices fitted together (the flood fill's step; 4 × 92 functions)
@@ -69,7 +69,7 @@ FIELDS = 7            # w_r, w_g, w_b, μ_x, μ_y, μ_z, λ
 MAX_LOBES = 3         # the schema's lobe slots
 VERTEX_CHUNK = 1024   # zarr chunk length along vertices
 # the fast path's LM settings: float32 fields, stop when a step gains < 3e-4 of the
-# energy (benchmarks/sg_fit_stage.py: at 1e-4, median error equal to 1e-5 of the
+# energy (benchmarks/sg/fit.py: at 1e-4, median error equal to 1e-5 of the
 # float64, 1e-6 fits' on real transport; what makes the difference is fewer LM steps).
 # 1e-4 -> 3e-4 on 32 bunny vertices (one process, 3 rounds): fit 0.097 -> 0.088 s per
 # vertex, error mean 0.498 -> 0.500, median 0.3303 -> 0.3306 (1e-3: 0.082 s, 0.505)
@@ -78,7 +78,7 @@ STOP = 3e-4
 # each function's cap holds all but 3 % of its energy, not 1e-4: the indirect glossy
 # part (a noisy, ringing SH estimate: a median 1.7 % of the energy on bunny_sg) spread
 # the caps over 4,813 of 6,050 directions (median) and the fits cannot follow it anyway.
-# Measured on 16 bunny_sg vertices (benchmarks/sg_fit_flips.py set-up, one run): fit
+# Measured on 16 bunny_sg vertices (studies/sg_fit_flips.py set-up, one run): fit
 # 0.81-0.89 -> 0.56-0.59 s per vertex, error on the whole grid median 0.182 -> 0.188,
 # mean 0.242 -> 0.243
 SUPPORT = sg_support.SupportOptions(outside_energy=0.03)

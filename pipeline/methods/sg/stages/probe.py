@@ -21,10 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.methods.sg.stages.fit import grid, transport_scene
 from pipeline.methods.sg.transport import glossy_transport, view_directions
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 MAX_PROBES = 64  # 92 × 6,050 × 3 float32 = 6.7 MB per vertex at the default grid
 

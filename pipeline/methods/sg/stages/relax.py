@@ -7,7 +7,7 @@ relaxes flips only over the edges inside a batch. The edges between batches were
 with far more flips: on the coarse bunny (scenes/bunny_sg_coarse.yaml, batches of 256,
 the default then) 19 % of the edges cross a batch boundary, and 41–46 % of the vertex
 pairs there were flipped by more than 5° against 13–15 % inside batches; after this
-stage 17–18 % (benchmarks/sg_fit_report.py; NOTES.md, issue 17, fifth session).
+stage 17–18 % (decision 0027).
 
 This stage runs ``sg.fit_relaxation_sweeps`` sweeps of pipeline/methods/sg/coherence.py
 ``relax`` over each object's whole mesh in its breadth-first order, starting from the
@@ -24,6 +24,7 @@ from collections import Counter
 
 import numpy as np
 
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.methods.sg import coherence as sg_coherence
 from pipeline.methods.sg.stages.fit import (
     VERTEX_CHUNK,
@@ -33,7 +34,6 @@ from pipeline.methods.sg.stages.fit import (
     slot_counts,
     unpack_slots,
 )
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:

@@ -24,7 +24,7 @@ Every texel in a footprint is covered or dilated (:func:`pipeline.methods.triple
 and gets a surface point on the mesh, so bilinear fetches never read an empty texel.
 
 **Per texel** (covered and dilated; zeros where empty): the surface point, shading
-normal and tangent from :func:`pipeline.raytrace.surface_at` exactly as the G-buffer
+normal and tangent from :func:`pipeline.device.raytrace.surface_at` exactly as the G-buffer
 has them (the normal the barycentric blend of vertex normals, normalised; the tangent
 along +u of the mesh's own uv where it has one, else a frame from the normal), except
 that no ray turns the normal: it is the mesh's outward one (the side of the face
@@ -35,12 +35,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.chunkwrite import segment_name
+from pipeline.device.raytrace import Hits, Mesh, RayTracer, surface_at
+from pipeline.engine.chunkwrite import segment_name
+from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math.camera import camera_rays
 from pipeline.methods.triple import texels
-from pipeline.raytrace import Hits, Mesh, RayTracer, surface_at
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output
 
 PADDING = 2               # texels between charts: footprints reach < 1 texel past a chart
 PACKING_EFFICIENCY = 0.7  # charts' share of the packed texture, to predict its side

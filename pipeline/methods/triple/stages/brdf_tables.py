@@ -24,7 +24,17 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
+from pipeline.device.sphwavelet_cl import forward_device
+from pipeline.engine.rows import ROW_CHUNKS
+from pipeline.engine.stage import (
+    AssembleContext,
+    Chunk,
+    ChunkContext,
+    Layout,
+    Output,
+    ToleranceResult,
+)
 from pipeline.math.brdf import MODEL_CODES, BrdfParams, pack_materials
 from pipeline.math.sphwavelet import wavelet_basis
 from pipeline.methods.triple.brdf_tables import diffuse_leaf_means
@@ -37,9 +47,6 @@ from pipeline.methods.triple.wavelet_rows import (
     to_half,
 )
 from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
-from pipeline.rows import ROW_CHUNKS
-from pipeline.sphwavelet_cl import forward_device
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
 
 SHAPE_KEYS = ("gamma", "alpha_ratio", "cxy", "cz", "f0", "ior")  # what shapes f_g
 

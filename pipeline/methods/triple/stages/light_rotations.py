@@ -6,7 +6,7 @@ Per grid entry (row = FrameGrid entry index, pipeline/methods/triple/frame_grids
 means of L_local(ω) = L(R ω) over the level-L leaves (``triple.leaf_level``), from
 4^r samples per leaf (``triple.light_refine``) of the map prefiltered to their spacing
 (pipeline/methods/triple/light_grid.py), computed in OpenCL (kernels/triple/light_rotations.cl),
-transformed there too (kernels/wavelet_forward.cl, pipeline/sphwavelet_cl.py) and
+transformed there too (kernels/wavelet_forward.cl, pipeline/device/sphwavelet_cl.py) and
 truncated there with one index set for the three channels (luminance-weighted energy,
 pipeline/methods/triple/wavelet_rows.py, kernels/triple/wavelet_select.cl), values stored as float16
 with a float32 scale per row (wavelet_rows.to_half, on the device). The map's
@@ -22,16 +22,23 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import cl
+from pipeline.device import cl
+from pipeline.device.sphwavelet_cl import forward_device
+from pipeline.engine.rows import ROW_CHUNKS
+from pipeline.engine.stage import (
+    AssembleContext,
+    Chunk,
+    ChunkContext,
+    Layout,
+    Output,
+    ToleranceResult,
+)
 from pipeline.errors import PrtError
 from pipeline.math.envmap import LUMINANCE
 from pipeline.methods.triple.frame_grids import FrameGrid, euler_frame
 from pipeline.methods.triple.light_grid import prefilter, prefiltered_width, sample_spacing
 from pipeline.methods.triple.wavelet_rows import leaf_permutation, leaf_samples
 from pipeline.methods.triple.wavelet_select_cl import select_rows_buffer
-from pipeline.rows import ROW_CHUNKS
-from pipeline.sphwavelet_cl import forward_device
-from pipeline.stages import AssembleContext, Chunk, ChunkContext, Layout, Output, ToleranceResult
 
 
 def frame_grid(params: dict[str, Any]) -> FrameGrid:

@@ -37,15 +37,11 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.chunkwrite import segment_name
-from pipeline.executors import map_slices
-from pipeline.math.geodesic import geodesic_levels
-from pipeline.math.sphwavelet import wavelet_basis
-from pipeline.methods.triple.texels import EMPTY
-from pipeline.methods.triple.wavelet_rows import select_rows
-from pipeline.raytrace import RAY_EPSILON, RayTracer
-from pipeline.rows import ROW_CHUNKS, join_arrays
-from pipeline.stages import (
+from pipeline.device.raytrace import RAY_EPSILON, RayTracer
+from pipeline.device.threads import map_slices
+from pipeline.engine.chunkwrite import segment_name
+from pipeline.engine.rows import ROW_CHUNKS, join_arrays
+from pipeline.engine.stage import (
     AssembleContext,
     Chunk,
     ChunkContext,
@@ -53,6 +49,10 @@ from pipeline.stages import (
     Output,
     ToleranceResult,
 )
+from pipeline.math.geodesic import geodesic_levels
+from pipeline.math.sphwavelet import wavelet_basis
+from pipeline.methods.triple.texels import EMPTY
+from pipeline.methods.triple.wavelet_rows import select_rows
 from pipeline.stages.geometry import traced_geometry
 
 TEXEL_BATCH = 64     # texels whose rays are cast together (× 10·4^(L+r) directions)

@@ -1,0 +1,1 @@
+"""Benchmarks of d2i (python -m benchmarks list)."""

@@ -1,0 +1,1 @@
+"""Benchmarks of engine (python -m benchmarks list)."""

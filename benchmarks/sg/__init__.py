@@ -1,0 +1,1 @@
+"""Benchmarks of sg (python -m benchmarks list)."""

@@ -1,0 +1,1 @@
+"""Benchmarks of triple (python -m benchmarks list)."""

@@ -1,0 +1,122 @@
+"""Run-time edits of a loaded scene: material γ, ρs and albedo, light moves, the
+environment map's file and rotation, the camera's position.
+
+Each returns a new Scene and reports a bad edit as a PrtError naming the scene file.
+Which of them re-bakes what follows from the stage keys: none for d2i's light moves and
+BRDF edits, the lighting grid of method triple for a new map file, nothing for a map
+rotation (a lookup shift there).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+from pipeline.errors import PrtError
+from pipeline.scene.file import material_from_spec
+from pipeline.scene.model import Light, Scene
+
+EDITABLE_KEYS = ("gamma", "specular", "albedo")
+
+
+def with_material_edits(scene: Scene, edits: list[str]) -> Scene:
+    """The scene with run-time material edits ``NAME.KEY=VALUE`` applied: NAME a material
+    or an object (meaning its material), KEY one of :data:`EDITABLE_KEYS`, VALUE a number
+    or ``r,g,b``. Each edited material is validated as in the file; when the material has
+    a gamma_range (the range its PCA basis was baked over), γ must lie in it (no
+    extrapolation)."""
+    materials, raw = dict(scene.materials), dict(scene.raw["materials"])
+    for edit in edits:
+        where = f"--set {edit}"
+        target, eq, value_text = edit.partition("=")
+        name, dot, key = target.rpartition(".")
+        if not eq or not dot:
+            raise PrtError(scene.path, f"{where}: expected NAME.KEY=VALUE, e.g. floor.gamma=40")
+        if name in scene.objects:
+            name = scene.objects[name].material
+        if name not in materials:
+            raise PrtError(scene.path, f"{where}: no material or object named {name!r}")
+        if key not in EDITABLE_KEYS:
+            raise PrtError(scene.path, f"{where}: cannot edit {key!r} at run time (editable: "
+                           f"{', '.join(EDITABLE_KEYS)})")
+        try:
+            numbers = [float(v) for v in value_text.split(",")]
+        except ValueError:
+            raise PrtError(scene.path, f"{where}: expected a number or r,g,b, found "
+                           f"{value_text!r}") from None
+        spec = dict(raw[name])
+        if key != "albedo" and materials[name].model == "lambert":
+            raise PrtError(scene.path, f"{where}: material {name!r} is Lambertian; it has "
+                           f"no {key}")
+        if key == "gamma" and "gamma_range" in spec:
+            lo, hi = spec["gamma_range"]
+            if len(numbers) != 1 or not lo <= numbers[0] <= hi:
+                raise PrtError(scene.path, f"{where}: gamma {value_text} is outside the baked "
+                               f"PCA range [{lo:g}, {hi:g}] of material {name!r}; widen its "
+                               "gamma_range in the scene file and re-bake")
+        spec[key] = numbers[0] if len(numbers) == 1 else numbers
+        materials[name], raw[name] = material_from_spec(scene.path, name, spec)
+    return replace(scene, materials=materials, raw={**scene.raw, "materials": raw})
+
+
+def with_light_offset(scene: Scene, index: int, offset: tuple[float, float, float]) -> Scene:
+    """The scene with light ``index`` moved by ``offset`` (scene units, world frame): a
+    point or spot light's position, a quad light's corner. Directional and environment
+    lights have no position; moving them, or to a non-finite place, is an error."""
+    light = scene.lights[index]
+    key = {"point": "position", "spot": "position", "quad": "corner"}.get(light.type)
+    if key is None:
+        raise PrtError(scene.path, f"lights[{index}]: a {light.type} light has no position "
+                       "to move")
+    moved = [float(a) + float(b) for a, b in zip(light.params[key], offset, strict=True)]
+    if not all(math.isfinite(v) for v in moved):
+        raise PrtError(scene.path, f"lights[{index}].{key}: moved to a non-finite position "
+                       f"{moved}")
+    lights = list(scene.lights)
+    lights[index] = Light(light.type, {**light.params, key: moved})
+    raw = list(scene.raw["lights"])
+    raw[index] = {**raw[index], key: moved}
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+
+
+def with_environment_rotation(scene: Scene, degrees: float) -> Scene:
+    """The scene with every environment light turned to ``degrees`` about +y (the
+    scene file's ``rotation``). A method that bakes the map unrotated (triple) renders
+    it without a re-bake."""
+    if not math.isfinite(degrees):
+        raise PrtError(scene.path, f"environment rotation {degrees!r}: expected a finite "
+                       "number of degrees")
+    if not any(light.type == "environment" for light in scene.lights):
+        raise PrtError(scene.path, "the scene has no environment light to turn")
+    lights = [Light(light.type, {**light.params, "rotation": float(degrees)})
+              if light.type == "environment" else light for light in scene.lights]
+    raw = [{**r, "rotation": float(degrees)} if r["type"] == "environment" else r
+           for r in scene.raw["lights"]]
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+
+
+def with_camera_position(scene: Scene, position: tuple[float, float, float]) -> Scene:
+    """The scene seen from ``position`` (scene units), still looking at its look_at."""
+    camera = replace(scene.camera, position=tuple(float(v) for v in position))
+    if camera.position == tuple(camera.look_at):
+        raise PrtError(scene.path, "camera moved onto its look_at point")
+    raw_camera = {**scene.raw["camera"], "position": list(camera.position)}
+    return replace(scene, camera=camera, raw={**scene.raw, "camera": raw_camera})
+
+
+def with_environment_file(scene: Scene, path: str | Path) -> Scene:
+    """The scene lit by the map ``path`` instead of its environment lights' files (its
+    rotation and scale kept). A method that bakes the map (triple, sg) bakes its lighting
+    for the new file apart (:attr:`Scene.environment_view`), never over the file's own."""
+    if not any(light.type == "environment" for light in scene.lights):
+        raise PrtError(scene.path, "the scene has no environment light to give a map")
+    file = Path(path).resolve()
+    if not file.is_file():
+        raise PrtError(file, "environment map not found")
+    lights = [Light(light.type, {**light.params, "file": str(file)})
+              if light.type == "environment" else light for light in scene.lights]
+    raw = [{**r, "file": str(file)} if r["type"] == "environment" else r
+           for r in scene.raw["lights"]]
+    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw},
+                   relit_from=scene.relit_from or scene.environment_file())
