@@ -4,8 +4,6 @@ reference renderer's d2i transport."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -19,7 +17,7 @@ from pipeline.evaluation.reference import ReferenceSettings
 from pipeline.methods.d2i.blocks import unblock
 from pipeline.methods.d2i.render import D2iRenderer
 from pipeline.registry import get_method
-from pipeline.scene.edits import with_light_offset, with_material_edits
+from pipeline.scene.edits import with_camera_position, with_light_offset, with_material_edits
 from pipeline.scene.file import default_scene_path, load_scene
 
 SIZE, GATHERS = 24, 1024
@@ -384,9 +382,7 @@ def test_a_scene_with_no_glossy_pixel_renders_and_its_empty_stages_follow_the_ca
     again = job.bake(scene, workdir, quiet=True, methods=d2i)
     assert {r.action for r in again} == {"skipped"}
     position = [278.0, 273.0, -760.0]
-    moved = dataclasses.replace(
-        scene, camera=dataclasses.replace(scene.camera, position=position),
-        raw={**scene.raw, "camera": {**scene.raw["camera"], "position": position}})
+    moved = with_camera_position(scene, position)
     rerun = {r.name for r in job.bake(moved, workdir, quiet=True, methods=d2i)
              if r.action == "ran"}
     assert {"d2i.transfer_t", "d2i.truncate_t"} <= rerun

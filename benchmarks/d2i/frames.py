@@ -63,7 +63,6 @@ from pipeline.math.brdf import scene_brdfs
 from pipeline.methods.d2i.render import GATHER_ID_OFFSET, D2iRenderer
 from pipeline.registry import get_method
 from pipeline.scene.edits import with_light_offset, with_material_edits
-from pipeline.scene.model import Light
 
 PRESETS = {"default": [],
            "tiny": ["--size", "24", "--gathers", "256", "--skip-breakdown",
@@ -144,12 +143,8 @@ def point_light_scene(scene):
     area = float(np.linalg.norm(np.cross(u, v)))
     centre = corner + 0.5 * (u + v) - np.array([0.0, 5.0, 0.0])
     intensity = [float(r) * area / 4.0 for r in quad["radiance"]]
-    light = Light("point", {"position": centre.tolist(), "intensity": intensity})
-    raw = {**scene.raw, "lights": [{"type": "point", "position": centre.tolist(),
-                                    "intensity": intensity}]}
-    from dataclasses import replace
-
-    return replace(scene, lights=(light,), raw=raw)
+    return scene.edited("lights", [{"type": "point", "position": centre.tolist(),
+                                    "intensity": intensity}])
 
 
 def shadow_rates(scene, workdir) -> dict[str, float]:

@@ -1,7 +1,8 @@
 """Run-time edits of a loaded scene: material γ, ρs and albedo, light moves, the
 environment map's file and rotation, the camera's position.
 
-Each returns a new Scene and reports a bad edit as a PrtError naming the scene file.
+Each returns a new Scene whose document (its canonical dictionary, pipeline/scene/model.py)
+holds the edit, and reports a bad edit as a PrtError naming the scene file.
 Which of them re-bakes what follows from the stage keys: none for d2i's light moves and
 BRDF edits, the lighting grid of method triple for a new map file, nothing for a map
 rotation (a lookup shift there).
@@ -10,12 +11,11 @@ rotation (a lookup shift there).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from pathlib import Path
 
 from pipeline.errors import PrtError
 from pipeline.scene.file import material_from_spec
-from pipeline.scene.model import Light, Scene
+from pipeline.scene.model import Scene
 
 EDITABLE_KEYS = ("gamma", "specular", "albedo")
 
@@ -26,7 +26,7 @@ def with_material_edits(scene: Scene, edits: list[str]) -> Scene:
     or ``r,g,b``. Each edited material is validated as in the file; when the material has
     a gamma_range (the range its PCA basis was baked over), γ must lie in it (no
     extrapolation)."""
-    materials, raw = dict(scene.materials), dict(scene.raw["materials"])
+    materials, raw = scene.materials, dict(scene.document["materials"])
     for edit in edits:
         where = f"--set {edit}"
         target, eq, value_text = edit.partition("=")
@@ -46,7 +46,7 @@ def with_material_edits(scene: Scene, edits: list[str]) -> Scene:
             raise PrtError(scene.path, f"{where}: expected a number or r,g,b, found "
                            f"{value_text!r}") from None
         spec = dict(raw[name])
-        if key != "albedo" and materials[name].model == "lambert":
+        if key != "albedo" and spec["model"] == "lambert":
             raise PrtError(scene.path, f"{where}: material {name!r} is Lambertian; it has "
                            f"no {key}")
         if key == "gamma" and "gamma_range" in spec:
@@ -56,8 +56,8 @@ def with_material_edits(scene: Scene, edits: list[str]) -> Scene:
                                f"PCA range [{lo:g}, {hi:g}] of material {name!r}; widen its "
                                "gamma_range in the scene file and re-bake")
         spec[key] = numbers[0] if len(numbers) == 1 else numbers
-        materials[name], raw[name] = material_from_spec(scene.path, name, spec)
-    return replace(scene, materials=materials, raw={**scene.raw, "materials": raw})
+        raw[name] = material_from_spec(scene.path, name, spec)[1]
+    return scene.edited("materials", raw)
 
 
 def with_light_offset(scene: Scene, index: int, offset: tuple[float, float, float]) -> Scene:
@@ -73,11 +73,9 @@ def with_light_offset(scene: Scene, index: int, offset: tuple[float, float, floa
     if not all(math.isfinite(v) for v in moved):
         raise PrtError(scene.path, f"lights[{index}].{key}: moved to a non-finite position "
                        f"{moved}")
-    lights = list(scene.lights)
-    lights[index] = Light(light.type, {**light.params, key: moved})
-    raw = list(scene.raw["lights"])
+    raw = list(scene.document["lights"])
     raw[index] = {**raw[index], key: moved}
-    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+    return scene.edited("lights", raw)
 
 
 def with_environment_rotation(scene: Scene, degrees: float) -> Scene:
@@ -89,20 +87,17 @@ def with_environment_rotation(scene: Scene, degrees: float) -> Scene:
                        "number of degrees")
     if not any(light.type == "environment" for light in scene.lights):
         raise PrtError(scene.path, "the scene has no environment light to turn")
-    lights = [Light(light.type, {**light.params, "rotation": float(degrees)})
-              if light.type == "environment" else light for light in scene.lights]
     raw = [{**r, "rotation": float(degrees)} if r["type"] == "environment" else r
-           for r in scene.raw["lights"]]
-    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw})
+           for r in scene.document["lights"]]
+    return scene.edited("lights", raw)
 
 
 def with_camera_position(scene: Scene, position: tuple[float, float, float]) -> Scene:
     """The scene seen from ``position`` (scene units), still looking at its look_at."""
-    camera = replace(scene.camera, position=tuple(float(v) for v in position))
-    if camera.position == tuple(camera.look_at):
+    moved = [float(v) for v in position]
+    if tuple(moved) == tuple(scene.camera.look_at):
         raise PrtError(scene.path, "camera moved onto its look_at point")
-    raw_camera = {**scene.raw["camera"], "position": list(camera.position)}
-    return replace(scene, camera=camera, raw={**scene.raw, "camera": raw_camera})
+    return scene.edited("camera", {**scene.document["camera"], "position": moved})
 
 
 def with_environment_file(scene: Scene, path: str | Path) -> Scene:
@@ -114,9 +109,6 @@ def with_environment_file(scene: Scene, path: str | Path) -> Scene:
     file = Path(path).resolve()
     if not file.is_file():
         raise PrtError(file, "environment map not found")
-    lights = [Light(light.type, {**light.params, "file": str(file)})
-              if light.type == "environment" else light for light in scene.lights]
     raw = [{**r, "file": str(file)} if r["type"] == "environment" else r
-           for r in scene.raw["lights"]]
-    return replace(scene, lights=tuple(lights), raw={**scene.raw, "lights": raw},
-                   relit_from=scene.relit_from or scene.environment_file())
+           for r in scene.document["lights"]]
+    return scene.edited("lights", raw, relit_from=scene.relit_from or scene.environment_file())

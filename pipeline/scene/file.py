@@ -757,7 +757,6 @@ def scene_from_document(path: Path, doc: Any) -> Scene:
     for name, obj in spec.objects.items():
         objects[name], raw_objects[name] = obj.scene_object(name)
     lights = [light.light() for light in spec.lights]
-    camera = spec.camera.camera()
     raw: dict[str, Any] = {
         "camera": {k: _plain(v) for k, v in spec.camera.model_dump().items()},
         "materials": raw_materials,
@@ -768,9 +767,7 @@ def scene_from_document(path: Path, doc: Any) -> Scene:
     }
     if spec.methods is not None:
         raw["methods"] = list(spec.methods)
-    return Scene(path, spec.name, camera, materials, objects,
-                 tuple(light for light, _ in lights), dict(spec.settings), raw,
-                 methods=spec.methods)
+    return Scene(path, spec.name, raw, methods=spec.methods)
 
 
 def check_surface_detail(path: Path, materials: dict[str, Material]) -> None:

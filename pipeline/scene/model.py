@@ -1,5 +1,6 @@
-"""The scene model: an immutable, validated scene (pipeline/scene/file.py reads one from
-its file; pipeline/scene/edits.py makes edited copies).
+"""The scene model: an immutable, validated scene — one canonical document and the typed
+values read from it (pipeline/scene/file.py reads a scene file into one;
+pipeline/scene/edits.py makes edited copies by writing the document).
 
 :meth:`Scene.section` gives the canonical JSON value of a dotted section path, which is
 what stage keys hash (with the SHA-256 of every file a section names).
@@ -11,6 +12,7 @@ import hashlib
 import os
 import re
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -149,21 +151,50 @@ class Light:
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene. ``raw`` keeps the canonical, path-resolved dictionary that
-    :meth:`section` reads from. ``methods``: the rendering methods the scene is baked
-    for, as the file names them (None when it does not)."""
+    """A validated scene: ``document``, its canonical, path-resolved dictionary — the one
+    thing a run-time edit writes (pipeline/scene/edits.py), what :meth:`section` reads
+    and stage keys hash — and the typed values read from it (:attr:`camera`,
+    :attr:`materials`, :attr:`objects`, :attr:`lights`, :attr:`settings`, each read once).
+    ``methods``: the rendering methods the scene is baked for, as the file names them
+    (None when it does not)."""
 
     path: Path
     name: str
-    camera: Camera
-    materials: dict[str, Material]
-    objects: dict[str, SceneObject]
-    lights: tuple[Light, ...]
-    settings: dict[str, Any]
-    raw: dict[str, Any]
+    document: dict[str, Any]
     methods: tuple[str, ...] | None = None
     resized_from: tuple[int, int] | None = None
     relit_from: Path | None = None  # the file's own map, when --env lit it by another
+
+    @cached_property
+    def camera(self) -> Camera:
+        c = self.document["camera"]
+        return Camera(tuple(c["position"]), tuple(c["look_at"]), tuple(c["up"]), c["fov"],
+                      c["width"], c["height"])
+
+    @cached_property
+    def materials(self) -> dict[str, Material]:
+        return {name: _material(name, spec)
+                for name, spec in self.document["materials"].items()}
+
+    @cached_property
+    def objects(self) -> dict[str, SceneObject]:
+        return {name: _scene_object(name, spec)
+                for name, spec in self.document["objects"].items()}
+
+    @cached_property
+    def lights(self) -> tuple[Light, ...]:
+        return tuple(Light(spec["type"], {k: v for k, v in spec.items() if k != "type"})
+                     for spec in self.document["lights"])
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        return self.document["settings"]
+
+    def edited(self, section: str, value: Any, **changes: Any) -> Scene:
+        """This scene with the top-level document section ``section`` (``camera``,
+        ``materials``, ``lights``, ...) replaced by ``value``, already canonical and
+        validated, and dataclass fields ``changes``; every typed value is read anew."""
+        return replace(self, document={**self.document, section: value}, **changes)
 
     def with_image_size(self, width: int, height: int) -> Scene:
         """The same scene rendered at ``width`` × ``height`` pixels."""
@@ -173,11 +204,10 @@ class Scene:
         if max(width, height) > MAX_IMAGE_SIDE:
             raise PrtError(self.path, f"image size {width}x{height}: at most "
                            f"{MAX_IMAGE_SIDE} pixels per side")
-        camera = replace(self.camera, width=width, height=height)
-        raw = {**self.raw, "camera": {**self.raw["camera"], "width": width, "height": height}}
         original = self.resized_from or (self.camera.width, self.camera.height)
-        return replace(self, camera=camera, raw=raw,
-                       resized_from=None if (width, height) == original else original)
+        return self.edited("camera", {**self.document["camera"], "width": width,
+                                      "height": height},
+                           resized_from=None if (width, height) == original else original)
 
     @property
     def view(self) -> str | None:
@@ -204,8 +234,7 @@ class Scene:
 
     def with_settings(self, overrides: dict[str, Any]) -> Scene:
         """The same scene with stage-parameter ``overrides`` added to its settings."""
-        settings = {**self.settings, **overrides}
-        return replace(self, settings=settings, raw={**self.raw, "settings": settings})
+        return self.edited("settings", {**self.settings, **overrides})
 
     @property
     def environment(self) -> Environment | None:
@@ -229,7 +258,7 @@ class Scene:
         if dotted == ENVIRONMENT_FILE:
             path = self.environment_file()
             return None if path is None else {"sha256": file_hash(path)}
-        node: Any = self.raw
+        node: Any = self.document
         parts = dotted.split(".")
         for part in parts:
             if not isinstance(node, dict) or part not in node:
@@ -238,6 +267,27 @@ class Scene:
         if parts[-1] in FILE_KEYS and isinstance(node, str):
             return {"sha256": file_hash(Path(node))}
         return _with_file_hashes(node)
+
+
+def _texture(spec: dict[str, Any]) -> TextureMap:
+    return TextureMap(Path(spec["texture"]), spec["projection"], spec["scale"], spec["wrap"])
+
+
+def _material(name: str, spec: dict[str, Any]) -> Material:
+    """The Material of a canonical material dictionary (pipeline/scene/file.py)."""
+    params = {k: v for k, v in spec.items() if k not in ("model", "albedo", "blend", "bump")}
+    blend = spec.get("blend")
+    bump = spec.get("bump")
+    return Material(name, spec["model"], tuple(spec["albedo"]), params,
+                    None if blend is None else Blend(blend["material"], _texture(blend)),
+                    None if bump is None else Bump(_texture(bump), bump["height"]))
+
+
+def _scene_object(name: str, spec: dict[str, Any]) -> SceneObject:
+    """The SceneObject of a canonical object dictionary (pipeline/scene/file.py)."""
+    return SceneObject(name, Path(spec["mesh"]) if "mesh" in spec else None,
+                       spec.get("primitive"), tuple(tuple(row) for row in spec["transform"]),
+                       spec["material"])
 
 
 ENVIRONMENT_FILE = "environment.file"  # the scene section of the environment map's bytes
