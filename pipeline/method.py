@@ -125,6 +125,7 @@ class Method:
     kernels (the built-in methods' live in the project's files).
     ``renders``: False for a plug-in whose renderer is not built yet (it bakes, then
     says so): refusals never name it among the methods that render something.
+    ``default``: the method is baked for a scene that names none (``methods:`` absent).
     """
 
     name: str
@@ -149,6 +150,7 @@ class Method:
     schema_dir: Path | None = None
     kernel_dir: Path | None = None
     renders: bool = True
+    default: bool = False
 
     def option_values(self, given: dict[str, str]) -> dict[str, Any]:
         """Defaults overridden by ``given`` (NAME -> text), parsed; unknown names fail."""

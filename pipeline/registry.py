@@ -6,8 +6,8 @@
 * in the modules named by the environment variable ``PRT_PLUGINS`` (comma-separated
   importable module names: a method kept outside the project, e.g. under ``tests/``).
 
-A scene lists the methods it is baked for under ``methods:`` (default:
-:data:`DEFAULT_METHODS`); ``prt run`` bakes only what those read.
+A scene lists the methods it is baked for under ``methods:`` (default: the methods whose
+descriptor says ``default=True``); ``prt run`` bakes only what those read.
 """
 
 from __future__ import annotations
@@ -26,9 +26,6 @@ from pipeline.math.brdf import specular_albedo_bound
 from pipeline.method import FEATURES, Method, resolve
 from pipeline.scene.model import Scene
 from pipeline.searchpath import add_kernel_dir, add_schema_dir
-
-# Methods of a scene that names none (``methods:`` absent).
-DEFAULT_METHODS = ("direct",)
 
 
 def _plugin_modules() -> list[str]:
@@ -64,6 +61,11 @@ def registry() -> dict[str, Method]:
     return _registry(tuple(_plugin_modules()))
 
 
+def default_methods() -> tuple[str, ...]:
+    """The methods baked for a scene that names none (their descriptors' ``default``)."""
+    return tuple(name for name, m in registry().items() if m.default)
+
+
 def get_method(name: str) -> Method:
     methods = registry()
     if name not in methods:
@@ -74,7 +76,7 @@ def get_method(name: str) -> Method:
 def scene_methods(scene: Scene) -> list[Method]:
     """The methods ``scene`` is baked for (its ``methods:``, else the default), each
     checked against the scene."""
-    names = scene.methods if scene.methods is not None else DEFAULT_METHODS
+    names = scene.methods if scene.methods is not None else default_methods()
     methods = registry()
     unknown = [n for n in names if n not in methods]
     if unknown:

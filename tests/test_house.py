@@ -175,6 +175,21 @@ def test_stage_code_versions_hold_no_engine_planning_or_registry():
     assert len(held) >= 19  # every built-in stage was looked at
 
 
+def test_the_core_names_no_method_in_its_code():
+    """No module outside pipeline/methods holds a method's name as a string (a method is
+    found through the registry; the default one by its descriptor's ``default``). The
+    name ``direct`` is left out: it is also a transport of the reference renderer."""
+    names = {p.name for p in (PACKAGE / "methods").iterdir()
+             if p.is_dir() and p.name.isidentifier()} - {"direct"}
+    found = sorted(f"{module}:{node.lineno} {node.value!r}"
+                   for module, path in modules().items()
+                   if not module.startswith("pipeline.methods.")
+                   for node in ast.walk(ast.parse(path.read_text()))
+                   if isinstance(node, ast.Constant) and node.value in names)
+    assert names >= {"d2i", "triple", "sg"}
+    assert found == []
+
+
 def test_the_top_level_holds_at_most_ten_modules():
     top = sorted(p.name for p in PACKAGE.glob("*.py"))
     assert len(top) <= 10, top

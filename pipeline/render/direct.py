@@ -1,4 +1,5 @@
-"""Method ``direct``: direct lighting of the baked G-buffer (kernels/direct.cl).
+"""Direct lighting of the baked G-buffer (kernels/direct.cl): method direct's frames
+(pipeline/methods/direct/render.py) and method d2i's direct term.
 
 Per frame: load the G-buffer and geometry artifacts, build the Embree scene, trace shadow
 rays to every light sample (point, spot, directional; quad lights with stratified
@@ -12,8 +13,7 @@ edit re-shades without tracing again (method d2i uses it for its direct term).
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,9 +21,7 @@ import numpy as np
 from pipeline.device import cl
 from pipeline.device.raytrace import RayTracer
 from pipeline.engine.store import Artifact
-from pipeline.math.brdf import pack_materials, scene_brdfs
 from pipeline.math.lights import LIGHT_FLOATS, light_defines, pack_lights, total_samples
-from pipeline.render import Frame
 from pipeline.render.emitters import EmitterOverlay, object_bounds, unbound_lights
 from pipeline.render.shadows import DeviceShadows, light_visibility
 from pipeline.scene.model import Camera, Scene
@@ -124,34 +122,3 @@ class DirectShader:
                                        self.object_id, self.material_id, materials, rows)) \
             + n * self.visibility_stride + 12 * n
         return out, ms, moved
-
-
-class DirectRenderer:
-    """Method direct's renderer (pipeline/render/__init__.py ``Renderer``): frames of
-    direct lighting from ``gbuffer`` and ``geometry`` (and their Embree scene), loaded
-    once in the :class:`DirectShader`; each frame traces the scene's lights and shades
-    its camera view; its timings leave out the loading. No cache between frames."""
-
-    def __init__(self, scene: Scene, artifacts: Mapping[str, Artifact]) -> None:
-        self.shader = DirectShader(artifacts, scene.camera)
-
-    def edit_mode(self, kind: str, scene: Scene) -> Callable[[Scene], Frame]:
-        return self.frame
-
-    def frame(self, scene: Scene) -> Frame:
-        shader = self.shader
-        t0 = time.perf_counter()
-        packed, notes = shader.packed_lights(scene)
-        materials = pack_materials(scene_brdfs(scene, shader.material_names))
-        t1 = time.perf_counter()
-        shader.trace(packed)
-        t2 = time.perf_counter()
-        rgb, kernel_ms, moved = shader.shade(materials, np.asarray(scene.camera.position))
-        rgb = shader.emitters.draw(rgb, scene)
-        t3 = time.perf_counter()
-        # one kernel: kernel_bytes are its bytes, counted_kernel_ms its time
-        timings = {"setup_ms": (t1 - t0) * 1e3, "shadow_ms": (t2 - t1) * 1e3,
-                   "kernel_ms": kernel_ms, "counted_kernel_ms": kernel_ms,
-                   "total_ms": (t3 - t0) * 1e3}
-        return Frame("direct", rgb.reshape(shader.height, shader.width, 3), timings, notes,
-                     moved)
