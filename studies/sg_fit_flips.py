@@ -8,7 +8,7 @@ Run from the project root:
 Writes benchmarks/results/sg_fit_flips.json.
 
 The patch: the first ``--vertices`` vertices of a breadth-first walk from the bunny's
-vertex 0 (studies/sg_bunny.py; scenes/bunny_sg.yaml baked up to sg.diffuse in
+vertex 0 (benchmarks/sg/fit.py ``bunny_patch``; scenes/bunny_sg.yaml baked up to sg.diffuse in
 ``--workdir``, default .prt/bench_sg_fit), as the stage's flood fill walks a batch; the
 stage's default params but ``--tolerance``. One BLAS thread (a bake runs one chunk per
 core); os.getloadavg() is recorded: the machine is shared.
@@ -27,10 +27,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from sg_bunny import bunny_patch  # noqa: E402
-
+from benchmarks.sg.fit import bunny_patch  # noqa: E402
 from pipeline.device.threads import one_blas_thread  # noqa: E402
 from pipeline.methods.sg.stages import fit as stage  # noqa: E402
 
@@ -49,8 +47,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/sg_fit_flips.json"))
     args = ap.parse_args()
     one_blas_thread()
-    patch = bunny_patch(Path(args.workdir), args.vertices, scene_file=Path(args.scene),
-                        obj_name=args.object)
+    patch = bunny_patch(args.vertices, scene_file=Path(args.scene), obj_name=args.object,
+                        workdir=Path(args.workdir))
     params = dict(patch.params)
     if args.tolerance is not None:
         params["sg.fit_tolerance"] = args.tolerance
