@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from pipeline.math.brdf import evaluate_world, scene_brdfs
 from pipeline.math.lights import pack_lights, quad_emission, shade_direct
 from pipeline.math.sampling import lowbias32, stratified_square
 from pipeline.render.shadows import light_visibility
+from pipeline.scene.edits import with_material_edits
 from pipeline.scene.file import load_scene
 
 
@@ -198,11 +198,9 @@ def test_cornell_floor_shows_its_glossy_highlight(cornell):
     front of the floor, nearest the mirror direction (the light's mirror image lies in
     front of the box, out of view)."""
     scene, workdir, frame = cornell
-    floor_material = scene.materials["glossy_floor"]
-    matte = dataclasses.replace(floor_material,
-                                params={**floor_material.params, "specular": [0, 0, 0]})
-    matte_frame = render_frame(dataclasses.replace(
-        scene, materials={**scene.materials, "glossy_floor": matte}), workdir, "direct")
+    matte = with_material_edits(scene, ["glossy_floor.specular=0,0,0"])
+    assert matte.materials["glossy_floor"].params["specular"] == [0, 0, 0]
+    matte_frame = render_frame(matte, workdir, "direct")
     names = open_artifact(workdir.artifact("geometry")).attrs["object_names"]
     floor = open_artifact(workdir.artifact("gbuffer")).read("object_id") == \
         names.index("floor")
