@@ -20,7 +20,7 @@ from pathlib import Path
 
 from pipeline import methods
 from pipeline.engine.planning import stage_params
-from pipeline.engine.stagefile import load_stagefile
+from pipeline.engine.stagefile import StageFile, default_stagefile_path, load_stagefile
 from pipeline.errors import PrtError
 from pipeline.math.brdf import specular_albedo_bound
 from pipeline.method import FEATURES, Method, resolve
@@ -130,7 +130,7 @@ def check_method_scene(method: Method, scene: Scene) -> list[str]:
              for name, material in scene.materials.items()
              if specular_albedo_bound(material.model, 1.0) is None]
     if method.check_scene:
-        params = stage_params(load_stagefile(None, stagefile_fragments()), scene)
+        params = stage_params(_project_stagefile(), scene)
         notes += resolve(method.check_scene)(scene, params) or []
     return notes
 
@@ -149,6 +149,19 @@ def scene_notes(scene: Scene, methods: list[Method]) -> list[str]:
     for method in methods:
         notes += [n for n in check_method_scene(method, scene) if n not in notes]
     return notes
+
+
+def _project_stagefile() -> StageFile:
+    """The project's stage graph merged with the plug-ins' (what ``check_scene`` hooks
+    read their parameters from), parsed once per version of its files: ≈ 28 ms a parse,
+    and every command checks each of a scene's methods."""
+    files = (default_stagefile_path(), *stagefile_fragments())
+    return _parsed_stagefile(tuple((f, f.stat().st_mtime_ns) for f in files))
+
+
+@cache
+def _parsed_stagefile(files: tuple[tuple[Path, int], ...]) -> StageFile:
+    return load_stagefile(files[0][0], tuple(f for f, _ in files[1:]))
 
 
 def stagefile_fragments() -> tuple[Path, ...]:

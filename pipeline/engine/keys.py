@@ -1,15 +1,11 @@
-"""Content keys: canonical JSON hashing, code versions and seeds derived from keys."""
+"""Content keys: canonical JSON hashing and seeds derived from keys (code versions:
+pipeline/engine/codeversion.py)."""
 
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
-from functools import cache
-from pathlib import Path
 from typing import Any
-
-from pipeline.errors import PrtError
 
 
 def canonical_json(value: Any) -> str:
@@ -25,15 +21,3 @@ def digest(value: Any) -> str:
 def seed_from_key(key: str) -> int:
     """A 64-bit generator seed determined by a (chunk) key."""
     return int(hashlib.sha256(f"seed:{key}".encode()).hexdigest()[:16], 16)
-
-
-@cache
-def module_source_hash(module: str) -> str:
-    """SHA-256 of a module's source file, found without importing the module itself."""
-    try:
-        spec = importlib.util.find_spec(module)
-    except (ImportError, ValueError):
-        spec = None
-    if spec is None or spec.origin is None:
-        raise PrtError(None, f"stage implementation module {module!r} not found")
-    return hashlib.sha256(Path(spec.origin).read_bytes()).hexdigest()

@@ -283,7 +283,8 @@ def _run_stage(p: StagePlan, scene: Scene, stagefile: StageFile, workdir: Workdi
         "key_parts": p.key_parts}, layout.shapes, layout.sizes)
     if not kept:
         shutil.rmtree(workdir.markers(name), ignore_errors=True)
-    todo = longest_first([c for c in p.chunks if c.id in set(rerun)],
+    rerun_ids = set(rerun)
+    todo = longest_first([c for c in p.chunks if c.id in rerun_ids],
                          (previous or {}).get("chunk_seconds") or {})
     tasks = [ChunkTask(name, spec.impl, c, p.chunk_keys[c.id], p.seeds[c.id], p.params,
                        p.sections[c.id], {dep: (str(workdir.artifact(dep)),
