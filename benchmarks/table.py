@@ -45,13 +45,17 @@ def accuracy_table(result: dict[str, Any]) -> list[str]:
              f"{result['size'][0]}×{result['size'][1]}, {m['cpu']} ({m['cores']} cores), "
              f"OpenCL {m.get('opencl_device', '?')}, load average "
              f"{result['load'][0][0]:g}–{result['load'][1][0]:g}, {result['finished']}; error "
-             f"`{head}` against the reference of the method's transport, the reference's "
-             "own noise beside it:", "",
-             "| budget | frame ms | error | reference noise | read MB | bake s | "
-             "path tracer ms at equal error |", "|---|---|---|---|---|---|---|"]
+             f"`{head}` against the reference of the method's transport (*method error*) "
+             "and against full path tracing (*model error*: what a path tracer shows), "
+             "each reference's own noise beside it:", "",
+             "| budget | frame ms | method error | noise | model error | noise | read MB "
+             "| bake s | path tracer ms at equal error |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in result["budgets"]:
         lines.append(f"| {_budget(r)} | {_ms(r['frame_ms'])} | {_pct(r[r['headline']])} | "
                      f"{_pct(r.get('reference_' + r['headline']))} | "
+                     f"{_pct(r.get('model_' + r['headline']))} | "
+                     f"{_pct(r.get('reference_model_' + r['headline']))} | "
                      f"{r['storage_bytes'] / 1e6:.1f} | {r['bake_s']:.0f} | "
                      f"{_ms(r.get('pathtrace_ms_equal_error'))} |")
     return lines
@@ -60,13 +64,15 @@ def accuracy_table(result: dict[str, Any]) -> list[str]:
 def headline_rows(results: dict[str, dict[str, Any]]) -> list[str]:
     """Markdown lines: per method its default budget's figures (``results``: method ->
     its ``<method>.accuracy`` result)."""
-    lines = ["| method | scene | size | error against its transport | reference noise | "
-             "frame ms | bake s | measured |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| method | scene | size | error against full path tracing | against its "
+             "transport | reference noise | frame ms | bake s | measured |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for m, result in results.items():
         r = next((b for b in result["budgets"] if b.get("default")), result["budgets"][-1])
         head = r["headline"]
         lines.append(f"| `{m}` | `{Path(result['scene']).name}` | {r['width']}×{r['height']} "
-                     f"| {_pct(r[head])} | {_pct(r.get('reference_' + head))} | "
+                     f"| {_pct(r.get('model_' + head))} | {_pct(r[head])} | "
+                     f"{_pct(r.get('reference_' + head))} | "
                      f"{_ms(r['frame_ms'])} | {r['bake_s']:.0f} | "
                      f"{result['machine']['cpu']}, {result['finished'][:10]} |")
     return lines

@@ -93,6 +93,7 @@ def test_the_table_generator_fills_a_method_page(tmp_path, monkeypatch):
     record = {"budget": {"gather.count": 4096}, "default": True, "headline": "rel_rmse",
               "width": 96, "height": 96,
               "frame_ms": 12.5, "rel_rmse": 0.021, "reference_rel_rmse": 0.004,
+              "model_rel_rmse": 0.063, "reference_model_rel_rmse": 0.005,
               "storage_bytes": 3e6, "bake_s": 40.0, "pathtrace_ms_equal_error": 900.0}
     (results / "accuracy.json").write_text(json.dumps({
         "method": "d2i", "scene": "scenes/cornell_box.yaml", "size": [96, 96],
@@ -103,10 +104,11 @@ def test_the_table_generator_fills_a_method_page(tmp_path, monkeypatch):
     written = table.write_tables(tmp_path / "results")
     text = page.read_text()
     assert "old figures" not in text and "## After\n\nkept" in text
-    assert "| gather.count=4096 (default) | 12.5 | 2.1 % | 0.4 % | 3.0 | 40 | 900 |" in text
+    assert "| gather.count=4096 (default) | 12.5 | 2.1 % | 0.4 % | 6.3 % | 0.5 % | 3.0 | " \
+        "40 | 900 |" in text
     assert docs / "results.md" in written and readme in written
-    assert "| `d2i` | `cornell_box.yaml` | 96×96 | 2.1 % | 0.4 % | 12.5 | 40 | a CPU, " \
-        "2026-11-29 |" in readme.read_text()
+    assert "| `d2i` | `cornell_box.yaml` | 96×96 | 6.3 % | 2.1 % | 0.4 % | 12.5 | 40 | " \
+        "a CPU, 2026-11-29 |" in readme.read_text()
     assert "old" not in readme.read_text() and "Which to use: d2i." in readme.read_text()
     assert "Not measured: run `python -m benchmarks run triple.accuracy`" in \
         (docs / "results.md").read_text()

@@ -20,6 +20,7 @@ def _record(tolerance: float, error: float, frame_ms: float, truncate_s: float,
     return {"method": "d2i", "headline": "rel_rmse_surfaces", "default": default,
             "budget": {"gather.count": 4096, "truncate.tolerance": tolerance},
             "rel_rmse_surfaces": error, "reference_rel_rmse_surfaces": 0.004,
+            "model_rel_rmse_surfaces": error + 0.05,
             "rel_rmse_indirect": 2 * error, "reference_rel_rmse_indirect": 0.01,
             "frame_ms": frame_ms, "storage_bytes": int(1e6 / tolerance),
             "bake_s": 42.0 + truncate_s, "bake_stages": stages,
@@ -62,12 +63,14 @@ def test_heatmap_has_a_colour_bar(tmp_path):
 
 def test_summary_lines_one_per_budget():
     """The summary names every budget with its headline error, the reference's own
-    error and the bake seconds of the stages that budget ran."""
+    error, the error against full path tracing and the bake seconds of the stages that
+    budget ran."""
     lines = summary_lines(RECORDS)
     assert len(lines) == 2 + len(RECORDS)
+    assert lines[0].split()[:4] == ["budget", "error", "ref.", "full"]
     row = lines[2]  # the default budget
     assert row.split()[:3] == ["gather-count-4096_truncate-tolerance-0.02", "*", "0.0300"]
-    assert row.split()[3] == "0.0040" and row.split()[-1] == "1.2"
+    assert row.split()[3:5] == ["0.0040", "0.0800"] and row.split()[-1] == "1.2"
 
 
 def test_point_labels_never_overlap():

@@ -195,6 +195,14 @@ def test_evaluate_writes_records_and_charts(baked, tmp_path):
         assert 0 < r["pathtrace_estimate"] <= r["rel_rmse"]
         assert r["pathtrace_ms_equal_error"] > 0 and r["pathtrace_rel_rmse"] > 0
         assert (out / "frames" / f"size-{r['budget']['size']}_error.png").is_file()
+        # the model error: against full path tracing, which the direct transport
+        # leaves the box's interreflections out of; the transport's own gap is most of
+        # it (its references' noise on top), at most all of it plus the method error
+        assert r["model_transport"] == "full" and r["model_reference_spp"] >= 64
+        assert r["model_rel_rmse"] > r["rel_rmse"] and r["transport_rel_rmse"] > 0
+        assert r["model_rel_rmse"] <= r["transport_rel_rmse"] + r["rel_rmse"] \
+            + r["reference_model_rel_rmse"] + r["reference_rel_rmse"]
+        assert (out / "frames" / f"size-{r['budget']['size']}_model_error.png").is_file()
     # which stages each budget ran: geometry once (the sweep's own work directory),
     # the gbuffer at every size; the summary table is printed also with -q
     assert [r["bake_stages"]["geometry"]["ran"] for r in records] == [True, False, False]

@@ -1,8 +1,9 @@
 """Charts of ``prt evaluate`` records (pipeline/evaluation/evaluate.py) and error heat maps, drawn
 with matplotlib (Agg, PNG).
 
-Error charts: each method's error (log scale) against frame time, storage or bake time;
-one point per budget, labelled with the budget values that vary across the sweep and
+Error charts: each method's error (log scale) against frame time, storage or bake time,
+against the reference of its transport (solid) and against full path tracing (the model
+error, dashed); one point per budget, labelled with the budget values that vary across the sweep and
 placed where they overlap neither each other nor the points; the reference's own
 estimated error as a dotted line (an error near it measures the reference, not the
 method); the legend below the axes. Axes spanning more than a decade are logarithmic
@@ -54,6 +55,12 @@ def reference_noise_key(error: str) -> str:
     """The record field holding the reference's own estimated error for ``error``
     (``rel_rmse_surfaces`` -> ``reference_rel_rmse_surfaces``)."""
     return f"reference_{error}"
+
+
+def model_error_key(error: str) -> str:
+    """The record field holding ``error`` measured against full path tracing (the
+    model error: ``rel_rmse_surfaces`` -> ``model_rel_rmse_surfaces``)."""
+    return f"model_{error}"
 
 
 def bake_costs(records: list[dict[str, Any]]
@@ -128,8 +135,14 @@ def error_chart(records: list[dict[str, Any]], key: str, label: str, path: Path,
         order = np.argsort(xs, kind="stable")
         xs, rows = [xs[i] for i in order], [rows[i] for i in order]
         ys = [r[error] for r in rows]
-        line, = ax.plot(xs, ys, "o-", label=f"{method} ({error})")
+        line, = ax.plot(xs, ys, "o-", label=f"{method} ({error}, its transport)")
         lines.append(list(zip(xs, ys, strict=True)))
+        model = [r.get(model_error_key(error)) for r in rows]
+        if error_key is None and all(m is not None for m in model):
+            ax.plot(xs, model, "x--", color=line.get_color(),
+                    label=f"{method} against full path tracing")
+            lines.append(list(zip(xs, model, strict=True)))
+            others += list(zip(xs, model, strict=True))
         noise = [r.get(reference_noise_key(error)) for r in rows]
         if all(n is not None and math.isfinite(n) for n in noise):
             legend = f"{method}: the reference's own estimated error"

@@ -22,6 +22,13 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
   256, 1024, ... paths per pixel (up to the cap) until that error is at most a third of
   the method's, so that the error measures the method, not the reference;
   ``rel_rmse_surfaces``: the same over the pixels that do not see an emitter;
+* the *model error*: ``model_rel_rmse`` and ``model_rel_rmse_surfaces``, the same frame
+  against ``full`` path tracing (what a user would see from a path tracer, tightened the
+  same way; the same image where the method's transport is ``full``), with that
+  reference's own error ``reference_model_rel_rmse(_surfaces)`` and spp
+  ``model_reference_spp``; and ``transport_rel_rmse(_surfaces)``, the method transport's
+  reference against ``full``: what the transport's simplification costs on the scene,
+  the part of the model error no budget buys back;
 * per component the method declares (d2i: ``indirect``; sg: ``glossy``, ``diffuse``):
   ``rel_rmse_<name>``, that image (the frame less the frame of the method the component
   subtracts, or the frame rendered with the component's options) against the
@@ -47,7 +54,8 @@ Writes ``results.json`` (a list of records), ``probe.json`` (the bandwidth probe
 settings), charts ``error_vs_frame_time.png``, ``error_vs_storage.png``,
 ``error_vs_bake_time.png`` (pipeline/evaluation/charts.py) and, per budget, the frame and an error
 heat map (per-pixel relative error, metrics.error_map, colour bar 0 to ``HEATMAP_MAX``)
-under ``frames/``.
+under ``frames/`` (and the ``full`` reference with the frame's model-error heat map,
+``_full.png`` and ``_model_error.png``).
 """
 
 from __future__ import annotations
@@ -80,6 +88,7 @@ RENDER_PREFIX = "render."
 HEATMAP_MAX = 0.2  # heat maps span relative errors 0 to 20 %
 MITSUBA_MAX_SPP = 4096
 REFERENCE_FIRST_SPP = 64  # references render at 64, 256, 1024, ... paths per pixel
+MODEL_TRANSPORT = "full"  # the model error: against what a path tracer shows
 
 
 @dataclass(frozen=True)
@@ -286,7 +295,8 @@ def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str
         records.append(_evaluate_budget(scene, workdir, m, budget, budget == default, out,
                                         settings, bandwidth, quiet))
         r = records[-1]
-        _step(f"  {_slug(budget):<24} {r['headline']} {r[r['headline']]:.4f}  frame "
+        _step(f"  {_slug(budget):<24} {r['headline']} {r[r['headline']]:.4f} (against "
+              f"full {r['model_' + r['headline']]:.4f})  frame "
               f"{r['frame_ms']:.1f} ms  path tracer at equal error "
               f"{_ms(r['pathtrace_ms_equal_error'])}")
     (out / "results.json").write_text(json.dumps(records, indent=1))
@@ -332,6 +342,8 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
                                quiet)
     errors = metrics.image_metrics(frame.rgb, ref.mean)
     surface_error = metrics.relative_rmse(frame.rgb, ref.mean, surfaces)
+    model, full = _model_record(sc, workdir, transport, ref, frame.rgb, surfaces, settings,
+                                quiet)
     components: dict[str, Any] = {}
     for name, component in method.components.items():
         _step(f"  component {name}: reference {component.transport}")
@@ -346,6 +358,12 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
     heatmap(out / "frames" / f"{slug}_error.png", metrics.error_map(frame.rgb, ref.mean),
             HEATMAP_MAX, "relative error per pixel, |I - R| / |R| (RGB norms)",
             f"{method.name} {slug} against the {transport} reference", percent=True)
+    if full is not ref:
+        write_png(out / "frames" / f"{slug}_full.png", full.mean)
+    heatmap(out / "frames" / f"{slug}_model_error.png",
+            metrics.error_map(frame.rgb, full.mean), HEATMAP_MAX,
+            "relative error per pixel, |I - R| / |R| (RGB norms)",
+            f"{method.name} {slug} against {MODEL_TRANSPORT} path tracing", percent=True)
     geometry, _ = job.load_geometry(sc, wd)
     kernel_gbs = frame.kernel_bytes / (counted_ms * 1e-3) / 1e9 if counted_ms > 0 else None
     _step("  path tracer to equal error")
@@ -363,6 +381,7 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
         # over the same pixels as rel_rmse (ref.estimate covers the surfaces only)
         "reference_rel_rmse": _noise(ref, np.ones(frame.rgb.shape[:2], bool)),
         "reference_rel_rmse_surfaces": _noise(ref, surfaces), "reference_spp": ref.spp,
+        **model,
         **components,
         "kernel_bytes": frame.kernel_bytes, "counted_kernel_ms": counted_ms,
         "kernel_gbs": kernel_gbs,
@@ -373,6 +392,30 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
         **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
         "heatmap_max": HEATMAP_MAX,
     }
+
+
+def _model_record(scene: Scene, workdir: Workdir, transport: str, ref: Any,
+                  image: np.ndarray, surfaces: np.ndarray, settings: EvaluateSettings,
+                  quiet: bool) -> tuple[dict[str, Any], Any]:
+    """``image`` against ``full`` path tracing (its converged reference, or ``ref``
+    where ``transport`` is full): the model-error fields of a record (module docstring),
+    and that reference."""
+    if transport == MODEL_TRANSPORT:
+        full = ref
+    else:
+        _step(f"  reference {MODEL_TRANSPORT} (the model error)")
+        full = _converged_reference(scene, workdir, MODEL_TRANSPORT, image, [None, surfaces],
+                                    settings, quiet)
+    every = np.ones(image.shape[:2], bool)
+    return {"model_transport": MODEL_TRANSPORT,
+            "model_rel_rmse": metrics.relative_rmse(image, full.mean),
+            "model_rel_rmse_surfaces": metrics.relative_rmse(image, full.mean, surfaces),
+            "reference_model_rel_rmse": _noise(full, every),
+            "reference_model_rel_rmse_surfaces": _noise(full, surfaces),
+            "model_reference_spp": full.spp,
+            "transport_rel_rmse": metrics.relative_rmse(ref.mean, full.mean),
+            "transport_rel_rmse_surfaces": metrics.relative_rmse(ref.mean, full.mean,
+                                                                 surfaces)}, full
 
 
 def _bake_stages(workdir: Workdir, chain: list[str], ran: set[str]
@@ -393,17 +436,20 @@ def _bake_stages(workdir: Workdir, chain: list[str], ran: set[str]
 def summary_lines(records: list[dict[str, Any]]) -> list[str]:
     """A table with one line per budget: the headline error and the reference's own,
     frame time, storage, and bake time (of the stages this budget ran, and in all)."""
-    lines = [f"  {'budget':<28} {'error':>8} {'ref.':>7} {'frame ms':>9} {'MB':>7} "
-             f"{'bake s':>7} {'ran':>7}"]
+    lines = [f"  {'budget':<28} {'error':>8} {'ref.':>7} {'full':>8} {'frame ms':>9} "
+             f"{'MB':>7} {'bake s':>7} {'ran':>7}"]
     for r in records:
         error = r.get("headline", "rel_rmse")
         ran = sum(v["seconds"] for v in r["bake_stages"].values() if v["ran"])
         name = _slug(r["budget"]) + (" *" if r["default"] else "")
         lines.append(f"  {name:<28} {r[error]:>8.4f} {r.get('reference_' + error, 0):>7.4f} "
+                     f"{r['model_' + error]:>8.4f} "
                      f"{r['frame_ms']:>9.1f} {r['storage_bytes'] / 1e6:>7.2f} "
                      f"{r['bake_s']:>7.1f} {ran:>7.1f}")
-    lines.append("  error: the headline relative RMSE; ref.: the reference's own estimated "
-                 "error; ran: bake seconds of the stages this budget ran; * the default")
+    lines.append("  error: the headline relative RMSE against the method's transport; ref.: "
+                 "that reference's own estimated error; full: the same against full path "
+                 "tracing (the model error); ran: bake seconds of the stages this budget "
+                 "ran; * the default")
     return lines
 
 
