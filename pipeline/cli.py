@@ -106,7 +106,7 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
     """Bake every stale stage, then bring the scene's frame and edit sequences up to
     date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
-    from pipeline.registry import scene_methods, scene_notes
+    from pipeline.registry import limit_warnings, scene_methods, scene_notes
 
     if scheduler is not None and jobs is not None:
         raise PrtError("--jobs", "does not apply with --scheduler (the cluster's workers "
@@ -126,11 +126,18 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
     frames = frames or Path("frames") / sc.name
     notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
     show_notes(notes, as_json)
+    limits = [] if until or stagefile else \
+        [w for m in scene_methods(sc) for w in limit_warnings(m, sc)]
+    show_warnings(limits, as_json)
     report, rendered, sequences = job.main_job(
         sc, wd, frames, until, tuple(force), cores.workers, quiet, stagefile,
         threads=threads if scheduler else cores.threads, exposure=exposure,
         scheduler=scheduler)
-    warnings = job.tolerance_warnings(report)
+    if rendered is not None:
+        limits += show_warnings([w for w in [*rendered.warnings,
+                                             *(w for q in sequences for w in q.warnings)]
+                                 if w not in limits], as_json)
+    warnings = limits + job.tolerance_warnings(report)
     if rendered is not None and rendered.frame is not None:
         notes += rendered.frame.notes
         show_notes(rendered.frame.notes, as_json)
@@ -157,7 +164,7 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
             click.echo(f"  {r.name:<12} fresh, skipped")
     if not ran:
         click.echo(f"All {len(report)} stages fresh: nothing to bake.")
-    for line in warnings:
+    for line in warnings[len(limits):]:  # the limits' went to stderr as they came
         click.echo(f"warning: {line}")
     if rendered is not None:
         state = "up to date" if rendered.frame is None else "rendered"
@@ -209,6 +216,15 @@ def environment_edits(scene: Scene, env_file: Path | None, env_rotate: float | N
     if env_rotate is not None:
         scene = with_environment_rotation(scene, env_rotate)
     return scene
+
+
+def show_warnings(warnings: list[str], as_json: bool) -> list[str]:
+    """Print ``warning: ...`` lines on stderr (with ``--json`` they go into the JSON);
+    returns ``warnings``."""
+    if not as_json:
+        for line in warnings:
+            click.echo(f"warning: {line}", err=True)
+    return warnings
 
 
 def show_notes(notes: list[str], as_json: bool) -> None:
@@ -422,7 +438,8 @@ def parse_options(items: tuple[str, ...]) -> dict[str, str]:
 @cli.command("methods")
 @click.option("--json", "as_json", is_flag=True, help="Print the methods as JSON.")
 def methods_cmd(as_json) -> None:
-    """List the rendering methods: what each renders and reads, its options."""
+    """List the rendering methods: what each renders and reads, its options, and its
+    limits (where its picture breaks down: each warns when a scene meets it)."""
     from pipeline.registry import registry
 
     methods = registry()
@@ -433,7 +450,8 @@ def methods_cmd(as_json) -> None:
                                  "help": o.help} for o in m.options},
             "sequence_forms": list(m.sequence_forms),
             "main_sequences": list(m.main_sequences), "lights": list(m.lights),
-            "materials": list(m.materials), "features": list(m.features)}
+            "materials": list(m.materials), "features": list(m.features),
+            "limits": {limit.name: limit.what for limit in m.limits}}
             for name, m in methods.items()}))
         return
     for name, m in methods.items():
@@ -448,6 +466,8 @@ def methods_cmd(as_json) -> None:
             runs = f" (prt run writes {', '.join(m.main_sequences)})" if m.main_sequences \
                 else ""
             click.echo(f"  sequences (--frames): {', '.join(m.sequence_forms)}{runs}")
+        for limit in m.limits:
+            click.echo(f"  limit {limit.name}: {limit.what}")
 
 
 @cli.command("devices")
@@ -533,7 +553,13 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
-    from pipeline.registry import check_method_scene, get_method, scene_methods, scene_notes
+    from pipeline.registry import (
+        check_method_scene,
+        get_method,
+        limit_warnings,
+        scene_methods,
+        scene_notes,
+    )
     from pipeline.scene.edits import with_material_edits
 
     cores = cores_option(jobs, threads)
@@ -546,6 +572,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
     notes = scene_notes(sc, [m])
     show_notes(notes, as_json)
+    limits = show_warnings(limit_warnings(m, sc), as_json)
     wd = job.workdir_for(sc, workdir)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
@@ -560,9 +587,11 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
                         threads=cores.threads, exposure=exposure, renderer_of=renderer_of,
                         baked=baked)
     frame = result.frame
+    limits += show_warnings([w for w in result.warnings if w not in limits], as_json)
     if sequence:
         seq = job.render_sequence(sc, wd, m.name, sequence, out, values, exposure, plan=plan,
                                   renderer_of=renderer_of)
+        limits += show_warnings([w for w in seq.warnings if w not in limits], as_json)
         ms = sorted(t["total_ms"] for t in seq.timings)
         click.echo(f"Wrote {len(seq.exr)} {seq.kind} frames {seq.exr[0]} .. {seq.exr[-1]} "
                    f"(median frame {ms[len(ms) // 2]:.1f} ms)", err=as_json)
@@ -571,6 +600,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
     show_notes(frame.notes, as_json)
     warnings = job.tolerance_warnings(result.baked)
     if as_json:
+        warnings = limits + warnings
         click.echo(json.dumps({"method": m.name, "width": frame.width, "height": frame.height,
                                **{k: round(v, 3) for k, v in frame.timings.items()},
                                "exr": str(result.exr), "png": str(result.png),

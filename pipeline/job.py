@@ -11,7 +11,7 @@ import functools
 import json
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from pipeline.engine.stagefile import StageFile, load_stagefile
 from pipeline.engine.store import Artifact, Workdir, open_artifact, read_record
 from pipeline.errors import PrtError
 from pipeline.method import Method, resolve
-from pipeline.registry import get_method, scene_methods, stagefile_fragments
+from pipeline.registry import get_method, limit_warnings, scene_methods, stagefile_fragments
 from pipeline.render import Frame, Renderer
 from pipeline.scene.file import default_scene_path, load_scene
 from pipeline.scene.model import Scene
@@ -177,6 +177,7 @@ class RenderResult:
     png: Path
     frame: Frame | None  # None when the frame on disk was already up to date
     baked: list[StageRun]
+    warnings: list[str] = field(default_factory=list)  # the method's limits, at render time
 
 
 def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | None = None,
@@ -210,8 +211,9 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
         baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
     key = frame_key(scene, workdir, m, options)
+    warnings = limit_warnings(m, scene, method_artifacts(m, workdir))
     if reuse and output_state(meta, key, exposure)[0] == "present":
-        return RenderResult(out, png, None, baked)
+        return RenderResult(out, png, None, baked, warnings)
     renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
     frame = checked_frame(renderer.frame(scene), out)
     write_frame(out, frame.rgb, exposure)
@@ -220,7 +222,7 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
         frame.notes.append(dark)
     write_output_record(meta, key, [out, png], {"method": method, "exposure": exposure,
                                                 **frame.timings})
-    return RenderResult(out, png, frame, baked)
+    return RenderResult(out, png, frame, baked, warnings)
 
 
 def write_frame(out: Path, rgb: np.ndarray, exposure: float) -> None:
@@ -339,6 +341,7 @@ class SequenceResult:
     description: str = ""
     rendered: bool = True
     skipped: str = ""
+    warnings: list[str] = field(default_factory=list)  # the method's limits, any frame's
 
 
 def plan_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: Path,
@@ -378,8 +381,12 @@ def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out:
     m = get_method(method)
     options = m.option_values({}) | (options or {})
     plan = plan or plan_sequence(scene, workdir, method, spec, out, options)
+    artifacts = method_artifacts(m, workdir)
+    warnings = list(dict.fromkeys(w for edited in plan.scenes
+                                  for w in limit_warnings(m, edited, artifacts)))
     if reuse and output_state(plan.record, plan.key, exposure)[0] == "present":
-        return SequenceResult(plan.kind, plan.exr, [], plan.edits, plan.description, False)
+        return SequenceResult(plan.kind, plan.exr, [], plan.edits, plan.description, False,
+                              warnings=warnings)
     renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
     frame_of = renderer.edit_mode(plan.kind, scene)
     plan.record.unlink(missing_ok=True)
@@ -392,7 +399,8 @@ def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out:
                         [p for e in plan.exr for p in (e, e.with_suffix(".png"))],
                         {"method": method, "exposure": exposure, "spec": spec,
                          "edits": plan.edits, "path": plan.description})
-    return SequenceResult(plan.kind, plan.exr, timings, plan.edits, plan.description)
+    return SequenceResult(plan.kind, plan.exr, timings, plan.edits, plan.description,
+                          warnings=warnings)
 
 
 def main_frame_path(scene: Scene, method: Method, frames: Path) -> Path:

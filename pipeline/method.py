@@ -84,6 +84,26 @@ class Component:
 
 
 @dataclass(frozen=True)
+class Limit:
+    """Where a method's picture breaks down, declared as a check that warns.
+
+    ``name``: a short kebab-case name; ``what``: one sentence for ``prt methods`` (the
+    condition, what it does to the picture, the setting that fixes it); ``check``:
+    ``"module:function"``, ``function(scene, params, artifacts)`` returns the warning for
+    ``scene`` (the cause, the figure measured on it and the setting that fixes it) or
+    None. It runs before the bake with ``artifacts`` None (a check that needs the baked
+    artifacts returns None then) and at render time with the opened artifacts of the
+    method's ``reads`` (by stage name), on the scene as rendered (its run-time size and
+    edits applied); ``params``: the stage parameters the scene bakes with. A check warns
+    only where the picture changes by more than the references' noise (about 2 %)
+    would hide: a warning that changes nothing a user can see is noise."""
+
+    name: str
+    what: str
+    check: str
+
+
+@dataclass(frozen=True)
 class Method:
     """What a method plug-in declares.
 
@@ -126,6 +146,8 @@ class Method:
     ``renders``: False for a plug-in whose renderer is not built yet (it bakes, then
     says so): refusals never name it among the methods that render something.
     ``default``: the method is baked for a scene that names none (``methods:`` absent).
+    ``limits``: where its picture breaks down (:class:`Limit`), checked before the bake
+    and at render time; each that applies prints a ``warning:`` line.
     """
 
     name: str
@@ -151,6 +173,7 @@ class Method:
     kernel_dir: Path | None = None
     renders: bool = True
     default: bool = False
+    limits: tuple[Limit, ...] = ()
 
     def option_values(self, given: dict[str, str]) -> dict[str, Any]:
         """Defaults overridden by ``given`` (NAME -> text), parsed; unknown names fail."""

@@ -15,8 +15,10 @@ from __future__ import annotations
 import importlib
 import os
 import pkgutil
+from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 from pipeline import methods
 from pipeline.engine.planning import stage_params
@@ -149,6 +151,16 @@ def scene_notes(scene: Scene, methods: list[Method]) -> list[str]:
     for method in methods:
         notes += [n for n in check_method_scene(method, scene) if n not in notes]
     return notes
+
+
+def limit_warnings(method: Method, scene: Scene, artifacts: Mapping[str, Any] | None = None
+                   ) -> list[str]:
+    """The warnings of ``method``'s limits (pipeline/method.py ``Limit``) on ``scene``:
+    before the bake (``artifacts`` None) or at render time (the opened artifacts its
+    frames read), each as ``method NAME, LIMIT: text``."""
+    params = stage_params(_project_stagefile(), scene)
+    found = ((limit, resolve(limit.check)(scene, params, artifacts)) for limit in method.limits)
+    return [f"method {method.name}, {limit.name}: {text}" for limit, text in found if text]
 
 
 def _project_stagefile() -> StageFile:

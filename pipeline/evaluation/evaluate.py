@@ -37,6 +37,8 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
 * ``kernel_gbs`` = ``kernel_bytes`` / the time of the kernels that moved them
   (``counted_kernel_ms``), and ``bandwidth_fraction`` of the memory-bandwidth probe run
   at the start (pipeline/device/bandwidth.py);
+* ``warnings``: the method's limits that apply to the budget's scene (pipeline/method.py
+  ``Limit``);
 * what a user would do instead: ``pathtrace_ms_equal_error``, the wall time the reference
   renderer (a different seed, progressive) needs until its estimated error falls to the
   method's headline error (``Method.headline``, e.g. d2i's on the surfaces;
@@ -80,7 +82,7 @@ from pipeline.evaluation.charts import heatmap, write_charts
 from pipeline.evaluation.reference import ReferenceSettings
 from pipeline.images import write_exr, write_png
 from pipeline.method import Component, Method
-from pipeline.registry import check_method_scene, get_method, scene_methods
+from pipeline.registry import check_method_scene, get_method, limit_warnings, scene_methods
 from pipeline.scene.model import Scene
 
 # Budgets named render.X are the method's run-time options X (d2i: render.max_bounces).
@@ -299,6 +301,8 @@ def evaluate(scene: Scene, workdir: Workdir, method: str | None, sweep: dict[str
               f"full {r['model_' + r['headline']]:.4f})  frame "
               f"{r['frame_ms']:.1f} ms  path tracer at equal error "
               f"{_ms(r['pathtrace_ms_equal_error'])}")
+        for line in r["warnings"]:
+            _step(f"  warning: {line}")
     (out / "results.json").write_text(json.dumps(records, indent=1))
     (out / "probe.json").write_text(json.dumps(
         {"bandwidth_probe": bandwidth, "settings": vars(settings), "method": m.name,
@@ -391,6 +395,7 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
                                  settings.pathtrace_max_spp),
         **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
         "heatmap_max": HEATMAP_MAX,
+        "warnings": limit_warnings(method, sc, job.method_artifacts(method, wd)),
     }
 
 

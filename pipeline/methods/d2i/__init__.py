@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.method import Component, Method, Option
+from pipeline.method import Component, Limit, Method, Option
 
 METHOD = Method(
     name="d2i",
@@ -69,4 +69,12 @@ METHOD = Method(
     lights=("point", "spot", "directional", "quad"),
     features=("emitters",),
     check_scene="pipeline.methods.d2i.hooks:check_scene",
+    limits=(
+        Limit("coefficients-per-pixel", "below 50 coefficients of D per pixel "
+              "(truncate.d_coefficients) the pixel blocks show and sharp indirect shadows "
+              "turn bright", "pipeline.methods.d2i.limits:coefficients_per_pixel"),
+        Limit("gathers-found", "in a scene open to the sky gather rays escape: fewer than "
+              "three quarters of gather.count found make the indirect light noisier, none "
+              "leaves it out", "pipeline.methods.d2i.limits:gathers_found"),
+    ),
 )

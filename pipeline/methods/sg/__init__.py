@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.method import Component, Method, Option
+from pipeline.method import Component, Limit, Method, Option
 
 METHOD = Method(
     name="sg",
@@ -64,4 +64,14 @@ METHOD = Method(
     evaluate_reference_spp=1024,
     lights=("environment",),
     check_scene="pipeline.methods.sg.hooks:check_scene",
+    limits=(
+        Limit("small-sources", "a map holding three quarters of its light or more in "
+              "sources smaller than one cell of the diffuse term's SH (4π/n² sr at "
+              "sg.diffuse_order n) casts shadows sg blurs into a dark blob: method triple "
+              "keeps them sharp", "pipeline.methods.sg.limits:small_sources"),
+        Limit("vertex-spacing", "light is carried per vertex: where a mesh's edges span "
+              "more than 6 pixels on screen (median) its shadows and highlights blur "
+              "across the triangles: a finer mesh or a smaller image",
+              "pipeline.methods.sg.limits:vertex_spacing"),
+    ),
 )

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.method import Method, Option
+from pipeline.method import Limit, Method, Option
 
 METHOD = Method(
     name="triple",
@@ -70,4 +70,15 @@ METHOD = Method(
     lights=("environment",),
     features=("blends", "bumps"),
     check_scene="pipeline.methods.triple.hooks:check_scene",
+    limits=(
+        Limit("texels-per-pixel", "an object seen with fewer than 1.5 texels of its atlas "
+              "per pixel (a camera closer, or an image larger, than baked for; a texture "
+              "capped at triple.texture_max) shows texel blocks and aliased contact "
+              "shadows: bake for the view or raise triple.texels_per_pixel",
+              "pipeline.methods.triple.limits:texels_per_pixel"),
+        Limit("atlas-padding", "an atlas less than a quarter covered (a detailed mesh in a "
+              "small texture: many small charts, each padded) loses surface detail and "
+              "darkens: raise triple.texels_per_pixel or simplify the mesh",
+              "pipeline.methods.triple.limits:atlas_padding"),
+    ),
 )
