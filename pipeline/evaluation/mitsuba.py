@@ -218,23 +218,27 @@ def bsdf_dict(scene: Scene, material_name: str) -> dict[str, Any]:
     if material.blend is not None or material.bump is not None:
         raise PrtError(scene.path, f"material {material_name!r}: blends and bump maps have "
                        "no Mitsuba equivalent here")
-    if material.model == "lambert":
-        return {"type": "twosided", "bsdf": {"type": "diffuse",
-                                             "reflectance": _rgb(material.albedo)}}
     if material.model not in mitsuba_bsdfs.MODELS:
         raise PrtError(scene.path, f"material {material_name!r} ({material.model}) has no "
                        "Mitsuba equivalent")
-    p = material.params
-    f0 = p.get("f0", mitsuba_bsdfs.DEFAULT_F0)
-    if "ior" in p:
-        f0 = ((p["ior"] - 1.0) / (p["ior"] + 1.0)) ** 2
-    specular = np.broadcast_to(np.asarray(p["specular"], np.float64), 3)
-    out: dict[str, Any] = {"type": mitsuba_bsdfs.PLUGIN, "model": material.model,
-                           "gamma": float(p["gamma"]),
-                           "alpha_ratio": float(p.get("alpha_ratio", 1.0)),
-                           "cxy": float(p.get("cxy", -1.0)), "cz": float(p.get("cz", 1.0)),
-                           "f0": float(f0)}
-    for c, kd, ks in zip("rgb", material.albedo, specular, strict=True):
+    return bsdf_dict_from(material.model, material.albedo, material.params)
+
+
+def bsdf_dict_from(model: str, albedo: Any, params: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`bsdf_dict` of a material ``model`` with diffuse ``albedo`` and the scene
+    material's other ``params`` (``specular`` required for glossy models)."""
+    if model == "lambert":
+        return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": _rgb(albedo)}}
+    f0 = params.get("f0", mitsuba_bsdfs.DEFAULT_F0)
+    if "ior" in params:
+        f0 = ((params["ior"] - 1.0) / (params["ior"] + 1.0)) ** 2
+    specular = np.broadcast_to(np.asarray(params["specular"], np.float64), 3)
+    out: dict[str, Any] = {"type": mitsuba_bsdfs.PLUGIN, "model": model,
+                           "gamma": float(params["gamma"]),
+                           "alpha_ratio": float(params.get("alpha_ratio", 1.0)),
+                           "cxy": float(params.get("cxy", -1.0)),
+                           "cz": float(params.get("cz", 1.0)), "f0": float(f0)}
+    for c, kd, ks in zip("rgb", albedo, specular, strict=True):
         out[f"kd_{c}"], out[f"ks_{c}"] = float(kd), float(ks)
     return out
 
