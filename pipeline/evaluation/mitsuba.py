@@ -4,9 +4,12 @@
 reference: exactly our merged geometry (world-space vertices, faces and the vertex normals
 whose barycentric blend is our shading normal), Lambertian materials as two-sided
 ``diffuse`` BSDFs (our shading normal is turned to face the viewer, so our surfaces
-reflect on both sides), the scene camera (vertical fov, row 0 at the top, image right =
-forward × up) and our lights in our units. Only Lambertian materials have an equivalent;
-other models and spot lights (their falloff differs) raise :class:`PrtError`.
+reflect on both sides), every other BRDF model as the Python BSDF ``prt_brdf``
+(pipeline/evaluation/mitsuba_bsdfs.py: the formulas written anew, two-sided like our
+shading, with our tangent frame: each mesh carries its faces' dP/du from our uv as the
+face attribute ``face_dpdu``), the scene camera (vertical fov, row 0 at the top, image
+right = forward × up) and our lights in our units. Spot lights (their falloff differs)
+raise :class:`PrtError`.
 
 Quad lights become Mitsuba ``area`` emitters, which emit on the side of the triangles'
 counter-clockwise face normal; we emit towards edge_u × edge_v. When the quad names an
@@ -46,6 +49,8 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import PrtError
+from pipeline.evaluation import mitsuba_bsdfs
+from pipeline.math.frames import face_tangents
 from pipeline.scene.model import Scene
 
 TRANSPORTS = ("full", "direct", "env-direct")
@@ -95,6 +100,7 @@ def _mitsuba() -> Any:
     import mitsuba as mi
 
     mi.set_variant(chosen)
+    mitsuba_bsdfs.register(mi)
     return mi
 
 
@@ -103,8 +109,10 @@ def _rgb(value: Any) -> dict[str, Any]:
 
 
 def _mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray,
-          normals: np.ndarray | None, bsdf: Any, emitter: Any | None) -> Any:
-    """A Mitsuba triangle mesh (world frame) with vertex normals if given."""
+          normals: np.ndarray | None, bsdf: Any, emitter: Any | None,
+          dpdu: np.ndarray | None = None) -> Any:
+    """A Mitsuba triangle mesh (world frame) with vertex normals if given, and the faces'
+    dP/du (F, 3) as the face attribute read by the ``prt_brdf`` BSDFs, if given."""
     props = mi.Properties()
     props["bsdf"] = bsdf
     if emitter is not None:
@@ -117,21 +125,29 @@ def _mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray,
     if normals is not None:
         params["vertex_normals"] = np.ascontiguousarray(normals, np.float32).ravel()
     params.update()
+    if dpdu is not None:
+        mesh.add_attribute(mitsuba_bsdfs.TANGENT_ATTRIBUTE, 3,
+                           np.ascontiguousarray(dpdu, np.float32).ravel())
     return mesh
 
 
 def _object_meshes(geometry: Mapping[str, Any]) -> dict[str, tuple[np.ndarray, ...]]:
-    """Each object's (vertices, normals, faces) with faces indexing its own vertices."""
+    """Each object's (vertices, normals, faces) with faces indexing its own vertices, and
+    its faces' dP/du (our tangents before they are made orthogonal to the shading normal:
+    pipeline/device/raytrace.py), zero where the uv mapping is degenerate."""
     vertices = np.asarray(geometry["vertices"], np.float32)
     normals = np.asarray(geometry["normals"], np.float32)
     faces = np.asarray(geometry["faces"], np.int64)
     face_object = np.asarray(geometry["face_object"])
+    dpdu = face_tangents(np.asarray(geometry["vertices"], np.float64),
+                         np.asarray(geometry["uv"], np.float64), faces)
     out = {}
     for index, name in enumerate(geometry["object_names"]):
-        own = faces[face_object == index]
+        mine = face_object == index
+        own = faces[mine]
         if len(own):
             used, local = np.unique(own, return_inverse=True)
-            out[name] = (vertices[used], normals[used], local.reshape(-1, 3))
+            out[name] = (vertices[used], normals[used], local.reshape(-1, 3), dpdu[mine])
     return out
 
 
@@ -194,11 +210,45 @@ def _sensor(mi: Any, scene: Scene, geometry: Mapping[str, Any], spp: int, seed: 
     }
 
 
+def bsdf_dict(scene: Scene, material_name: str) -> dict[str, Any]:
+    """The Mitsuba BSDF of one of the scene's materials: Lambert as a two-sided
+    ``diffuse``, every other model (``pipeline.math.brdf.MATERIAL_PARAMETERS``) as a
+    ``prt_brdf`` of that model with the material's parameters (F0 from ``ior`` if given)."""
+    material = scene.materials[material_name]
+    if material.blend is not None or material.bump is not None:
+        raise PrtError(scene.path, f"material {material_name!r}: blends and bump maps have "
+                       "no Mitsuba equivalent here")
+    if material.model not in mitsuba_bsdfs.MODELS:
+        raise PrtError(scene.path, f"material {material_name!r} ({material.model}) has no "
+                       "Mitsuba equivalent")
+    return bsdf_dict_from(material.model, material.albedo, material.params)
+
+
+def bsdf_dict_from(model: str, albedo: Any, params: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`bsdf_dict` of a material ``model`` with diffuse ``albedo`` and the scene
+    material's other ``params`` (``specular`` required for glossy models)."""
+    if model == "lambert":
+        return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": _rgb(albedo)}}
+    f0 = params.get("f0", mitsuba_bsdfs.DEFAULT_F0)
+    if "ior" in params:
+        f0 = ((params["ior"] - 1.0) / (params["ior"] + 1.0)) ** 2
+    specular = np.broadcast_to(np.asarray(params["specular"], np.float64), 3)
+    out: dict[str, Any] = {"type": mitsuba_bsdfs.PLUGIN, "model": model,
+                           "gamma": float(params["gamma"]),
+                           "alpha_ratio": float(params.get("alpha_ratio", 1.0)),
+                           "cxy": float(params.get("cxy", -1.0)),
+                           "cz": float(params.get("cz", 1.0)), "f0": float(f0)}
+    for c, kd, ks in zip("rgb", albedo, specular, strict=True):
+        out[f"kd_{c}"], out[f"ks_{c}"] = float(kd), float(ks)
+    return out
+
+
 def scene_dict(scene: Scene, geometry: Mapping[str, Any], transport: str, spp: int,
                seed: int = 0, max_depth: int = -1, pixel_filter: str = "box") -> dict[str, Any]:
     """A ``mi.load_dict`` scene: our geometry (world frame, scene units) as one mesh per
-    object, Lambertian materials, camera and lights. ``geometry`` holds the geometry
-    artifact's ``vertices``, ``normals``, ``faces``, ``face_object`` and ``object_names``.
+    object, its material (:func:`bsdf_dict`), camera and lights. ``geometry`` holds the
+    geometry artifact's ``vertices``, ``normals``, ``uv``, ``faces``, ``face_object`` and
+    ``object_names``.
     ``transport``: ``full`` (path tracing, ``max_depth`` −1 = unbounded with Russian
     roulette), ``direct`` (emitter and BSDF sampling with MIS) or ``env-direct`` (direct
     lighting from the environment only; quad meshes stay as plain surfaces)."""
@@ -214,13 +264,7 @@ def scene_dict(scene: Scene, geometry: Mapping[str, Any], transport: str, spp: i
     meshes = _object_meshes(geometry)
     bsdfs = {}
     for name, obj in scene.objects.items():
-        material = scene.materials[obj.material]
-        if material.model != "lambert":
-            raise PrtError(scene.path, f"material {obj.material!r} ({material.model}) has no "
-                           "Mitsuba equivalent; the cross-check supports Lambertian "
-                           "materials only")
-        bsdfs[name] = mi.load_dict({"type": "twosided", "bsdf": {
-            "type": "diffuse", "reflectance": _rgb(material.albedo)}})
+        bsdfs[name] = mi.load_dict(bsdf_dict(scene, obj.material))
 
     out: dict[str, Any] = {"type": "scene", "integrator": integrator,
                            "sensor": _sensor(mi, scene, geometry, spp, seed, pixel_filter)}
@@ -244,7 +288,7 @@ def scene_dict(scene: Scene, geometry: Mapping[str, Any], transport: str, spp: i
             emitter = mi.load_dict({"type": "area", "radiance": _rgb(p["radiance"])})
             host = p.get("object")
             if host in meshes and host not in emitters and _coincides(
-                    *meshes[host], corner, edge_u, edge_v):
+                    *meshes[host][:3], corner, edge_u, edge_v):
                 emitters[host] = (emitter, np.cross(edge_u, edge_v))
             else:
                 rect = np.stack([corner, corner + edge_u, corner + edge_u + edge_v,
@@ -258,11 +302,12 @@ def scene_dict(scene: Scene, geometry: Mapping[str, Any], transport: str, spp: i
             raise PrtError(scene.path, f"lights[{i}]: {light.type} lights have no Mitsuba "
                            "equivalent (their falloff differs)")
 
-    for name, (vertices, normals, faces) in meshes.items():
+    for name, (vertices, normals, faces, dpdu) in meshes.items():
         emitter, n = emitters.get(name, (None, None))
         if emitter is not None:
             faces = _facing(vertices, faces, n)
-        out[f"object_{name}"] = _mesh(mi, name, vertices, faces, normals, bsdfs[name], emitter)
+        out[f"object_{name}"] = _mesh(mi, name, vertices, faces, normals, bsdfs[name], emitter,
+                                      dpdu)
     return out
 
 
@@ -277,3 +322,36 @@ def render(scene: Scene, geometry: Mapping[str, Any], transport: str, spp: int,
     rgb = np.array(mi.render(loaded), dtype=np.float32)  # the sampler holds the seed
     t2 = time.perf_counter()
     return MitsubaRender(rgb, t2 - t1, t1 - t0, variant(), spp)
+
+
+# One material of each model for the cross-check (studies/mitsuba_crosscheck.py,
+# tests/test_mitsuba.py), on a diffuse albedo of half the material's own (kd_scale) so that
+# the glossy lobe shows: ρs small enough for the scene's energy check (decision 0013) on
+# kd ≤ 0.45. Lafortune's Cxy ≠ −Cz and Cook-Torrance's and Ashikhmin-Shirley's F0 ≠ 0.04
+# exercise those terms; anisotropic Ward's ratio 3 makes the tangent matter.
+CROSSCHECK_PARAMETERS: dict[str, dict[str, Any]] = {
+    "lambert": {},
+    "blinn_phong": {"specular": 0.15, "gamma": 20.0},
+    "ward": {"specular": 0.5, "gamma": 0.15},
+    "ward_duer": {"specular": 0.4, "gamma": 0.15},
+    "ward_anisotropic": {"specular": 0.5, "gamma": 0.08, "alpha_ratio": 3.0},
+    "lafortune": {"specular": 0.5, "gamma": 30.0, "cxy": -0.9, "cz": 1.0},
+    "cook_torrance": {"specular": 0.13, "gamma": 0.2, "f0": 0.3},
+    "ashikhmin_shirley": {"specular": 0.5, "gamma": 100.0, "f0": 0.5},
+}
+
+
+def with_model(scene: Scene, materials: tuple[str, ...], model: str,
+               kd_scale: float = 0.5) -> Scene:
+    """``scene`` with each material of ``materials`` turned into ``model``: its albedo ×
+    ``kd_scale`` and :data:`CROSSCHECK_PARAMETERS`' other parameters, validated as in a
+    scene file."""
+    from pipeline.scene.file import material_from_spec
+
+    raw = dict(scene.document["materials"])
+    for name in materials:
+        spec = {"model": model,
+                "albedo": [kd_scale * a for a in scene.materials[name].albedo],
+                **CROSSCHECK_PARAMETERS[model]}
+        raw[name] = material_from_spec(scene.path, name, spec)[1]
+    return scene.edited("materials", raw)
