@@ -43,8 +43,8 @@ directory (``WORKDIR/sweep/METHOD``; only the stages a budget changes re-run), r
   renderer (a different seed, progressive) needs until its estimated error falls to the
   method's headline error (``Method.headline``, e.g. d2i's on the surfaces;
   ``pathtrace_rel_rmse``: its error then, measured against the reference), and
-  ``mitsuba_ms_equal_error`` where every material is Lambertian and Mitsuba 3 is installed
-  (spp doubled until its error is at most the method's).
+  ``mitsuba_ms_equal_error`` where Mitsuba 3 is installed and renders the scene's
+  transport, lights and materials (spp doubled until its error is at most the method's).
 
 Budget names: ``size`` (image width; the height follows the camera's aspect ratio, or
 ``WxH``), any stage parameter of stages.yaml (``brdf_basis.max_k``, ...), applied as a
@@ -242,13 +242,12 @@ def _pathtrace_equal_error(scene: Scene, geometry: dict, transport: str, target:
 def _mitsuba_equal_error(scene: Scene, geometry: dict, transport: str, target: float,
                          reference: np.ndarray) -> dict[str, Any]:
     """Mitsuba 3's render time at the fewest spp (powers of 2) reaching ``target``, when
-    the scene's materials allow and Mitsuba is installed; None otherwise."""
-    if any(m.model != "lambert" for m in scene.materials.values()):
-        return {"mitsuba_ms_equal_error": None, "mitsuba_note": "non-Lambertian materials"}
+    Mitsuba is installed and has the scene's transport, lights and materials
+    (pipeline/evaluation/mitsuba.py); None otherwise, with the reason."""
     try:
         from pipeline.evaluation import mitsuba
 
-        mitsuba.variant()
+        mitsuba.scene_dict(scene, geometry, transport, 1, seed=1)
     except PrtError as exc:
         return {"mitsuba_ms_equal_error": None, "mitsuba_note": str(exc.problem)}
     spp, error, seconds = 1, np.inf, None
