@@ -97,6 +97,41 @@ def write_charts(records: list[dict[str, Any]], out: Path) -> list[Path]:
     return written
 
 
+def suite_chart(rows: list[dict[str, Any]], method: str, size: str, path: Path) -> Path:
+    """A method's scene suite (benchmarks/scene_suite.py): per scene, its headline error
+    against full path tracing (the model error, solid) and against the reference of its
+    transport (the method error, dashed) over the frame time at ``size`` (``WxH``), one
+    point per budget, a colour per scene."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7.2, 5.4), dpi=120)
+    xs_all, ys_all = [], []
+    for row in rows:
+        records = sorted(row["budgets"], key=lambda r: r["frame_ms_at"][size]["frame_ms"])
+        xs = [r["frame_ms_at"][size]["frame_ms"] for r in records]
+        error = records[0]["headline"]
+        model = [r[model_error_key(error)] for r in records]
+        own = [r[error] for r in records]
+        line, = ax.plot(xs, model, "o-", label=f"{row['scene']}")
+        ax.plot(xs, own, "x--", color=line.get_color(), alpha=0.7)
+        for x, y, r in zip(xs, model, records, strict=True):
+            if r["default"]:
+                ax.plot(x, y, "*", ms=13, color="gold", mec="k", zorder=5)
+        xs_all += xs * 2
+        ys_all += model + own
+    _log_axis(ax, "x", xs_all)
+    _log_axis(ax, "y", ys_all)
+    ax.set_xlabel(f"frame time at {size} (ms, median)")
+    ax.set_ylabel("relative RMSE (surfaces)")
+    ax.set_title(f"{method}: solid against full path tracing, dashed against its own "
+                 "transport; ★ default", fontsize=9)
+    ax.grid(True, which="major", alpha=0.4)
+    ax.grid(True, which="minor", alpha=0.15)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    _save(plt, fig, path)
+    return path
+
+
 def _varying_budget(records: list[dict[str, Any]]) -> list[str]:
     """The budget names whose values differ between records (the point labels)."""
     names = sorted({k for r in records for k in r["budget"]})

@@ -1,0 +1,135 @@
+"""The ``<method>.suite`` benchmarks: a method's error and cost on a suite of scenes, the
+shipped ones and scenes it was not tuned on (other meshes and maps, a close-up camera, a
+small bright source), each at 3–5 budgets.
+
+Per scene and budget (``prt evaluate``'s record, pipeline/evaluation/evaluate.py, at the
+error size ``--size``): the *method error* against the reference of the method's
+transport, the *model error* against full path tracing, each reference's own noise,
+storage and bake seconds; and, per ``--frame-sizes`` (256² and 1024×768 by default),
+the median frame time of the budget baked at that size (``frame_ms_at``: camera-bound
+stages re-bake per size; nothing is compared there, so no reference is rendered).
+Writes the JSON, a chart per method (:func:`pipeline.evaluation.charts.suite_chart`:
+error against frame time, a line per scene) and each scene's ``prt evaluate`` folder
+beside it; ``python -m benchmarks table`` tabulates it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from benchmarks.fixtures import CACHE, load, result_path, write_result
+
+FRAME_SIZES = "256,1024x768"
+
+
+@dataclass(frozen=True)
+class SuiteScene:
+    """A scene of the suite, named ``name``: ``file`` with top-level sections replaced
+    (``edits``: section -> value, as a scene file writes it; validated as the file is),
+    and why it is in the suite."""
+
+    name: str
+    file: Path
+    why: str
+    edits: dict[str, Any] = field(default_factory=dict)
+
+    def open(self) -> Any:
+        from pipeline.scene.file import scene_from_document
+        from pipeline.yamlfile import load_yaml
+
+        path = self.file.resolve()
+        return scene_from_document(path, {**load_yaml(path), **self.edits, "name": self.name})
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    """``"256,1024x768"`` -> [(256, 256), (1024, 768)] (a single number: square)."""
+    sizes = []
+    for item in text.split(","):
+        w, _, h = item.lower().partition("x")
+        sizes.append((int(w), int(h or w)))
+    return sizes
+
+
+def frame_ms(scene: Any, workdir: Path, method: str, budget: dict[str, Any],
+             size: tuple[int, int], repeats: int) -> dict[str, float]:
+    """The median frame and kernel time (ms) of ``method`` on ``scene`` at ``budget``,
+    rendered at ``size`` (baked there first: a camera-bound stage re-bakes), over
+    ``repeats`` frames after one warm-up."""
+    from pipeline import job
+    from pipeline.evaluation.evaluate import RENDER_PREFIX, apply_budget
+    from pipeline.registry import get_method
+
+    m = get_method(method)
+    sized = apply_budget(scene.with_image_size(*size),
+                         {k: v for k, v in budget.items() if k != "size"})
+    options = m.option_values({}) | {k[len(RENDER_PREFIX):]: v for k, v in budget.items()
+                                     if k.startswith(RENDER_PREFIX)}
+    wd = job.workdir_for(sized, workdir)
+    job.bake(sized, wd, quiet=True, methods=[m])
+    renderer = job.frame_renderer(sized, wd, method, options)
+    renderer.frame(sized)
+    frames = [renderer.frame(sized) for _ in range(repeats)]
+    return {"frame_ms": statistics.median(f.timings["total_ms"] for f in frames),
+            "kernel_ms": statistics.median(f.timings["kernel_ms"] for f in frames)}
+
+
+def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]],
+                sweep: dict[str, list[Any]], argv: list[str] | None) -> dict[str, Any]:
+    """Run one of ``suites`` (``--suite``: ``full``, the default, or ``tiny``, the smoke
+    scene) of ``method`` over ``sweep`` (plus each scene's default budget); see the
+    module docstring."""
+    from pipeline.engine.store import Workdir
+    from pipeline.evaluation import evaluate
+    from pipeline.evaluation.charts import suite_chart
+
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {name} --",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--size", type=int, default=64,
+                        help="image side of the error measurement [default: 64]")
+    parser.add_argument("--frame-sizes", default=FRAME_SIZES,
+                        help=f"sizes timed, WxH or W [default: {FRAME_SIZES}]")
+    parser.add_argument("--suite", choices=sorted(suites), default="full")
+    parser.add_argument("--scenes", default=None,
+                        help="comma-separated suite scene names [default: all: "
+                             f"{', '.join(s.name for s in suites['full'])}]")
+    parser.add_argument("--sweep", action="append", default=[], metavar="NAME=V1,V2",
+                        help="budgets [default: "
+                             f"{'; '.join(f'{k}={v}' for k, v in sweep.items())}]")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--reference-max-spp", type=int, default=1024)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args(argv)
+    scenes = suites[args.suite]
+    chosen = scenes if args.scenes is None else \
+        tuple(s for s in scenes if s.name in args.scenes.split(","))
+    budgets = evaluate.parse_sweep(args.sweep) or sweep
+    sizes = parse_sizes(args.frame_sizes)
+    target = result_path(name, args.out)
+    folder = target.with_suffix("")
+    before = load()
+    rows = []
+    for suite_scene in chosen:
+        scene = suite_scene.open().with_image_size(args.size, args.size)
+        workdir = CACHE / f"suite_{method}_{suite_scene.name}"
+        records = evaluate.evaluate(
+            scene, Workdir(workdir), method, budgets, folder / suite_scene.name,
+            evaluate.EvaluateSettings(args.repeats, args.reference_max_spp,
+                                      args.reference_max_spp), quiet=True)
+        for record in records:
+            record["frame_ms_at"] = {
+                f"{w}x{h}": frame_ms(suite_scene.open(), workdir / "frames", method,
+                                     record["budget"], (w, h), args.repeats)
+                for w, h in sizes}
+        rows.append({"scene": suite_scene.name, "file": str(suite_scene.file),
+                     "why": suite_scene.why, "edits": suite_scene.edits,
+                     "budgets": records})
+    chart = suite_chart(rows, method, f"{sizes[0][0]}x{sizes[0][1]}",
+                        folder / "error_vs_frame_time.png")
+    return write_result(name, {"method": method, "size": [args.size, args.size],
+                               "frame_sizes": [f"{w}x{h}" for w, h in sizes],
+                               "load": [before, load()], "scenes": rows,
+                               "chart": str(chart)}, args.out)
