@@ -6,8 +6,9 @@ Per scene and budget (``prt evaluate``'s record, pipeline/evaluation/evaluate.py
 error size ``--size``): the *method error* against the reference of the method's
 transport, the *model error* against full path tracing, each reference's own noise,
 storage and bake seconds; and, per ``--frame-sizes`` (256² and 1024×768 by default),
-the median frame time of the budget baked at that size (``frame_ms_at``: camera-bound
-stages re-bake per size; nothing is compared there, so no reference is rendered).
+the median frame time of the budget at that size (``frame_ms_at``; d2i's per-pixel
+bake is re-baked at each size, triple's and sg's serve any camera: see
+:func:`frame_ms`; nothing is compared there, so no reference is rendered).
 Writes the JSON, a chart per method (:func:`pipeline.evaluation.charts.suite_chart`:
 error against frame time, a line per scene) and each scene's ``prt evaluate`` folder
 beside it; ``python -m benchmarks table`` tabulates it.
@@ -55,33 +56,44 @@ def parse_sizes(text: str) -> list[tuple[int, int]]:
 
 
 def frame_ms(scene: Any, workdir: Path, method: str, budget: dict[str, Any],
-             size: tuple[int, int], repeats: int) -> dict[str, float]:
-    """The median frame and kernel time (ms) of ``method`` on ``scene`` at ``budget``,
-    rendered at ``size`` (baked there first: a camera-bound stage re-bakes), over
-    ``repeats`` frames after one warm-up."""
+             size: tuple[int, int], repeats: int, bake_per_size: bool) -> dict[str, Any]:
+    """The median frame and kernel time (ms) of ``method`` on ``scene`` (as baked for
+    the error measurement in ``workdir``) at ``budget``, rendered at ``size``, over
+    ``repeats`` frames after one warm-up. ``bake_per_size``: the method bakes per pixel
+    (d2i), so the budget is baked at ``size`` first (a view of ``workdir``); otherwise its
+    artifacts serve any camera (triple's texels, sg's vertices) and the frame at ``size``
+    is rendered from the error-size bake, the work per pixel being the same
+    (``from_bake`` says which)."""
     from pipeline import job
     from pipeline.evaluation.evaluate import RENDER_PREFIX, apply_budget
     from pipeline.registry import get_method
 
     m = get_method(method)
-    sized = apply_budget(scene.with_image_size(*size),
-                         {k: v for k, v in budget.items() if k != "size"})
+    settings = {k: v for k, v in budget.items() if k != "size"}
+    sized = apply_budget(scene.with_image_size(*size), settings)
+    baked = sized if bake_per_size else apply_budget(scene, settings)
     options = m.option_values({}) | {k[len(RENDER_PREFIX):]: v for k, v in budget.items()
                                      if k.startswith(RENDER_PREFIX)}
-    wd = job.workdir_for(sized, workdir)
-    job.bake(sized, wd, quiet=True, methods=[m])
-    renderer = job.frame_renderer(sized, wd, method, options)
+    wd = job.workdir_for(baked, workdir)
+    job.bake(baked, wd, quiet=True, methods=[m])
+    renderer = job.frame_renderer(baked, wd, method, options)
     renderer.frame(sized)
     frames = [renderer.frame(sized) for _ in range(repeats)]
+    if frames[0].rgb.shape[:2] != (size[1], size[0]):
+        raise RuntimeError(f"{method} rendered {frames[0].width}x{frames[0].height} from its "
+                           f"{baked.view or 'scene'} bake, not {size[0]}x{size[1]}: it "
+                           "bakes per pixel (bake_per_size)")
     return {"frame_ms": statistics.median(f.timings["total_ms"] for f in frames),
-            "kernel_ms": statistics.median(f.timings["kernel_ms"] for f in frames)}
+            "kernel_ms": statistics.median(f.timings["kernel_ms"] for f in frames),
+            "from_bake": f"{baked.camera.width}x{baked.camera.height}"}
 
 
 def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]],
-                sweep: dict[str, list[Any]], argv: list[str] | None) -> dict[str, Any]:
+                sweep: dict[str, list[Any]], argv: list[str] | None,
+                bake_per_size: bool = False) -> dict[str, Any]:
     """Run one of ``suites`` (``--suite``: ``full``, the default, or ``tiny``, the smoke
-    scene) of ``method`` over ``sweep`` (plus each scene's default budget); see the
-    module docstring."""
+    scene) of ``method`` over ``sweep`` (plus each scene's default budget);
+    ``bake_per_size``: see :func:`frame_ms`; the module docstring says the rest."""
     from pipeline.engine.store import Workdir
     from pipeline.evaluation import evaluate
     from pipeline.evaluation.charts import suite_chart
@@ -121,8 +133,8 @@ def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]
                                       args.reference_max_spp), quiet=True)
         for record in records:
             record["frame_ms_at"] = {
-                f"{w}x{h}": frame_ms(suite_scene.open(), workdir / "frames", method,
-                                     record["budget"], (w, h), args.repeats)
+                f"{w}x{h}": frame_ms(scene, workdir / "sweep" / method, method,
+                                     record["budget"], (w, h), args.repeats, bake_per_size)
                 for w, h in sizes}
         rows.append({"scene": suite_scene.name, "file": str(suite_scene.file),
                      "why": suite_scene.why, "edits": suite_scene.edits,

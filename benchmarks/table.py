@@ -20,6 +20,9 @@ DOCS = ROOT / "docs"
 METHODS = ("d2i", "triple", "sg")
 MARKER = (
     "<!-- generated: the figures table for {m} is inserted here by python -m benchmarks table -->")
+SUITE_MARKER = (
+    "<!-- generated: the scene suite table for {m} is inserted here by python -m benchmarks "
+    "table -->")
 README_MARKER = ("<!-- generated: the methods' headline figures are inserted here by python -m "
                  "benchmarks table -->")
 
@@ -58,6 +61,36 @@ def accuracy_table(result: dict[str, Any]) -> list[str]:
                      f"{_pct(r.get('reference_model_' + r['headline']))} | "
                      f"{r['storage_bytes'] / 1e6:.1f} | {r['bake_s']:.0f} | "
                      f"{_ms(r.get('pathtrace_ms_equal_error'))} |")
+    return lines
+
+
+def suite_table(result: dict[str, Any]) -> list[str]:
+    """Markdown lines: one row per scene and budget of a ``<method>.suite`` result
+    (benchmarks/scene_suite.py)."""
+    m = result["machine"]
+    sizes = result["frame_sizes"]
+    lines = [f"`{result['method']}` on its scene suite, errors at {result['size'][0]}×"
+             f"{result['size'][1]} ({m['cpu']}, {m['cores']} cores, OpenCL "
+             f"{m.get('opencl_device', '?')}, load average {result['load'][0][0]:g}–"
+             f"{result['load'][1][0]:g}, {result['finished']}): the *method error* against "
+             "the reference of its transport, the *model error* against full path tracing "
+             "(each reference's own noise beside it), frame times at "
+             f"{' and '.join(sizes)}; chart: `{Path(result['chart']).name}` beside the "
+             "result.", "",
+             "| scene | budget | method error | noise | model error | noise | "
+             + " | ".join(f"frame ms {s}" for s in sizes) + " | read MB | bake s |",
+             "|---|---|---|---|---|---|" + "---|" * len(sizes) + "---|---|"]
+    for row in result["scenes"]:
+        for r in row["budgets"]:
+            head = r["headline"]
+            times = " | ".join(_ms(r["frame_ms_at"][s]["frame_ms"]) for s in sizes)
+            lines.append(f"| {row['scene']} | {_budget(r)} | {_pct(r[head])} | "
+                         f"{_pct(r.get('reference_' + head))} | "
+                         f"{_pct(r.get('model_' + head))} | "
+                         f"{_pct(r.get('reference_model_' + head))} | {times} | "
+                         f"{r['storage_bytes'] / 1e6:.1f} | {r['bake_s']:.0f} |")
+    lines += ["", "Scenes: " + "; ".join(f"{row['scene']}: {row['why']}"
+                                         for row in result["scenes"]) + "."]
     return lines
 
 
@@ -114,8 +147,20 @@ def write_tables(results: Path) -> list[Path]:
         page = DOCS / "methods" / f"{m}.md"
         if _replace_block(page, MARKER.format(m=m), table):
             written.append(page)
+    for m in METHODS:
+        path = results / m / "suite.json"
+        if not path.is_file():
+            out += [f"## {m}: scene suite", "", f"Not measured: run `python -m benchmarks "
+                    f"run {m}.suite`.", ""]
+            continue
+        table = suite_table(json.loads(path.read_text()))
+        out += [f"## {m}: scene suite", "", *table, ""]
+        page = DOCS / "methods" / f"{m}.md"
+        if _replace_block(page, SUITE_MARKER.format(m=m), table) and page not in written:
+            written.append(page)
     others = sorted(p for p in results.rglob("*.json")
-                    if p.parent.name in ("engine", *METHODS) and p.name != "accuracy.json")
+                    if p.parent.name in ("engine", *METHODS)
+                    and p.name not in ("accuracy.json", "suite.json"))
     if others:
         out += ["## Other results", ""]
         out += [f"- `{p.relative_to(results)}`" for p in others]

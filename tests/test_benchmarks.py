@@ -112,3 +112,36 @@ def test_the_table_generator_fills_a_method_page(tmp_path, monkeypatch):
     assert "old" not in readme.read_text() and "Which to use: d2i." in readme.read_text()
     assert "Not measured: run `python -m benchmarks run triple.accuracy`" in \
         (docs / "results.md").read_text()
+
+
+def test_the_table_generator_tabulates_a_scene_suite(tmp_path, monkeypatch):
+    """A ``<method>.suite`` result becomes one row per scene and budget, with both
+    errors and a frame time per size, on the method page and in docs/results.md."""
+    from benchmarks import table
+
+    docs = tmp_path / "docs"
+    (docs / "methods").mkdir(parents=True)
+    page = docs / "methods" / "sg.md"
+    page.write_text("# sg\n\n## Scene suite\n\n" + table.SUITE_MARKER.format(m="sg")
+                    + "\n\nNot measured yet.\n")
+    results = tmp_path / "results" / "sg"
+    results.mkdir(parents=True)
+    record = {"budget": {"sg.diffuse_order": 8}, "default": True,
+              "headline": "rel_rmse_surfaces", "rel_rmse_surfaces": 0.075,
+              "reference_rel_rmse_surfaces": 0.032, "model_rel_rmse_surfaces": 0.171,
+              "reference_model_rel_rmse_surfaces": 0.04, "storage_bytes": 6.7e7,
+              "bake_s": 704.0, "frame_ms_at": {"256x256": {"frame_ms": 4.2},
+                                               "1024x768": {"frame_ms": 31.0}}}
+    (results / "suite.json").write_text(json.dumps({
+        "method": "sg", "size": [64, 64], "frame_sizes": ["256x256", "1024x768"],
+        "machine": {"cpu": "a CPU", "cores": 2, "opencl_device": "a device"},
+        "finished": "2026-11-29T00:00:00", "load": [[1.0, 1, 1], [2.0, 2, 2]],
+        "chart": "x/error_vs_frame_time.png",
+        "scenes": [{"scene": "bunny_sg", "why": "shipped", "budgets": [record]}]}))
+    monkeypatch.setattr(table, "DOCS", docs)
+    written = table.write_tables(tmp_path / "results")
+    assert page in written
+    row = "| bunny_sg | sg.diffuse_order=8 (default) | 7.5 % | 3.2 % | 17.1 % | 4.0 % | " \
+        "4.2 | 31.0 | 67.0 | 704 |"
+    assert row in page.read_text() and "Not measured yet" not in page.read_text()
+    assert row in (docs / "results.md").read_text()

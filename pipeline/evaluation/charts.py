@@ -113,17 +113,22 @@ def suite_chart(rows: list[dict[str, Any]], method: str, size: str, path: Path) 
         own = [r[error] for r in records]
         line, = ax.plot(xs, model, "o-", label=f"{row['scene']}")
         ax.plot(xs, own, "x--", color=line.get_color(), alpha=0.7)
+        varying = _varying_budget(records)
         for x, y, r in zip(xs, model, records, strict=True):
             if r["default"]:
                 ax.plot(x, y, "*", ms=13, color="gold", mec="k", zorder=5)
+            ax.annotate(",".join(str(r["budget"][k]) for k in varying if k in r["budget"]),
+                        (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7,
+                        color=line.get_color())
         xs_all += xs * 2
         ys_all += model + own
     _log_axis(ax, "x", xs_all)
     _log_axis(ax, "y", ys_all)
     ax.set_xlabel(f"frame time at {size} (ms, median)")
-    ax.set_ylabel("relative RMSE (surfaces)")
+    budgets = sorted({k for row in rows for r in row["budgets"] for k in r["budget"]})
+    ax.set_ylabel(f"relative RMSE ({rows[0]['budgets'][0]['headline']})")
     ax.set_title(f"{method}: solid against full path tracing, dashed against its own "
-                 "transport; ★ default", fontsize=9)
+                 f"transport; points labelled {', '.join(budgets)}; ★ default", fontsize=8)
     ax.grid(True, which="major", alpha=0.4)
     ax.grid(True, which="minor", alpha=0.15)
     ax.legend(fontsize=8, loc="best")

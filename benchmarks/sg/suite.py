@@ -1,0 +1,44 @@
+"""Method sg on its scene suite (benchmarks/scene_suite.py): per scene and budget the
+error against its transport and against full path tracing, frame times at 256² and
+1024×768, storage and bake time."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from benchmarks.fixtures import ROOT, SCENES, TINY
+from benchmarks.scene_suite import SuiteScene, scene_suite
+
+SUITE = ROOT / "benchmarks" / "suite_scenes"
+CLOSEUP = {"position": [0.25, 0.1, 1.7], "look_at": [0.0, -0.15, 0.0], "up": [0, 1, 0],
+           "fov": 32, "width": 64, "height": 64}
+UFFIZI = [{"type": "environment", "file": "${PRT_DATA}/envmaps/uffizi_256x128.hdr",
+           "rotation": 0, "scale": 1.0}]
+# sg renders light per vertex: the suite's teapot scene gets sg's 64 × 64 ground
+SG_GROUND = {"primitive": {"type": "plane", "size": [6, 6], "segments": 64},
+             "transform": {"translate": [0, -0.7685, 0]}, "material": "ground"}
+TEAPOT = {"mesh": "${PRT_DATA}/meshes/teapot_6.3kf_open.obj", "smooth": True,
+          "transform": {"scale": 0.3, "translate": [-0.065, -0.7685, 0]},
+          "material": "teapot"}
+SCENE_SUITE = (
+    SuiteScene("bunny_sg", SCENES / "bunny_sg.yaml", "shipped: the scene it was tuned on"),
+    SuiteScene("dragon_sg", SCENES / "dragon_sg.yaml",
+               "shipped: folds and a studio map of small sources (its limits warn)"),
+    SuiteScene("bunny_sg_closeup", SCENES / "bunny_sg.yaml",
+               "a close-up camera: half the distance", {"camera": CLOSEUP}),
+    SuiteScene("bunny_sg_uffizi", SCENES / "bunny_sg.yaml", "not tuned on: another map",
+               {"lights": UFFIZI}),
+    SuiteScene("teapot_sunset_sg", SUITE / "teapot_sunset.yaml",
+               "not tuned on: another mesh; a small bright source (Venice's low sun)",
+               {"methods": ["sg"], "objects": {"teapot": TEAPOT, "ground": SG_GROUND}}),
+)
+TINY_SUITE = (SuiteScene("tiny_sg", TINY / "tiny_sg.yaml", "smoke"),)
+SWEEP = {"sg.diffuse_order": [4, 6, 8]}
+PRESETS = {"default": [],
+           "tiny": ["--suite", "tiny", "--size", "8", "--frame-sizes", "12", "--repeats", "1",
+                    "--reference-max-spp", "8", "--sweep", "sg.diffuse_order=2"]}
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    return scene_suite("sg.suite", "sg", {"full": SCENE_SUITE, "tiny": TINY_SUITE}, SWEEP,
+                       argv)
