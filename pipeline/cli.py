@@ -540,8 +540,8 @@ def devices_text(info: dict) -> list[str]:
               help="Light the scene with this environment map (EXR or HDR, lat-long) "
                    "instead of its environment light's file.")
 @click.option("--env-rotate", "env_rotate", type=float, default=None, metavar="DEG",
-              help="Turn the environment map to DEG degrees about +y (instead of the "
-                   "scene's rotation).")
+              help="Turn the environment map to DEG degrees about its axis (the scene's "
+                   "axis, +y unless it says; instead of the scene's rotation).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON line with timings (ms) and the image size.")
 @WORKDIR

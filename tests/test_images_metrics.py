@@ -36,6 +36,24 @@ def test_radiance_is_found_where_the_map_says_and_rotation_turns_it_about_y():
     assert turned.radiance(np.array([[1.0, 0, 0]]))[0, 0] == 0.0
 
 
+def test_rotation_about_any_axis():
+    """Rodrigues' rotation is right-handed (about +x, +y goes to +z), equals rotation_y
+    about +y, and a map turned about +x by 90° shows its +x spot still at +x and its
+    +y pole's light along +z."""
+    from pipeline.math.envmap import rotation_about, rotation_y
+
+    np.testing.assert_allclose(rotation_about((0, 1, 0), 37.0), rotation_y(37.0), atol=1e-15)
+    np.testing.assert_allclose(rotation_about((2, 0, 0), 90.0) @ [0, 1, 0], [0, 0, 1],
+                               atol=1e-15)
+    rgb = np.zeros((17, 32, 3))
+    rgb[8, 7:9] = 1.0  # the spot at map +x
+    rgb[0] = 2.0  # the +y pole's row
+    turned = EnvironmentMap(rgb, 90.0, axis=(1.0, 0.0, 0.0))
+    assert turned.radiance(np.array([[1.0, 0, 0]]))[0, 0] == pytest.approx(1.0)
+    assert turned.radiance(np.array([[0, 0, 1.0]]))[0, 0] == pytest.approx(2.0)
+    assert turned.radiance(np.array([[0, 1.0, 0]]))[0, 0] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_sampling_density_matches_pdf_and_integrates_to_one():
     env = EnvironmentMap(np.random.default_rng(1).gamma(0.5, size=(16, 32, 3)), 25.0)
     rng = np.random.default_rng(2)

@@ -270,3 +270,31 @@ def test_smooth_welds_a_faceted_mesh_file_and_only_when_asked(tmp_path):
     assert scene.section("objects.bunny") != key_before
     doc["objects"]["bunny"]["smooth"] = False
     assert load_scene(write_scene(tmp_path, doc)).section("objects.bunny") == key_before
+
+
+def test_environment_axis(tmp_path):
+    """An environment light turns about its ``axis`` (normalised; default +y); a zero
+    axis is refused naming the key; method sg, which turns maps about ±y only, refuses
+    another axis before anything is baked."""
+    from helpers import constant_environment
+
+    from pipeline.registry import check_method_scene, get_method
+
+    doc = small_scene_dict(8)
+    env = constant_environment(tmp_path / "c.exr", [1.0, 1.0, 1.0])
+    doc["lights"] = [{"type": "environment", "file": str(env), "rotation": 30}]
+    plain = load_scene(write_scene(tmp_path, doc)).environment
+    assert plain.axis == (0.0, 1.0, 0.0) and plain.turn_about_y == 30.0
+    doc["lights"][0]["axis"] = [0, -2, 0]
+    assert load_scene(write_scene(tmp_path, doc)).environment.turn_about_y == -30.0
+    doc["lights"][0]["axis"] = [3, 0, 4]
+    tilted = load_scene(write_scene(tmp_path, doc))
+    assert tilted.environment.axis == pytest.approx((0.6, 0.0, 0.8))
+    assert tilted.environment.turn_about_y is None
+    np.testing.assert_allclose(tilted.environment.to_world @ [0.6, 0, 0.8], [0.6, 0, 0.8],
+                               atol=1e-15)  # the axis stays
+    with pytest.raises(PrtError, match="method sg turns an environment map about \\+y only"):
+        check_method_scene(get_method("sg"), tilted)
+    doc["lights"][0]["axis"] = [0, 0, 0]
+    with pytest.raises(PrtError, match=r"lights\[0\]\.axis.*non-zero direction"):
+        load_scene(write_scene(tmp_path, doc))

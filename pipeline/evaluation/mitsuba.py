@@ -25,8 +25,8 @@ let paths through but still block Mitsuba's shadow rays.)
 
 Environment maps (our convention is Mitsuba's; measured with ``emitter.eval`` and renders,
 Mitsuba 3.9.1). A unit world direction d (the way a ray escapes) is rotated into the map,
-d' = R_y(−θ) d with θ the light's ``rotation`` in degrees (right-handed about +y, i.e.
-Mitsuba's to_world = rotate([0, 1, 0], θ)), and looked up at::
+d' = Rᵀ d with R the light's ``rotation`` in degrees about its ``axis`` (right-handed,
+default +y, i.e. Mitsuba's to_world = rotate(axis, θ)), and looked up at::
 
     u = atan2(d'.x, −d'.z) / 2π  (mod 1)        v = acos(d'.y) / π
     column x = W·u − ½  (periodic)              row y = (H − 1)·v  (row 0 at the top)
@@ -281,7 +281,7 @@ def scene_dict(scene: Scene, geometry: Mapping[str, Any], transport: str, spp: i
             env = light.environment()
             out[f"light_{i}"] = {
                 "type": "envmap", "filename": str(env.file), "scale": env.scale,
-                "to_world": mi.ScalarTransform4f().rotate([0, 1, 0], env.rotation)}
+                "to_world": mi.ScalarTransform4f().rotate(list(env.axis), env.rotation)}
         elif light.type == "quad":
             corner, edge_u, edge_v = (np.asarray(p[k], np.float64)
                                       for k in ("corner", "edge_u", "edge_v"))

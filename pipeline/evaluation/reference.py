@@ -193,7 +193,7 @@ class TransportScene:
         from pipeline.images import read_environment
 
         self.environments = [EnvironmentMap(read_environment(env.file), env.rotation,
-                                            env.scale)
+                                            env.scale, env.axis)
                              for env in (light.environment() for light in scene.lights
                                          if light.type == "environment")]
         self.emission = np.zeros((len(object_names), 3))

@@ -1,7 +1,9 @@
 """Environment lighting from a latitude-longitude radiance map.
 
-Mapping (Mitsuba 3's, so that the two renderers agree; world +y is up). A unit world
-direction d = (x, y, z), first rotated by −``rotation`` about +y, looks up the map at
+Mapping (Mitsuba 3's, so that the two renderers agree; world +y is up). The map is
+turned by ``rotation`` degrees about its unit ``axis`` (right-handed; default +y): the
+map-to-world rotation R (:func:`rotation_about`). A unit world direction d, first taken
+into the map by Rᵀ (d' = Rᵀd = (x, y, z)), looks up the map at
 
     u = atan2(x, −z) / 2π  (mod 1),  v = arccos(y) / π,
 
@@ -33,6 +35,17 @@ def rotation_y(degrees: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
+def rotation_about(axis: tuple[float, float, float] | np.ndarray, degrees: float
+                   ) -> np.ndarray:
+    """3×3 rotation by ``degrees`` about the unit ``axis`` (right-handed, Rodrigues):
+    R = cos a I + sin a [k]ₓ + (1 − cos a) k kᵀ. About +y it is :func:`rotation_y`."""
+    k = np.asarray(axis, np.float64)
+    k = k / np.linalg.norm(k)
+    a = np.radians(degrees)
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.cos(a) * np.eye(3) + np.sin(a) * cross + (1.0 - np.cos(a)) * np.outer(k, k)
+
+
 def direction_to_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map-space unit directions (..., 3) to (u, v) in [0, 1)."""
     u = np.mod(np.arctan2(d[..., 0], -d[..., 2]) / (2.0 * np.pi), 1.0)
@@ -49,12 +62,13 @@ def uv_to_direction(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 class EnvironmentMap:
     """A latitude-longitude map ``rgb`` (H, W, 3) of radiance, rotated by ``rotation``
-    degrees about +y and multiplied by ``scale``."""
+    degrees about the unit ``axis`` (default +y) and multiplied by ``scale``."""
 
-    def __init__(self, rgb: np.ndarray, rotation: float = 0.0, scale: float = 1.0) -> None:
+    def __init__(self, rgb: np.ndarray, rotation: float = 0.0, scale: float = 1.0,
+                 axis: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> None:
         self.rgb = np.asarray(rgb, np.float64) * scale
         self.height, self.width = self.rgb.shape[:2]
-        self.to_world = rotation_y(rotation)
+        self.to_world = rotation_about(axis, rotation)
         rows = (np.arange(self.height) + 0.5) / self.height
         weight = (self.rgb @ LUMINANCE).clip(0.0) * np.sin(np.pi * rows)[:, None]
         total = weight.sum()

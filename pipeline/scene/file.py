@@ -708,7 +708,11 @@ class _QuadLight(_LightSection):
 
 
 class _EnvironmentLight(_LightSection):
+    """A latitude-longitude map ``file`` turned by ``rotation`` degrees about ``axis``
+    (default +y), radiance × ``scale``."""
+
     type: Literal["environment"]
+    axis: Direction | None = None
     file: File
     rotation: Annotated[float | None, PlainValidator(_number)] = None
     scale: Annotated[float | None, PlainValidator(lambda v: _number(v, 0.0))] = None

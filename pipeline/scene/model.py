@@ -9,6 +9,7 @@ what stage keys hash (with the SHA-256 of every file a section names).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import re
 from dataclasses import dataclass, field, replace
@@ -16,7 +17,10 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pipeline.errors import PrtError
+from pipeline.math.envmap import rotation_about
 
 _FILE_HASHES: dict[tuple[str, int, int], str] = {}
 
@@ -125,12 +129,28 @@ class SceneObject:
 @dataclass(frozen=True)
 class Environment:
     """An environment light as renderers read it: its latitude-longitude map ``file``,
-    its ``rotation`` about +y in degrees (the scene file's ``rotation``; the run-time
-    edit ``--env-rotate``) and its radiance ``scale``."""
+    its ``rotation`` in degrees about the unit ``axis`` (right-handed; the scene file's
+    ``rotation`` and ``axis``, default +y; the run-time edit ``--env-rotate`` sets the
+    degrees) and its radiance ``scale``."""
 
     file: Path
     rotation: float = 0.0
     scale: float = 1.0
+    axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
+
+    @property
+    def to_world(self) -> np.ndarray:
+        """The 3×3 map-to-world rotation (pipeline/math/envmap.py)."""
+        return rotation_about(self.axis, self.rotation)
+
+    @property
+    def turn_about_y(self) -> float | None:
+        """The rotation as degrees about +y where the axis is ±y (a shift of the map's
+        longitude: renderers take it without trigonometry per pixel), else None."""
+        x, y, z = self.axis
+        if x != 0.0 or z != 0.0:
+            return None
+        return self.rotation if y > 0 else -self.rotation
 
 
 @dataclass(frozen=True)
@@ -145,8 +165,11 @@ class Light:
         """This environment light's map, rotation and scale (defaults: 0°, 1)."""
         assert self.type == "environment", self.type
         p = self.params
+        axis = [float(x) for x in p.get("axis", (0.0, 1.0, 0.0))]
+        length = math.hypot(*axis)
         return Environment(Path(p["file"]), float(p.get("rotation", 0.0)),
-                           float(p.get("scale", 1.0)))
+                           float(p.get("scale", 1.0)), (axis[0] / length, axis[1] / length,
+                                                       axis[2] / length))
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ sparse path keeps them on the device).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
@@ -117,6 +117,26 @@ class GBuffer:
         frame's scatter into a DeviceImage (pipeline/render/__init__.py)."""
         return (cl.read_only_buffer(self.pixel.astype(np.int32)),
                 cl.read_only_buffer(self.miss_pixel.astype(np.int32)))
+
+    def turned(self, to_world: np.ndarray) -> GBuffer:
+        """This G-buffer as the map's own frame sees it, for a map turned by the
+        map-to-world rotation R (``to_world``, 3×3) about any axis: shading frames, views
+        and the missing rays' directions taken into the map by Rᵀ. Lighting the unturned
+        map from frame RᵀF is lighting the turned map from F, and the local view
+        (RᵀF)ᵀ(Rᵀω_o) = Fᵀω_o is unchanged; texels, materials and pixels are the same
+        (their device buffers shared). A turn about +y needs none of this: it shifts the
+        lookup's φ (``turn``)."""
+        r = np.asarray(to_world, np.float64)
+
+        def into_map(rows: np.ndarray) -> np.ndarray:  # Rᵀv for each row v: vᵀR
+            return rows.astype(np.float64) @ r
+
+        turned = replace(self, normal=into_map(self.normal), tangent=into_map(self.tangent),
+                         view=into_map(self.view), miss=into_map(self.miss))
+        for shared in ("device", "pixel_device"):
+            if shared in self.__dict__:
+                turned.__dict__[shared] = self.__dict__[shared]
+        return turned
 
     @cached_property
     def miss_uv_device(self) -> Any:

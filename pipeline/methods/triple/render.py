@@ -11,8 +11,9 @@ with every factor a spherical Haar wavelet expansion over local directions ω
 
 * L(F ·) interpolated trilinearly between the nearest frames of the rotation grid
   (pipeline/methods/triple/frame_grids.py ``FrameGrid``); an environment rotation α about +y at
-  run time is a shift of the lookup's φ (``FrameGrid.weights``' ``turn``), its ``scale``
-  a factor on the result;
+  run time is a shift of the lookup's φ (``FrameGrid.weights``' ``turn``), a rotation R
+  about any other axis looks up the frame RᵀF instead (``GBuffer.turned``: one pass over
+  the pixels per turn), its ``scale`` a factor on the result;
 * V_x interpolated bilinearly between the nearest texels of the object's visibility
   texture (texels that hold nothing are left out and the weights renormalised);
 * ρ̃ the material's diffuse row weighted by kd and its glossy rows at the nearest
@@ -314,6 +315,7 @@ class TripleRenderer:
         self.spliced: dict[tuple, WaveletRows] = {}
         self.edited_dense: list[tuple[WaveletRows, DenseTables]] = []
         self.gbuffers: dict[tuple, GBuffer] = {}
+        self.turned: dict[tuple, GBuffer] = {}  # the last camera's, for the last turn
         self.images: dict[int, DeviceImage] = {}
         self.device: dict[str, Any] = {}
 
@@ -347,6 +349,16 @@ class TripleRenderer:
             self.spliced[tuple(edits)] = rows
         return self.spliced[tuple(edits)]
 
+    def turned_gbuffer(self, camera: tuple, gbuffer: GBuffer, to_world: np.ndarray
+                       ) -> GBuffer:
+        """The camera's G-buffer taken into a map turned by ``to_world`` about an axis
+        other than ±y (GBuffer.turned), kept for the next frame with the same turn."""
+        key = (camera, np.asarray(to_world, np.float64).tobytes())
+        if key not in self.turned:
+            self.turned.clear()
+            self.turned[key] = gbuffer.turned(to_world)
+        return self.turned[key]
+
     def dense_of(self, brdf: WaveletRows) -> DenseTables | None:
         """The dense tables for these BRDF rows (converted once per edited table)."""
         if self.base_dense is None or brdf is self.tables.brdf:
@@ -370,12 +382,16 @@ class TripleRenderer:
             self.gbuffers[key] = camera_gbuffer(self.tracer, self.mesh, atlas, self.detail,
                                                 cam)
         gbuffer = self.gbuffers[key]
+        env = scene.environment
+        about_y = env.turn_about_y
+        if about_y is None:  # a turn about another axis: the frames taken into the map
+            gbuffer = self.turned_gbuffer(key, gbuffer, env.to_world)
         _, angles_ms = gbuffer.angles(tables.frames, tables.views)  # 0 ms once cached
         t1 = time.perf_counter()
         frame_tables = dataclasses.replace(tables, brdf=self.current_brdf(scene))
         frame_dense = self.dense_of(frame_tables.brdf)
         t_resample = time.perf_counter()
-        turn = float(np.radians(scene.environment.rotation))
+        turn = float(np.radians(about_y or 0.0))
         brdfs = scene_brdfs(scene, self.material_names)
         lookup = LookupTables.of(frame_tables, atlas, np.array([b.albedo for b in brdfs]),
                                  np.array([b.specular for b in brdfs]))
@@ -385,7 +401,7 @@ class TripleRenderer:
         shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * gbuffer.count)
         _, kernel_times, moved = shade_gbuffer(frame_tables, frame_dense, gbuffer,
                                                lookup, turn, static, out_buffer=shaded)
-        scale = scene.environment.scale
+        scale = env.scale
         pixel, miss_pixel = gbuffer.pixel_device
         scatter_ms = image.scatter(shaded, pixel, gbuffer.count, scale)
         background_ms = 0.0
