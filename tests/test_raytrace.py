@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.device.raytrace import Mesh, RayTracer, surface_at
 
@@ -53,3 +54,18 @@ def test_surface_at_normal_precision():
         s = surface_at(mesh, hits, origins, directions, normal_dtype)
         assert s.normal.dtype == expected
         np.testing.assert_allclose(np.linalg.norm(s.normal, axis=1), 1.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize("size", [(7, 5), (64, 48)])
+def test_image_rays_equal_camera_rays(size):
+    """image_rays (the camera's own directions cached per size, turned by one 3×3
+    product) gives camera_rays' rays, flat: the same float64 sums in another order, so
+    equal after the cast to float32 to within one float32 rounding (measured: equal)."""
+    from pipeline.math.camera import camera_rays, image_rays
+
+    camera = ([0.3, 0.55, 3.4], [0.0, -0.05, 0.0], [0, 1, 0], 32.0, *size)
+    origins, directions = camera_rays(*camera)
+    o, d = image_rays(*camera)
+    assert o.shape == d.shape == (size[0] * size[1], 3)
+    np.testing.assert_array_equal(o, origins.reshape(-1, 3))
+    np.testing.assert_allclose(d, directions.reshape(-1, 3), rtol=0, atol=2 ** -23)

@@ -46,18 +46,18 @@ PRESETS = {"default": [],
 def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
                   tables: Any) -> dict[str, float]:
     """Milliseconds of the kernel path's parts (as ``camera_gbuffer`` runs them)."""
-    from pipeline.math.camera import camera_rays
+    from pipeline.math.camera import image_rays
     from pipeline.methods.triple import render
     from pipeline.methods.triple.gbuffer import surface_attributes
 
     t0 = time.perf_counter()
-    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                      cam.width, cam.height)
+    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                     cam.width, cam.height)
     t1 = time.perf_counter()
-    hits = tracer.intersect(origins.reshape(-1, 3), directions.reshape(-1, 3))
+    hits = tracer.intersect(origins, directions)
     t2 = time.perf_counter()
     pixel = np.flatnonzero(hits.prim >= 0)
-    surface_attributes(mesh, atlas.face_uv, hits, directions.reshape(-1, 3), pixel)
+    surface_attributes(mesh, atlas.face_uv, hits, directions, pixel)
     t3 = time.perf_counter()
     whole = render.camera_gbuffer(tracer, mesh, atlas, detail, cam)
     t4 = time.perf_counter()

@@ -8,6 +8,8 @@ vertical field of view in degrees.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 
@@ -50,3 +52,30 @@ def camera_rays(position, look_at, up, fov: float, width: int, height: int,
     d = pixel_directions(position, look_at, up, fov, width, height, x, y)
     origins = np.broadcast_to(np.asarray(position, float), d.shape)
     return origins.astype(np.float32), d.astype(np.float32)
+
+
+@lru_cache(maxsize=4)
+def _local_directions(fov: float, width: int, height: int) -> np.ndarray:
+    """Unit directions (H·W, 3) float64 through the pixel centres in the camera's own
+    frame (right, true_up, forward), row-major from the top row (cached per size)."""
+    half_h = np.tan(np.radians(fov) / 2.0)
+    half_w = half_h * width / height
+    sx = (2.0 * (np.arange(width) + 0.5) / width - 1.0) * half_w
+    sy = (1.0 - 2.0 * (np.arange(height) + 0.5) / height) * half_h
+    d = np.empty((height, width, 3))
+    d[..., 0], d[..., 1], d[..., 2] = sx[None, :], sy[:, None], 1.0
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d.setflags(write=False)
+    return d.reshape(-1, 3)
+
+
+def image_rays(position, look_at, up, fov: float, width: int, height: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`camera_rays` of the whole image, flat: origins and unit directions, each
+    (H·W, 3) float32, the directions turned from the camera's frame (cached per image
+    size and fov) by one 3×3 product: a new camera costs one pass over the pixels
+    (equal to camera_rays' to float64 rounding, then float32)."""
+    right, true_up, forward = camera_frame(position, look_at, up)
+    d = (_local_directions(float(fov), int(width), int(height))
+         @ np.stack([right, true_up, forward])).astype(np.float32)
+    return np.broadcast_to(np.asarray(position, np.float32), d.shape), d

@@ -149,23 +149,29 @@ class GBuffer:
 
 
 def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,
-                       pixel: np.ndarray) -> dict[str, np.ndarray]:
+                       pixel: np.ndarray, static: dict[str, Any] | None = None
+                       ) -> dict[str, np.ndarray]:
     """Kernel ``triple_surface`` (kernels/triple/triple_surface.cl): the G-buffer's ``normal``,
     ``tangent``, ``view`` (P, 3), ``texel_xy`` (P, 2) float32 and ``object`` (P,) int32
     at the camera rays ``pixel`` (P,) of ``hits`` and unit ``directions`` (N, 3) (all
     of them hits), from the mesh's vertex normals (blended in float32), unit face normals
-    and unit uv tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels. Its
+    and unit uv tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels
+    (uploaded once where ``static``, a renderer's cache of device buffers, is given). Its
     NumPy twin is pipeline.device.raytrace.Surface with Atlas.texel_xy."""
     import pyopencl as pcl
 
     n = len(pixel)
-    tangent = mesh.face_tangent
-    tangent = tangent / np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    static = {} if static is None else static
+    if "surface_mesh" not in static:
+        tangent = mesh.face_tangent
+        tangent = tangent / np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+        static["surface_mesh"] = [cl.read_only_buffer(np.asarray(a, dtype)) for a, dtype in (
+            (mesh.faces, np.int32), (mesh.normals, np.float32),
+            (mesh.face_normal, np.float32), (tangent, np.float32), (face_uv, np.float32),
+            (mesh.face_object, np.int32))]
     inputs = [cl.read_only_buffer(np.asarray(a, dtype)) for a, dtype in (
         (pixel, np.int32), (hits.prim, np.int32), (hits.u, np.float32), (hits.v, np.float32),
-        (directions, np.float32), (mesh.faces, np.int32), (mesh.normals, np.float32),
-        (mesh.face_normal, np.float32), (tangent, np.float32), (face_uv, np.float32),
-        (mesh.face_object, np.int32))]
+        (directions, np.float32))] + static["surface_mesh"]
     out = {"normal": np.empty((n, 3), np.float32), "tangent": np.empty((n, 3), np.float32),
            "view": np.empty((n, 3), np.float32), "texel_xy": np.empty((n, 2), np.float32),
            "object": np.empty(n, np.int32)}

@@ -52,7 +52,7 @@ from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math.brdf import scene_brdfs
-from pipeline.math.camera import camera_rays
+from pipeline.math.camera import image_rays
 from pipeline.math.sphwavelet import (
     depth_first_keys,
     kernel_tables,
@@ -180,21 +180,21 @@ def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
 
 
 def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
-                   cam: Any) -> GBuffer:
+                   cam: Any, static: dict[str, Any] | None = None) -> GBuffer:
     """The G-buffer of camera ``cam`` (pipeline/methods/triple/gbuffer.py): camera rays
     traced, surface attributes at the hits on the device (``surface_attributes``: the
     interpolated normal, the uv tangent, the texel coordinates); where a material has a
     blend or a bump, ``detail`` (pipeline/render/surface_detail.py) turns the shading frame and
     blends the materials on the host. The texel coordinates stay with the geometric hit
     (the visibility is the unbumped texel's, paper 004 §4.2). NumPy twin:
-    :func:`camera_gbuffer_numpy`."""
-    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                      cam.width, cam.height)
-    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    :func:`camera_gbuffer_numpy`. ``static``: the renderer's cache of device buffers
+    (the mesh's are uploaded once)."""
+    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                     cam.width, cam.height)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     pixel = np.flatnonzero(hit)
-    s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel)
+    s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel, static)
     material = np.asarray(mesh.object_material, np.int32)[s["object"]]
     material_b, blend = material.copy(), np.zeros(len(pixel), np.float32)
     which = np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
@@ -211,13 +211,12 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
 
 
 def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
-                         cam: Any) -> GBuffer:
+                         cam: Any, static: dict[str, Any] | None = None) -> GBuffer:
     """:func:`camera_gbuffer` on the host: every attribute from
     pipeline.device.raytrace.Surface, ``detail`` and :meth:`Atlas.texel_xy` (the device
-    kernel's twin, tests and benchmarks)."""
-    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                      cam.width, cam.height)
-    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    kernel's twin, tests and benchmarks; it uploads nothing, so ``static`` is unused)."""
+    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                     cam.width, cam.height)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     d = directions[hit]  # float32, as the G-buffer keeps it (normals blended in float32)
@@ -380,7 +379,7 @@ class TripleRenderer:
         if not was_cached:  # a new camera: trace it (the previous one is dropped)
             self.gbuffers.clear()
             self.gbuffers[key] = camera_gbuffer(self.tracer, self.mesh, atlas, self.detail,
-                                                cam)
+                                                cam, static)
         gbuffer = self.gbuffers[key]
         env = scene.environment
         about_y = env.turn_about_y
