@@ -87,6 +87,33 @@ def rotate_y(coefficients: np.ndarray, degrees: float) -> np.ndarray:
     return out
 
 
+def rotation_matrix(to_world: np.ndarray, order: int = ORDER) -> np.ndarray:
+    """M (order², order²) turning coefficients by the rotation ``to_world`` (3×3, any
+    axis): the turned function f'(ω) = f(Rᵀω) has f' = M f, M_kj = ∫ Y_k(ω) Y_j(Rᵀω) dω.
+    Rotation keeps each band, so the product Y_k (Y_j ∘ Rᵀ) is a polynomial of band
+    ≤ 2(order − 1) and the quadrature is exact: Gauss–Legendre in cos θ with ``order``
+    nodes (exact to degree 2·order − 1) times 2·order equally spaced φ (exact to
+    frequency 2·order − 1). About +y it is :func:`rotate_y`'s rule."""
+    nodes, weights = np.polynomial.legendre.leggauss(order)
+    n_phi = 2 * order
+    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
+    sin_theta = np.sqrt(1.0 - nodes ** 2)[:, None]
+    directions = np.stack([sin_theta * np.sin(phi), np.broadcast_to(nodes[:, None],
+                           (order, n_phi)), -sin_theta * np.cos(phi)], axis=-1).reshape(-1, 3)
+    solid = np.repeat(weights * (2.0 * np.pi / n_phi), n_phi)
+    here = basis(directions, order) * solid[:, None]
+    turned = basis(directions @ np.asarray(to_world, np.float64), order)  # Y_j(Rᵀω)
+    return here.T @ turned
+
+
+def rotate(coefficients: np.ndarray, to_world: np.ndarray) -> np.ndarray:
+    """Coefficients (order², ...) of the function turned by the 3×3 rotation
+    ``to_world`` (any axis; :func:`rotation_matrix`)."""
+    c = np.asarray(coefficients, np.float64)
+    order = int(round(np.sqrt(c.shape[0])))
+    return np.tensordot(rotation_matrix(to_world, order), c, axes=1)
+
+
 def latlong_quadrature(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Directions (H, W, 3) and solid angles (H, 1) (sr) of a lat-long map's samples as
     ``envmap.EnvironmentMap.radiance`` reads them: row i at θ = πi/(H − 1) (the poles
