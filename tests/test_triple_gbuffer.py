@@ -122,9 +122,13 @@ def below_horizon_free_brdf(rng, tables):
 @pytest.mark.parametrize("budget", [20, 50, 80, 320])
 def test_dense_top_only_equals_sparse_triple_products(budget, horizon):
     """The dense path (triangle values of the rows cut top-only, lookups on the device)
-    against the float64 sparse triple products of the same cut rows. Tolerance: the
-    lookups' weights (above, ≤ 1e-4) and float32 sums over ≤ 320 triangles: 2e-4 of the
-    largest pixel; the float64 twin of the dense sum to 1e-5 (float32 tables). With
+    against the float64 sparse triple products of the same cut rows. The tables are
+    float16 over a scale per row: each factor off by ≤ 2⁻¹² of its row's largest value
+    (half an ulp in [½, 1)), so a product by ≤ 3·2⁻¹² of the product of the rows'
+    largest values, which on these smooth rows stay within 3× of the values summed:
+    the float64 twin of the dense sum within 1e-3 of the largest pixel of the sparse
+    sums (measured 1e-4); the kernel against its twin within the lookups' weights
+    (above, ≤ 1e-4) and float32 sums over ≤ 320 triangles: 2e-4 of it. With
     random BRDF rows every triangle is kept; with rows zero below the horizon
     (``horizon``) only the triangles above it are (12 / 44 / 168 of 20 / 80 / 320),
     except at budget 50: a cut inside level 1 leaves the rows non-zero below the
@@ -150,9 +154,9 @@ def test_dense_top_only_equals_sparse_triple_products(budget, horizon):
     expected = shade_numpy(tables, host, pixels)
     scale = np.abs(expected).max()
     assert scale > 1.0 and moved > 0 and times["kernel_ms"] >= 0.0
-    assert np.allclose(shade_dense_numpy(dense, host)[pixels], expected, rtol=0,
-                       atol=1e-5 * scale)
-    assert np.allclose(rgb[pixels], expected, rtol=0, atol=2e-4 * scale)
+    twin = shade_dense_numpy(dense, host)[pixels]
+    assert np.allclose(twin, expected, rtol=0, atol=1e-3 * scale)
+    assert np.allclose(rgb[pixels], twin, rtol=0, atol=2e-4 * scale)
 
 
 def test_sparse_path_from_the_gbuffer_matches_numpy():

@@ -312,8 +312,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             shade_ms = entry["rotation"]["median"]["shade_ms"]
             entry["kernel_only"] = kernel_only(tables, dense, gbuffer, lookup, args.frames)
             entry["dense"] = {"level": level, "triangles": dense.triangles,
-                              "table_mb": (dense.light.nbytes + dense.visibility.nbytes
-                                           + dense.brdf.nbytes) / 1e6,
+                              "table_mb": dense.nbytes / 1e6,
                               "bytes_must_move": must,
                               "effective_gbs": must / (shade_ms * 1e-3) / 1e9}
             entry["sparse_same_rows"] = sparse_estimate(tables, gbuffer, lookup, 0.0,

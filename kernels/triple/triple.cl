@@ -137,40 +137,43 @@ __kernel void triple_shade(__global const uint* light_start, __global const usho
  * top-only budget ≤ 20·4^k is a function constant on the T level-k triangles, so the
  * triple product is
  *     Σ_t A_t L_t V_t ρ̃_t
- * with per-triangle values (triple_dense.py): light (rows · 3 · T, planar R, G, B rows,
- * × A_t), visibility and BRDF (rows · T). The interpolation weights sum the rows W
- * triangles at a time (vector loads, no gathers); a block where V is 0 reads no light
- * or BRDF. */
+ * with per-triangle values (dense.py): light (rows · 3 · T, planar R, G, B rows, × A_t)
+ * over light_scale (rows), visibility (rows · T) and BRDF (rows · T) over brdf_scale,
+ * stored as half (converted as loaded; a row's scale goes into its weight). The
+ * interpolation weights sum the rows W triangles at a time (vector loads, no gathers);
+ * a block where V is 0 reads no light or BRDF. */
 #if TRIPLE_W == 8
 typedef float8 triple_vec;
-#define TRIPLE_VLOAD vload8
+#define TRIPLE_VLOAD vload_half8
 inline float triple_hsum(float8 x) {
     float4 a = x.lo + x.hi;
     return a.x + a.y + a.z + a.w;
 }
 #else
 typedef float4 triple_vec;
-#define TRIPLE_VLOAD vload4
+#define TRIPLE_VLOAD vload_half4
 inline float triple_hsum(float4 x) { return x.x + x.y + x.z + x.w; }
 #endif
 
-__kernel void triple_shade_dense(__global const float* light, __global const float* vis,
-                                 __global const float* brdf, TRIPLE_GBUFFER_ARGS,
+__kernel void triple_shade_dense(__global const half* light,
+                                 __global const float* light_scale,
+                                 __global const half* vis, __global const half* brdf,
+                                 __global const float* brdf_scale, TRIPLE_GBUFFER_ARGS,
                                  const int n, __global float* out)
 {
     int i = get_global_id(0);
     if (i >= n) return;
     TRIPLE_LOOKUP(i, g, look);
-    __global const float* lrow[TRIPLE_LIGHT_ROWS];
-    __global const float* vrow[TRIPLE_VIS_ROWS];
-    __global const float* brow[TRIPLE_BRDF_ROWS];
+    __global const half* lrow[TRIPLE_LIGHT_ROWS];
+    __global const half* vrow[TRIPLE_VIS_ROWS];
+    __global const half* brow[TRIPLE_BRDF_ROWS];
     float lw[TRIPLE_LIGHT_ROWS], vw[TRIPLE_VIS_ROWS];
     float3 bw[TRIPLE_BRDF_ROWS];
     int nl = 0, nv = 0, nb = 0;  /* rows of non-zero weight */
     for (int r = 0; r < TRIPLE_LIGHT_ROWS; ++r)
         if (look.light_weight[r] != 0.0f) {
             lrow[nl] = light + (size_t)look.light_rows[r] * (3 * TRIPLE_T);
-            lw[nl++] = look.light_weight[r];
+            lw[nl++] = look.light_weight[r] * light_scale[look.light_rows[r]];
         }
     for (int r = 0; r < TRIPLE_VIS_ROWS; ++r)
         if (look.vis_weight[r] != 0.0f) {
@@ -181,7 +184,7 @@ __kernel void triple_shade_dense(__global const float* light, __global const flo
         float3 x = look.brdf_weight[r];
         if (x.x != 0.0f || x.y != 0.0f || x.z != 0.0f) {
             brow[nb] = brdf + (size_t)look.brdf_rows[r] * TRIPLE_T;
-            bw[nb++] = x;
+            bw[nb++] = x * brdf_scale[look.brdf_rows[r]];
         }
     }
     triple_vec sr = (triple_vec)(0.0f), sg = (triple_vec)(0.0f), sb = (triple_vec)(0.0f);

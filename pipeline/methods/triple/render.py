@@ -135,7 +135,7 @@ def shade_gbuffer(tables: TripleTables, dense: DenseTables | None, gbuffer: GBuf
                             "TRIPLE_T": dense.triangles, "TRIPLE_W": dense.vector_width})
         ms = cl.run(kernel, max(n, 1), *dense.device, *args, np.int32(n), out=out,
                     writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
-        moved = sum(a.nbytes for a in (dense.light, dense.visibility, dense.brdf)) + out_bytes
+        moved = dense.nbytes + out_bytes
         return result, {"lookup_ms": 0.0, "kernel_ms": ms}, moved + gbuffer_bytes
     buffers, lookup_ms = device_lookups(gbuffer, tables, lookup, turn, static)
     basis = kernel_tables(tables.basis)
