@@ -16,7 +16,10 @@ Run-time options: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is 
 over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``; ``component``
 (str, ``all``): ``glossy`` or ``diffuse`` render the light reflected by the lobes or by
 the SH term alone, without the background (``prt evaluate`` measures each against
-``prt reference --transport first-glossy --lobe glossy|diffuse``).
+``prt reference --transport first-glossy --lobe glossy|diffuse``); ``normal`` (str,
+``pixel``): each vertex's lobes turned by the rotation taking the vertex's mirror
+direction to the pixel's (its blended normal's), so the highlight follows the pixel's
+normal (decision 0039), or ``vertex``: the lobes as fitted (paper 003).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -44,6 +47,10 @@ METHOD = Method(
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views",
                     choices=("log", "linear")),
+             Option("normal", str, "pixel",
+                    "pixel or vertex: each vertex's lobes turned to the pixel's blended "
+                    "normal (decision 0039), or as fitted at the vertex (paper 003)",
+                    choices=("pixel", "vertex")),
              Option("component", str, "all",
                     "all, glossy or diffuse: the whole frame, or the light reflected by "
                     "the lobes or by the SH term alone (no background)",
