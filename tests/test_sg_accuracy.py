@@ -59,24 +59,27 @@ def ball(tmp_path_factory):
 
 def test_glossy_light_is_within_its_measured_error_of_the_path_tracer(ball):
     """sg's glossy image against the first-glossy glossy reference at 1024 paths per
-    pixel, over the ball's pixels. Measured (Intel and PoCL alike): 17.2 % relative
-    RMSE with the lobes turned to the pixel's normal (the default), 23.5 % as fitted at
-    the vertices (``normal=vertex``, the paper's); the reference's own estimated noise
-    is 4.0 % (it adds in quadrature: 16.7 % is sg's), the glossy mean ratio 0.86 (the
-    one-lobe fit's bias, decision 0037). Bounded at 20 %: the measured error plus
-    room for the reference's seed-fixed noise and float32 differences between devices
-    (1e-4), below the 23.5 % that reverting the turn gives, which the second
-    assertion watches."""
+    pixel, over the ball's pixels. Measured (Intel and PoCL alike): 23.5 % relative
+    RMSE with the lobes as fitted at the vertices (the default, ``normal=vertex``),
+    17.2 % with each vertex's lobes turned towards the pixel's normal
+    (``normal=pixel``, decision 0039: on this coarse, unoccluded ball the highlight's
+    place inside a face is most of the error); the reference's own estimated noise is
+    4.0 % (it adds in quadrature: 23.2 % and 16.7 % are sg's), the glossy mean ratio
+    0.82 / 0.86 (the one-lobe fit's bias, decision 0037). Bounded at 26 % and 20 %:
+    the measured errors plus room for the reference's seed-fixed noise and float32
+    differences between devices (1e-4 of a pixel), and the turn must keep at least
+    3 points of its 6.3-point gain: reverting it (pixel = vertex) fails."""
     scene, workdir, reference = ball
     surface = reference.mean.sum(axis=-1) > 0
     assert surface.sum() > 300 and reference.estimate < 0.05
     error = {}
-    for normal in ("pixel", "vertex"):
+    for normal in ("vertex", "pixel"):
         frame = job.render_frame(scene, workdir, "sg",
                                  {"component": "glossy", "normal": normal}).rgb
         error[normal] = metrics.relative_rmse(frame, reference.mean, surface)
+    assert error["vertex"] < 0.26, error
     assert error["pixel"] < 0.20, error
     assert error["vertex"] > error["pixel"] + 0.03, error
     default = job.render_frame(scene, workdir, "sg", {"component": "glossy"}).rgb
     assert metrics.relative_rmse(default, reference.mean, surface) == \
-        pytest.approx(error["pixel"], abs=1e-9)
+        pytest.approx(error["vertex"], abs=1e-9)

@@ -40,7 +40,7 @@
 #define LAMBDA_LOG 1
 #endif
 #ifndef PIXEL_NORMAL
-#define PIXEL_NORMAL 1
+#define PIXEL_NORMAL 0
 #endif
 #define SG_FIELDS 7
 

@@ -75,9 +75,10 @@ from pipeline.scene.model import Scene
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
 LAMBDA_BLENDS = ("log", "linear")
-# where a vertex's lobes point: turned to the pixel's blended normal (decision 0039) or
-# as fitted at the vertex (paper 003)
-NORMALS = ("pixel", "vertex")
+# where a vertex's lobes point: as fitted at the vertex (paper 003, the default), or
+# turned towards the pixel's blended normal (decision 0039: no gain on bunny_sg and
+# dragon_sg, 8x the shading kernel's time; a gain on coarse unoccluded meshes)
+NORMALS = ("vertex", "pixel")
 # what a frame shows: everything, or the reflected light of the lobes or of the SH term
 COMPONENTS = ("all", "glossy", "diffuse")
 
@@ -349,13 +350,13 @@ def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
 class SgDevice:
     """The tables on the OpenCL device, uploaded once (with ``lambda_blend="log"`` the
     lobes' last field holds log λ, as the kernel blends it); ``shade`` runs
-    ``sg_shade``. ``normal``: ``pixel`` turns each vertex's lobes to the pixel's normal
-    (PIXEL_NORMAL = 1; needs ``tables.normals``, else as ``vertex``), ``vertex`` the
-    paper's lobes as fitted."""
+    ``sg_shade``. ``normal``: ``vertex`` the paper's lobes as fitted, ``pixel`` each
+    vertex's lobes turned towards the pixel's normal (PIXEL_NORMAL = 1; needs
+    ``tables.normals``, else as ``vertex``; decision 0039)."""
 
     tables: SgTables
     lambda_blend: str = "log"
-    normal: str = "pixel"
+    normal: str = "vertex"
     buffers: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -505,7 +506,7 @@ class SgRenderer:
 
     def __init__(self, tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                  env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
-                 face_object: np.ndarray | None = None, normal: str = "pixel") -> None:
+                 face_object: np.ndarray | None = None, normal: str = "vertex") -> None:
         if normal not in NORMALS:
             raise PrtError("--option", f"normal={normal!r}: expected one of "
                            f"{', '.join(NORMALS)}")
@@ -592,7 +593,7 @@ class SgRenderer:
 
 
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
-                component: str = "all", normal: str = "pixel") -> SgRenderer:
+                component: str = "all", normal: str = "vertex") -> SgRenderer:
     """The method's renderer factory (pipeline/method.py): tables loaded once from the
     artifacts of ``geometry``, ``sg.relax``, ``sg.diffuse``, ``sg.env_prefilter``; the
     map for the background and the SH lighting from the scene's environment file."""
