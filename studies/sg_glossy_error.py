@@ -37,6 +37,15 @@ Every quantity is computed deterministically (no Monte-Carlo reference):
 * **chain**: the method's pixel as built here (N = 1 lobes blended, stack lookup)
   against E0; and the indirect part's share of E0, and mean ratios (bias) per stage.
 
+* **turned** (decision 0039): the fitted lobes turned towards the pixel's normal before
+  blending — every lobe by the rotation taking the vertex's mirror direction
+  reflect(ωo, n_v) to the pixel's (``turned_*``; ``per_view``: each stored view's own),
+  or by G(r_v; μ, λ) of that angle, the renderer's ``normal=pixel``
+  (``turned_aligned_chain_method_N1_vs_E0``).
+
+``--quick`` leaves out the denser-sampling rows; ``--state PREFIX`` pickles the fitted
+lobes and pixels (PREFIX_<scene>.pkl) to try render-time variants offline.
+
 Errors: relative RMSE over the selected pixels and channels, ‖E − E_ref‖ / ‖E0‖ (so
 stages add up in quadrature where independent), with the stage's mean ratio
 ΣE / ΣE_ref. What the method's relaxation and view coupling change is not
