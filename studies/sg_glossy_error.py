@@ -37,6 +37,15 @@ Every quantity is computed deterministically (no Monte-Carlo reference):
 * **chain**: the method's pixel as built here (N = 1 lobes blended, stack lookup)
   against E0; and the indirect part's share of E0, and mean ratios (bias) per stage.
 
+* **turned** (decision 0039): the fitted lobes turned towards the pixel's normal before
+  blending — every lobe by the rotation taking the vertex's mirror direction
+  reflect(ωo, n_v) to the pixel's (``turned_*``; ``per_view``: each stored view's own),
+  or by G(r_v; μ, λ) of that angle, the renderer's ``normal=pixel``
+  (``turned_aligned_chain_method_N1_vs_E0``).
+
+``--quick`` leaves out the denser-sampling rows; ``--state PREFIX`` pickles the fitted
+lobes and pixels (PREFIX_<scene>.pkl) to try render-time variants offline.
+
 Errors: relative RMSE over the selected pixels and channels, ‖E − E_ref‖ / ‖E0‖ (so
 stages add up in quadrature where independent), with the stage's mean ratio
 ΣE / ΣE_ref. What the method's relaxation and view coupling change is not
@@ -180,8 +189,37 @@ def rel(a: np.ndarray, b: np.ndarray, norm: float) -> dict:
             "mean_ratio": float(np.sum(a) / np.sum(b)) if np.sum(b) else float("nan")}
 
 
+def turn(a: np.ndarray, b: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v (..., 3) turned by the smallest rotation taking unit a (3,) to unit b (3,)
+    (identity where a and b are opposite): v + w×v + w×(w×v)/(1 + a·b), w = a×b — the
+    kernel's sg_turn."""
+    w, c = np.cross(a, b), float(a @ b)
+    if 1.0 + c < 1e-6:
+        return v
+    wv = np.cross(w, v)
+    return v + wv + np.cross(w, wv) / (1.0 + c)
+
+
+def turn_part(a: np.ndarray, b: np.ndarray, v: np.ndarray, fraction: float) -> np.ndarray:
+    """v (3,) turned about a×b by ``fraction`` of the angle from unit a to unit b (none
+    where |a×b| ≤ 1e-6): the renderer's turn (render.turn_means)."""
+    t = np.cross(a, b)
+    sine = float(np.linalg.norm(t))
+    if sine <= 1e-6:
+        return v
+    t /= sine
+    theta = fraction * math.atan2(sine, float(a @ b))
+    return (math.cos(theta) * v + math.sin(theta) * np.cross(t, v)
+            + (1 - math.cos(theta)) * float(t @ v) * t)
+
+
+def reflect(wo: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The mirror direction 2(ωo·n)n − ωo."""
+    return 2.0 * float(wo @ n) * n - wo
+
+
 def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
-          images: bool) -> dict:
+          images: bool, quick: bool = False, state: str = "") -> dict:
     t_start = time.perf_counter()
     path = Path(name) if name.endswith(".yaml") else ROOT / "scenes" / f"{name}.yaml"
     name = path.stem
@@ -265,6 +303,8 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
     # the vertices); views on a finer geodesic sphere (10 f² + 2 views), f = 4, 6
     a_sub = {level: np.zeros((P, 3)) for level in (1, 2)}
     c_freq = {f: np.zeros((P, 3)) for f in (4, 6)}
+    if quick:  # --quick: these rows are left out (they read as (a)'s and (c)'s)
+        a_sub, c_freq = {}, {}
     tri_f = {}
     for f in c_freq:
         from scipy.spatial import ConvexHull
@@ -288,7 +328,7 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
             b = np.maximum(beta[face], 0)
             vv.append(vf[fc[face]])
             ww.append(b / b.sum())
-        for a in range(3):
+        for a in range(3 if vv else 0):
             q = int(corner[p, a])
             r = truth.radiance(pos[q], vscene.normals[q], np.concatenate(vv))[0]
             for i, f in enumerate(tri_f):
@@ -472,17 +512,86 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
     em_raw[:] = sg.env_integral_reference(env, bm, bl, bw)
     ed[:] = sg.env_integral(stack, levels, bm, bl, bw)
 
+    # ---- the pixel's normal at render time (decision 0039): each vertex's lobes turned
+    # by the smallest rotation taking its mirror direction reflect(ωo, n_v) to the
+    # pixel's reflect(ωo, n_p) (n_p the blended normal), before blending; "per view":
+    # the rotation of each stored view's own mirror directions instead of ωo's;
+    # "aligned" (the renderer's): by G(r_v; μ, λ) of the angle, the lobes about the
+    # mirror direction all the way, the others (occlusion, indirect light) not
+    rb = np.zeros((MAX_N, P, 3))       # fits at the pixel's view, turned, blended over a
+    rbc = np.zeros((MAX_N, P, 3))      # fits at the 3 views, turned, radiances blended
+    jobs: dict[int, list] = {n: [] for n in range(MAX_N)}
+    turned = {"wo": [], "per_view": [], "aligned": []}  # N = 1 lobes blended after turning
+    for p in range(P):
+        rp = reflect(wo[p], nrm[p])
+        par = {k: ([], [], [], []) for k in turned}
+        for a in range(3):
+            q = int(corner[p, a])
+            nq = vscene.normals[q]
+            rv = reflect(wo[p], nq)
+            have = [lobe[(q, e)][0] for e in req[q] if (q, e) in lobe]
+            keys = [(("p", p), bary[p, a], rb)] + [
+                (("v", int(vidx[p, b])), bary[p, a] * vw[p, b], rbc) for b in range(3)]
+            for e, wgt, into in keys:
+                if (q, e) in lobe:
+                    for n in range(MAX_N):
+                        m, lam, w = lobe[(q, e)][n]
+                        jobs[n].append((into, p, wgt, turn(rv, rp, m), lam, w))
+                    m, lam, w = lobe[(q, e)][0]
+                elif have and e[0] == "v":
+                    mm = np.sum([h[0][0] for h in have], axis=0)
+                    m = (mm / np.linalg.norm(mm))[None]
+                    lam = np.exp(np.mean([np.log(h[1][0]) for h in have]))[None]
+                    w = np.zeros((1, 3))
+                else:
+                    continue
+                if e[0] != "v":
+                    continue
+                view = views92[e[1]]
+                for k, (a_dir, b_dir) in (("wo", (rv, rp)),
+                                          ("per_view", (reflect(view, nq),
+                                                        reflect(view, nrm[p])))):
+                    par[k][0].append(turn(a_dir, b_dir, m[0]))
+                    par[k][1].append(lam[0])
+                    par[k][2].append(w[0])
+                    par[k][3].append(wgt)
+                along = math.exp(-0.5 * lam[0] * float(np.sum((rv - m[0]) ** 2)))
+                par["aligned"][0].append(turn_part(rv, rp, m[0], along))
+                par["aligned"][1].append(lam[0])
+                par["aligned"][2].append(w[0])
+                par["aligned"][3].append(wgt)
+        for k, (mus, lams, ws, wts) in par.items():
+            if not wts:
+                turned[k].append((np.array([0, 1.0, 0]), 1.0, np.zeros(3)))
+                continue
+            wts = np.array(wts)
+            mu = np.einsum("k,kc->c", wts, np.array(mus))
+            turned[k].append((mu / np.linalg.norm(mu),
+                              float(np.exp(np.sum(wts * np.log(lams)))),
+                              np.einsum("k,kc->c", wts, np.array(ws))))
+    for n, items in jobs.items():
+        for start in range(0, len(items), 512):
+            part = items[start:start + 512]
+            r = truth.lobes(np.array([t[3] for t in part]), np.array([t[4] for t in part]),
+                            np.array([t[5] for t in part]))
+            for (into, p, wgt, *_), ri in zip(part, r, strict=True):
+                into[n, p] += wgt * ri
+    ed_turn = {k: sg.env_integral(stack, levels, np.array([t[0] for t in v]),
+                                  np.array([t[1] for t in v]), np.array([t[2] for t in v]))
+               for k, v in turned.items()}
+
     norm = float(np.sqrt(np.sum(e0 ** 2)))
     n_counts = np.bincount(list(n_rule.values()), minlength=MAX_N + 1)[1:].tolist()
     stages = {
         "a_vertex_sampling": rel(ea, e0, norm),
         "a_normals_only": rel(a_normal, e0, norm),
         "a_points_only": rel(a_point, e0, norm),
-        "a_subdivided_4x": rel(a_sub[1], e0, norm),
-        "a_subdivided_16x": rel(a_sub[2], e0, norm),
+        **({} if quick else {"a_subdivided_4x": rel(a_sub[1], e0, norm),
+                             "a_subdivided_16x": rel(a_sub[2], e0, norm)}),
         "c_view_interpolation": rel(ec, ea, norm),
-        "c_view_interpolation_162_views": rel(c_freq[4], ea, norm),
-        "c_view_interpolation_362_views": rel(c_freq[6], ea, norm),
+        **({} if quick else {
+            "c_view_interpolation_162_views": rel(c_freq[4], ea, norm),
+            "c_view_interpolation_362_views": rel(c_freq[6], ea, norm)}),
         "b_tabulation_fit_grid_and_mc_indirect": rel(etab, ea, norm),
         "b_fit_N1": rel(eb[0], ea, norm),
         "b_fit_N2": rel(eb[1], ea, norm),
@@ -503,6 +612,16 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
         "d_prefiltered_lookup": rel(ed, em_raw, norm),
         "d_fine_grid_vs_map_samples": rel(em, em_raw, norm),
         "chain_method_N1_vs_E0": rel(ed, e0, norm),
+        "turned_chain_method_N1_vs_E0": rel(ed_turn["wo"], e0, norm),
+        "turned_per_view_chain_method_N1_vs_E0": rel(ed_turn["per_view"], e0, norm),
+        "turned_aligned_chain_method_N1_vs_E0": rel(ed_turn["aligned"], e0, norm),
+        **{f"fit_N{n + 1}_pixel_view_vs_E0": rel(eb[n], e0, norm) for n in range(MAX_N)},
+        **{f"turned_fit_N{n + 1}_pixel_view_vs_E0": rel(rb[n], e0, norm)
+           for n in range(MAX_N)},
+        **{f"chain_radiance_blend_N{n + 1}_vs_E0": rel(ebc[n], e0, norm)
+           for n in range(MAX_N)},
+        **{f"turned_chain_radiance_blend_N{n + 1}_vs_E0": rel(rbc[n], e0, norm)
+           for n in range(MAX_N)},
         "chain_without_vertex_sampling": rel(ed, ea, norm),
     }
     report = {"scene": name, "size": size, "pixels": P, "glossy_pixels": len(candidates),
@@ -531,10 +650,18 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
             write_png(OUT / f"sg_glossy_error_{name}_{label}.png",
                       img.reshape(size, size, 3))
         report["images"] = [f"sg_glossy_error_{name}_*.png"]
+    if state:  # the fitted lobes and pixels, for trying render-time variants offline
+        import pickle
+        Path(state).write_bytes(pickle.dumps({
+            "lobe": lobe, "req": req, "corner": corner, "bary": bary, "wo": wo,
+            "normal": nrm, "vertex_normals": vscene.normals, "vidx": vidx, "vw": vw,
+            "views": views92, "e0": e0, "ed": ed, "stack": stack, "levels": levels}))
     np.savez_compressed(OUT / f"sg_glossy_error_{name}.npz", pixel=chosen, e0=e0,
                         e0_direct=e0_direct, ea=ea, a_normal=a_normal, a_point=a_point,
                         ec=ec, etab=etab, eb=eb, ebc=ebc, em=em,
-                        em_raw=em_raw, ed=ed, emv=emv, em_area=em_area, corner=corner,
+                        em_raw=em_raw, ed=ed, ed_turn=ed_turn["wo"],
+                        ed_aligned=ed_turn["aligned"], rb=rb, rbc=rbc, emv=emv,
+                        em_area=em_area, corner=corner,
                         bary=bary, wo=wo, normal=nrm)
     return report
 
@@ -547,11 +674,16 @@ def main() -> None:
     ap.add_argument("--fine", type=int, nargs=2, default=[181, 360])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--images", action="store_true")
+    ap.add_argument("--state", default="", help="pickle the fitted lobes and pixels here "
+                    "(per scene: the name gets the scene's)")
+    ap.add_argument("--quick", action="store_true",
+                    help="leave out the denser-sampling rows (faces cut, 162/362 views)")
     ap.add_argument("--out", default=str(OUT / "sg_glossy_error.json"))
     args = ap.parse_args()
     one_blas_thread()
     OUT.mkdir(parents=True, exist_ok=True)
-    reports = [study(s, args.size, args.pixels, tuple(args.fine), args.seed, args.images)
+    reports = [study(s, args.size, args.pixels, tuple(args.fine), args.seed, args.images,
+                     args.quick, args.state and f"{args.state}_{Path(s).stem}.pkl")
                for s in args.scenes]
     Path(args.out).write_text(json.dumps({"args": vars(args), "scenes": reports}, indent=1))
     print(f"wrote {args.out}")

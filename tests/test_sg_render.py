@@ -39,17 +39,21 @@ def spot_map(height: int, centres: np.ndarray, sigma: float, power: list[float]
 
 
 def tables_of(lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
-              rgb: np.ndarray, slots: np.ndarray | None = None) -> render.SgTables:
+              rgb: np.ndarray, slots: np.ndarray | None = None,
+              normals: np.ndarray | None = None) -> render.SgTables:
     levels = sg.prefilter_levels(*rgb.shape[:2])
     stack = [level.astype(np.float32) for level in prefilter(rgb, levels)]
-    return render.SgTables.from_dense(lobes, count, transfer, stack, levels, slots)
+    return render.SgTables.from_dense(lobes, count, transfer, stack, levels, slots,
+                                      normals)
 
 
-def random_tables(vertices: int, rgb: np.ndarray, seed: int) -> render.SgTables:
+def random_tables(vertices: int, rgb: np.ndarray, seed: int,
+                  normals: np.ndarray | bool | None = None) -> render.SgTables:
     """Lobes as the contract allows: w ≥ 0 (0 in slots ≥ the vertex's count), μ unit,
     λ log-uniform in [4, 4000] (σ 0.9° .. 29°); a third of the vertices with count 0
     store no slot (as on a diffuse material), the others max(count, 1); transfer a DC
-    term and smaller others."""
+    term and smaller others. ``normals``: these vertex normals, True: random unit ones,
+    None: none (the lobes are not turned)."""
     rng = np.random.default_rng(seed)
     views = len(view_directions())
     lobes = np.empty((vertices, views, render.SLOTS, render.FIELDS))
@@ -63,7 +67,9 @@ def random_tables(vertices: int, rgb: np.ndarray, seed: int) -> render.SgTables:
     transfer = 0.02 * rng.normal(size=(vertices, 3, sh.ORDER ** 2))
     transfer[..., 0] = rng.uniform(0.1, 0.3, (vertices, 3))
     slots = np.where((count == 0) & (rng.random(vertices) < 0.33), 0, np.maximum(count, 1))
-    return tables_of(lobes, count, transfer, rgb, slots)
+    if normals is True:
+        normals = random_units(vertices, rng)
+    return tables_of(lobes, count, transfer, rgb, slots, normals)
 
 
 def constant_tables(vertices: int, mu: np.ndarray, lam: float, weight: list[float],
@@ -138,27 +144,121 @@ def random_pixels(tables: render.SgTables, n: int, seed: int) -> tuple[np.ndarra
     rng = np.random.default_rng(seed)
     corner = rng.integers(0, len(tables.count), (n, 3))
     bary = rng.dirichlet(np.ones(3), n)
-    view, view_weight = render.view_triangles(render.view_triangulation(),
-                                              random_units(n, rng))
-    return corner, bary.astype(np.float32), view, view_weight.astype(np.float32)
+    wo = random_units(n, rng)
+    view, view_weight = render.view_triangles(render.view_triangulation(), wo)
+    return (corner, bary.astype(np.float32), view, view_weight.astype(np.float32),
+            wo.astype(np.float32))
 
 
+@pytest.mark.parametrize("normal", render.NORMALS)
 @pytest.mark.parametrize("blend", render.LAMBDA_BLENDS)
-def test_shade_kernel_matches_numpy(small_map, blend):
+def test_shade_kernel_matches_numpy(small_map, blend, normal):
     """sg_shade against shade_numpy on random contract-shaped tables (all lobe counts,
-    turned map, scale). Tolerance 1e-4 of the pixel's largest channel: the lookup's
-    1e-4 (tests/test_sg.py's env kernel test), float32 sums of 9 weights and of
-    225 SH products (~1e-6), the float32 log/exp of λ (1e-6 of λ → as much of a level
-    step); measured 5e-7 (and 0.85 with the rotation's sign flipped)."""
-    tables = random_tables(50, small_map, seed=3)
-    corner, bary, view, view_weight = random_pixels(tables, 3000, seed=4)
+    turned map, scale, random vertex normals; ``normal="pixel"``: the lobes turned to
+    the pixel's normal, ``vertex``: not). Tolerance 1e-4 of the pixel's largest
+    channel: the lookup's 1e-4 (tests/test_sg.py's env kernel test), float32 sums of 9
+    weights and of 225 SH products (~1e-6), the float32 log/exp of λ (1e-6 of λ → as
+    much of a level step), the float32 turn (~1e-6 rad, k ≤ 1e6 only where two mirror
+    directions are nearly opposite, random normals: rarely); measured 5e-7 (and 0.85
+    with the rotation's sign flipped)."""
+    tables = random_tables(50, small_map, seed=3, normals=True)
+    corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
     light = sh.rotate_y(sh.project_latlong(small_map), 37.0)
     expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, 37.0, 1.7,
-                                  blend)
-    device = render.SgDevice(tables, blend)
-    out = render.shade_arrays(device, corner, bary, view, view_weight, light, 37.0, 1.7)
+                                  blend, wo if normal == "pixel" else None)
+    device = render.SgDevice(tables, blend, normal)
+    assert device.turning == (normal == "pixel")
+    out = render.shade_arrays(device, corner, bary, view, view_weight, light, 37.0, 1.7, wo)
     rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
     assert rel.max() < 1e-4, rel.max()
+    if normal == "pixel":  # the turn changes the pixels: the test sees it
+        plain = render.shade_numpy(tables, corner, bary, view, view_weight, light, 37.0,
+                                   1.7, blend)
+        assert (np.abs(plain - expected).max(axis=1)
+                / np.abs(expected).max(axis=1)).max() > 0.1
+
+
+def test_the_turn_takes_a_lobe_at_the_corners_mirror_direction_to_the_pixels():
+    """turn_rotations + turn_means: for random normals, barycentrics and views, a lobe
+    centred on its corner's mirror direction reflect(ωo, n_a) is turned onto the pixel's
+    reflect(ωo, n_p), n_p the normalised blended normal (1e-12), a rotation (lengths
+    and angles kept); a sharp lobe (σ = 3°) 30° off the mirror direction stays within
+    1e-12 rad (G = e^-100 of the turn); at a vertex (f = 1, 0, 0) that corner does not
+    turn."""
+    rng = np.random.default_rng(11)
+    normals = random_units(30, rng)
+    corner = rng.integers(0, 30, (500, 3))
+    bary = rng.dirichlet(np.ones(3), 500)
+    bary[:5] = [1.0, 0.0, 0.0]
+    wo = random_units(500, rng)
+    axis, angle, mirror = render.turn_rotations(normals, corner, bary, wo)
+    n = normals[corner]
+    npix = unit(np.einsum("pa,pac->pc", bary, n))
+    rp = 2 * np.sum(wo * npix, axis=1)[:, None] * npix - wo
+    ok = angle > 0
+    assert ok.mean() > 0.99 and not ok[:5, 0].any()
+    lam = np.full((500, 3, 1), 100.0)
+    at_mirror = render.turn_means(mirror[:, :, None], lam, axis, angle, mirror)[:, :, 0]
+    np.testing.assert_allclose(at_mirror[ok], np.broadcast_to(rp[:, None], mirror.shape)[ok],
+                               atol=1e-12)
+    others = random_units(1500, rng).reshape(500, 3, 1, 3)
+    moved = render.turn_means(np.concatenate([mirror[:, :, None], others], axis=2),
+                              np.concatenate([lam, np.zeros((500, 3, 1))], axis=2),
+                              axis, angle, mirror)
+    np.testing.assert_allclose(np.linalg.norm(moved, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.sum(moved[:, :, 0] * moved[:, :, 1], axis=-1),
+                               np.sum(mirror * others[:, :, 0], axis=-1), atol=1e-12)
+    side = unit(np.cross(mirror, random_units(1500, rng).reshape(500, 3, 3)))
+    off = np.cos(np.radians(30)) * mirror + np.sin(np.radians(30)) * side
+    kept = render.turn_means(off[:, :, None], np.full((500, 3, 1), 1 / np.radians(3) ** 2),
+                             axis, angle, mirror)[:, :, 0]
+    assert np.arccos(np.clip(np.sum(kept * off, axis=-1), -1, 1)).max() < 1e-6
+
+
+def test_a_highlight_follows_the_pixels_normal_between_the_vertices(small_map):
+    """A face whose 3 vertex normals fan out 30° about the pixel's blended normal (at
+    the face's centre), each vertex's lobe (σ = 3°) at its own mirror direction of ω_o,
+    a small light (σ = 3°) at the pixel's mirror direction. Turned
+    (``normal="pixel"``, decision 0039), all 3 lobes (each at its vertex's mirror
+    direction: the whole turn) point at the light: the pixel equals the lobe placed
+    there (0.5 %: float32 kernel, stack lookup). As fitted
+    (``vertex``), the blended mean (the paper's sliding highlight) misses it by 9.7°
+    (the mirror direction is quadratic in the normal) and the pixel is under half of
+    that (measured: 1e-7 off, and 8 % of it)."""
+    wo = unit(np.array([0.2, 0.3, 1.0]))
+    n_pix = unit(np.array([0.1, 1.0, 0.3]))
+    side = unit(np.cross(n_pix, wo))
+    up = np.cross(side, n_pix)
+    tilt = np.radians(30.0)
+    normals = np.stack([unit(np.cos(tilt) * n_pix + np.sin(tilt)
+                             * (np.cos(a) * side + np.sin(a) * up))
+                        for a in np.radians([90.0, 210.0, 330.0])])
+    bary = np.full((1, 3), 1.0 / 3.0)
+    assert np.allclose(unit(bary @ normals)[0], n_pix, atol=1e-12)
+    reflect = lambda n: 2 * (wo @ n) * n - wo  # noqa: E731
+    rgb = spot_map(64, reflect(n_pix), np.radians(3.0), [40.0, 40.0, 40.0])
+    lam = 1.0 / np.radians(3.0) ** 2
+    views = len(view_directions())
+    lobes = np.zeros((3, views, render.SLOTS, render.FIELDS))
+    lobes[..., 6] = lam
+    for v in range(3):
+        lobes[v, :, :, 3:6] = reflect(normals[v])
+    lobes[:, :, 0, 0:3] = 1.0
+    transfer = np.zeros((3, 3, sh.ORDER ** 2))
+    tables = tables_of(lobes, np.ones(3), transfer, rgb, normals=normals)
+    corner = np.array([[0, 1, 2]])
+    view, weight = render.view_triangles(render.view_triangulation(), wo[None])
+    no_light = np.zeros((sh.ORDER ** 2, 3))
+    at_light = render.shade_numpy(constant_tables(3, reflect(n_pix), lam, [1.0, 1.0, 1.0],
+                                                  rgb), corner, bary, view, weight,
+                                  no_light)[0]
+    got = {}
+    for normal in render.NORMALS:
+        device = render.SgDevice(tables, normal=normal)
+        got[normal] = render.shade_arrays(device, corner, bary.astype(np.float32), view,
+                                          weight, no_light, wo=wo[None])[0]
+    np.testing.assert_allclose(got["pixel"], at_light, rtol=5e-3)
+    assert np.all(got["vertex"] < 0.5 * at_light), (got["vertex"], at_light)
 
 
 def test_interpolated_lobes_keep_a_highlights_peak_tabulated_values_dip(small_map):
@@ -306,7 +406,7 @@ class FakeArtifact:
 def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, FakeArtifact]:
     flat, info = sg.pack_stack(tables.stack)
     lv = tables.levels
-    return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "faces",
+    return {"geometry": FakeArtifact({n: geometry[n] for n in ("vertices", "normals", "faces",
                                                               "face_object")}),
             "sg.relax": FakeArtifact({"views": view_directions(), "lobes": tables.lobes,
                                     "first": tables.first[:-1], "count": tables.count,
@@ -325,7 +425,8 @@ def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_s
     from the same tables; a transfer of the wrong vertex count and a sharpness ≤ 0 are
     refused with one line naming the artifact."""
     scene, geometry, _ = sg_scene
-    tables = random_tables(len(geometry["vertices"]), small_map, seed=6)
+    tables = random_tables(len(geometry["vertices"]), small_map, seed=6,
+                           normals=geometry["normals"])
     artifacts = contract_artifacts(geometry, tables)
     frame = render.sg_renderer(scene, artifacts).frame(scene)
     np.testing.assert_array_equal(frame.rgb, frame_of(scene, geometry, tables, small_map).rgb)

@@ -3,10 +3,11 @@
 
 Each method's tiny scene (tests/tiny_scenes.py) baked and rendered: direct; d2i in both
 product layouts with its shadows traced by the device's BVH kernel, a light edit and a
-BRDF edit; sg; triple's sparse and dense paths; the BVH's occlusion rays and the
-bandwidth probe; then the kernel-vs-NumPy tests of the kernels only tests launch
-(:data:`TESTS_OF_TEST_KERNELS`). Sizes are cut so that Oclgrind, which interprets every
-work-item, gets through a launch in seconds.
+BRDF edit; sg (its lobes as fitted, and turned to the pixel's normal); triple's sparse
+and dense paths; the BVH's occlusion rays and the bandwidth probe; then the
+kernel-vs-NumPy tests of the kernels only tests launch (:data:`TESTS_OF_TEST_KERNELS`).
+Sizes are cut so that Oclgrind, which interprets every work-item, gets through a launch
+in seconds.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ def run_all(folder: Path, work: Path) -> None:
             wd = job.workdir_for(sc, work / name / "w")
             job.bake(sc, wd, quiet=True)
             job.render_frame(sc, wd, name)
+        job.render_frame(tiny_scene(work, "sg"), job.workdir_for(tiny_scene(work, "sg"),
+                                                                 work / "sg" / "w"),
+                         "sg", {"normal": "pixel"})  # sg_shade's PIXEL_NORMAL = 1
         job.render_frame(sc, wd, "triple", {"budget": 16})
         code = pytest.main(["-q", "-p", "no:cacheprovider",
                             *(str(TESTS / t) for t in TESTS_OF_TEST_KERNELS)])

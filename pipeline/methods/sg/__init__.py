@@ -16,7 +16,11 @@ Run-time options: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is 
 over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``; ``component``
 (str, ``all``): ``glossy`` or ``diffuse`` render the light reflected by the lobes or by
 the SH term alone, without the background (``prt evaluate`` measures each against
-``prt reference --transport first-glossy --lobe glossy|diffuse``).
+``prt reference --transport first-glossy --lobe glossy|diffuse``); ``normal`` (str,
+``vertex``): the lobes as fitted at the vertices (paper 003), or ``pixel``: each
+vertex's lobes about its mirror direction turned to the pixel's (its blended normal's)
+so that the highlight follows the pixel's normal (decision 0039: no gain on bunny_sg
+and dragon_sg, 8x the shading kernel's time; 23.5 -> 17.2 % on a coarse ball).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -44,6 +48,10 @@ METHOD = Method(
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views",
                     choices=("log", "linear")),
+             Option("normal", str, "vertex",
+                    "vertex or pixel: the lobes as fitted at the vertex (paper 003), or "
+                    "turned towards the pixel's blended normal (decision 0039)",
+                    choices=("vertex", "pixel")),
              Option("component", str, "all",
                     "all, glossy or diffuse: the whole frame, or the light reflected by "
                     "the lobes or by the SH term alone (no background)",

@@ -75,6 +75,10 @@ from pipeline.scene.model import Scene
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
 LAMBDA_BLENDS = ("log", "linear")
+# where a vertex's lobes point: as fitted at the vertex (paper 003, the default), or
+# turned towards the pixel's blended normal (decision 0039: no gain on bunny_sg and
+# dragon_sg, 8x the shading kernel's time; a gain on coarse unoccluded meshes)
+NORMALS = ("vertex", "pixel")
 # what a frame shows: everything, or the reflected light of the lobes or of the SH term
 COMPONENTS = ("all", "glossy", "diffuse")
 
@@ -173,7 +177,9 @@ class SgTables:
     ``first`` (V + 1,) int32: vertex v's slots are rows first[v] … first[v + 1] − 1;
     ``count`` (V,) lobes per vertex; ``transfer`` (V, 3, 25) float32 (diffuse SH
     transfer); ``stack``/``levels`` the prefiltered map (sg.PrefilterLevels, levels
-    (H_ℓ, W_ℓ, 3) float32, W/(m² sr))."""
+    (H_ℓ, W_ℓ, 3) float32, W/(m² sr)); ``normals`` (V, 3) float32 the unit vertex
+    normals the lobes were fitted at (geometry's), None: the lobes are not turned to the
+    pixel's normal (``normal="vertex"``)."""
 
     lobes: np.ndarray
     first: np.ndarray
@@ -181,29 +187,34 @@ class SgTables:
     transfer: np.ndarray
     stack: list[np.ndarray]
     levels: sg.PrefilterLevels
+    normals: np.ndarray | None = None
 
     @classmethod
     def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
                    stack: list[np.ndarray], levels: sg.PrefilterLevels,
-                   slots: np.ndarray | None = None) -> SgTables:
+                   slots: np.ndarray | None = None, normals: np.ndarray | None = None
+                   ) -> SgTables:
         """Tables from lobes in every slot (V, views, 3, 7), storing ``slots`` (V,) slots
-        per vertex (default max(count, 1))."""
+        per vertex (default max(count, 1)), and the vertex ``normals`` (V, 3) if given."""
         count = np.asarray(count, np.uint8)
         slots = np.maximum(count, 1) if slots is None else np.asarray(slots)
         rows, first = pack_slots(np.asarray(lobes, np.float32), slots)
         return cls(rows, np.append(first, len(rows)).astype(np.int32), count,
-                   np.asarray(transfer, np.float32), stack, levels)
+                   np.asarray(transfer, np.float32), stack, levels,
+                   None if normals is None else np.ascontiguousarray(normals, np.float32))
 
     @property
     def nbytes(self) -> int:
         return self.lobes.nbytes + self.first.nbytes + self.count.nbytes \
-            + self.transfer.nbytes + sum(level.nbytes for level in self.stack)
+            + self.transfer.nbytes + sum(level.nbytes for level in self.stack) \
+            + (0 if self.normals is None else self.normals.nbytes)
 
 
 def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
     """The tables from the artifacts of ``sg.relax``, ``sg.diffuse`` and
-    ``sg.env_prefilter``, checked against each other and the geometry's
-    ``vertex_count`` (one-line PrtErrors naming the artifact)."""
+    ``sg.env_prefilter`` (and the vertex normals of ``geometry`` where given),
+    checked against each other and the geometry's ``vertex_count`` (one-line
+    PrtErrors naming the artifact)."""
     fit, diffuse = artifacts["sg.relax"], artifacts["sg.diffuse"]
     views = fit.read("views")
     if views.shape != view_directions().shape or \
@@ -231,23 +242,71 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
     if not (np.all(np.isfinite(lobes)) and np.all(lobes[..., 6] > 0)):
         raise PrtError("sg.relax", "lobes: non-finite values or a sharpness λ ≤ 0")
     stack, levels = read_stack(artifacts["sg.env_prefilter"])
+    normals = None
+    if "geometry" in artifacts:
+        normals = np.ascontiguousarray(artifacts["geometry"].read("normals"), np.float32)
+        if normals.shape != (vertex_count, 3):
+            raise PrtError("geometry", f"normals: shape {normals.shape}, expected "
+                           f"{(vertex_count, 3)}")
     return SgTables(lobes, np.append(first, len(lobes)).astype(np.int32), count, transfer,
-                    stack, levels)
+                    stack, levels, normals)
 
 
 # ------------------------------------------------------------------------- shading
 
 
+def turn_rotations(normals: np.ndarray, corner: np.ndarray, bary: np.ndarray,
+                   wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel and corner the turn towards the pixel's normal: the unit axis t
+    (P, 3, 3) and angle (P, 3) of the rotation taking the corner's mirror direction
+    r_a = reflect(ωo, n_a) (returned, (P, 3, 3)) to the pixel's r_p = reflect(ωo, n_p),
+    n_p the normalised blend Σ f_a n_a; angle 0 where |r_a × r_p| ≤ 1e-6 or n_p = 0
+    (kernels/sg/sg_render.cl, decision 0039; :func:`turn_means` applies it)."""
+    n = np.asarray(normals, np.float64)[corner]                              # (P, 3, 3)
+    wo = np.asarray(wo, np.float64)
+    npix = np.einsum("pa,pac->pc", np.asarray(bary, np.float64), n)
+    length = np.linalg.norm(npix, axis=1)
+    npix = npix / np.where(length > 0, length, 1.0)[:, None]
+    rp = 2.0 * np.sum(wo * npix, axis=1)[:, None] * npix - wo                # (P, 3)
+    ra = 2.0 * np.einsum("pc,pac->pa", wo, n)[..., None] * n - wo[:, None]   # (P, 3, 3)
+    t = np.cross(ra, rp[:, None])
+    sine = np.linalg.norm(t, axis=2)
+    ok = (sine > 1e-6) & (length > 0)[:, None]
+    t = t / np.where(ok, sine, 1.0)[..., None] * ok[..., None]
+    angle = np.where(ok, np.arctan2(sine, np.einsum("pac,pc->pa", ra, rp)), 0.0)
+    return t, angle, ra
+
+
+def turn_means(mean: np.ndarray, lam: np.ndarray, axis: np.ndarray, angle: np.ndarray,
+               mirror: np.ndarray) -> np.ndarray:
+    """Lobe means (P, 3, B, 3) (pixel, corner, view, xyz) of sharpness ``lam`` (P, 3, B)
+    turned about each corner's ``axis`` (P, 3, 3) by G(r_a; μ, λ) × ``angle`` (P, 3),
+    r_a the corner's ``mirror`` direction (:func:`turn_rotations`): the lobes about the
+    mirror direction follow the pixel's normal, the others stay (decision 0039)."""
+    d = mirror[:, :, None] - mean
+    theta = np.exp(-0.5 * lam * np.sum(d * d, axis=-1)) * angle[:, :, None]  # (P, 3, B)
+    t = np.broadcast_to(axis[:, :, None], mean.shape)
+    c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+    return c * mean + s * np.cross(t, mean) + (1 - c) * np.sum(t * mean, axis=-1,
+                                                               keepdims=True) * t
+
+
 def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
                 view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
-                scale: float = 1.0, lambda_blend: str = "log") -> np.ndarray:
+                scale: float = 1.0, lambda_blend: str = "log",
+                wo: np.ndarray | None = None) -> np.ndarray:
     """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
     vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
     ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
     (25, 3), the environment turned by ``degrees`` about +y, times ``scale``. A slot
     beyond a corner's stored ones is its slot 0 with w = 0; a corner with none adds
-    nothing."""
+    nothing. With the directions to the eye ``wo`` (P, 3) and ``tables.normals``, each
+    corner's means are turned towards the pixel's normal (:func:`turn_means`, the
+    kernel's PIXEL_NORMAL = 1); without, they are not (PIXEL_NORMAL = 0)."""
     corner = np.asarray(corner, np.int64)
+    turning = wo is not None and tables.normals is not None
+    if turning:
+        axis, angle, mirror = turn_rotations(tables.normals, corner, bary, wo)
     view = np.asarray(view, np.int64)
     base = tables.first[corner].astype(np.int64)
     stored = tables.first[corner + 1] - base                                  # (P, 3)
@@ -262,7 +321,10 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
         lobe = tables.lobes[row[:, :, None], view[:, None, :]].astype(np.float64)
         keep = (stored > s)[:, :, None]
         w = np.einsum("pab,pabc->pc", weight * keep, lobe[..., 0:3])
-        mu = np.einsum("pab,pabc->pc", weight, lobe[..., 3:6])
+        means = lobe[..., 3:6]                                               # (P, 3, 3, 3)
+        if turning:
+            means = turn_means(means, lobe[..., 6], axis, angle, mirror)
+        mu = np.einsum("pab,pabc->pc", weight, means)
         if lambda_blend == "log":
             lam = np.exp(np.einsum("pab,pab->p", weight, np.log(lobe[..., 6])))
         else:
@@ -288,10 +350,13 @@ def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
 class SgDevice:
     """The tables on the OpenCL device, uploaded once (with ``lambda_blend="log"`` the
     lobes' last field holds log λ, as the kernel blends it); ``shade`` runs
-    ``sg_shade``."""
+    ``sg_shade``. ``normal``: ``vertex`` the paper's lobes as fitted, ``pixel`` each
+    vertex's lobes turned towards the pixel's normal (PIXEL_NORMAL = 1; needs
+    ``tables.normals``, else as ``vertex``; decision 0039)."""
 
     tables: SgTables
     lambda_blend: str = "log"
+    normal: str = "vertex"
     buffers: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -301,11 +366,14 @@ class SgDevice:
         if self.lambda_blend == "log":  # the kernel blends log λ: taken once, here
             lobes = lobes.copy()
             lobes[..., 6] = np.log(lobes[..., 6])
+        self.turning = self.normal == "pixel" and t.normals is not None
+        normals = t.normals if self.turning else np.zeros((1, 3), np.float32)
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
             ("lobes", lobes), ("first", t.first), ("count", t.count), ("stack", flat),
-            ("info", info))}
+            ("info", info), ("normals", normals))}
         self.kernel = cl.kernel("sg_render.cl", "sg_shade",
-                                {"LAMBDA_LOG": int(self.lambda_blend == "log")})
+                                {"LAMBDA_LOG": int(self.lambda_blend == "log"),
+                                 "PIXEL_NORMAL": int(self.turning)})
 
     def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
         """A device buffer of :func:`vertex_diffuse` (V, 3) float32."""
@@ -315,7 +383,7 @@ class SgDevice:
     def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
               scale: float, out_buffer: Any | None = None) -> tuple[np.ndarray | None, float]:
         """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
-        ``pixels`` (corner, bary, view, view_weight), with the vertices' diffuse
+        ``pixels`` (corner, bary, view, view_weight, wo), with the vertices' diffuse
         radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), and the kernel's
         milliseconds. With ``out_buffer`` (≥ n · 12 bytes on the device) the radiance
         stays there and None is returned in its place."""
@@ -323,7 +391,8 @@ class SgDevice:
         out = None if out_buffer is not None else np.empty((n, 3), np.float32)
         ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
-                    pixels["view"], pixels["view_weight"], b["stack"], b["info"],
+                    pixels["view"], pixels["view_weight"], b["normals"], pixels["wo"],
+                    b["stack"], b["info"],
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),
                     np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
                     np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
@@ -333,24 +402,33 @@ class SgDevice:
 
 def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
                  view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
-                 scale: float = 1.0) -> np.ndarray:
-    """The kernel on host arrays (as :func:`shade_numpy`'s arguments), float32 (P, 3)."""
+                 scale: float = 1.0, wo: np.ndarray | None = None) -> np.ndarray:
+    """The kernel on host arrays (as :func:`shade_numpy`'s arguments; ``wo`` (P, 3) is
+    needed where the device turns lobes), float32 (P, 3)."""
+    if wo is None:
+        if device.turning:
+            raise ValueError("shade_arrays: normal='pixel' needs the directions wo")
+        wo = np.zeros((1, 3))
     pixels = {"corner": cl.read_only_buffer(np.asarray(corner, np.int32)),
               "bary": cl.read_only_buffer(np.asarray(bary, np.float32)),
               "view": cl.read_only_buffer(np.asarray(view, np.int32)),
-              "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32))}
+              "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32)),
+              "wo": cl.read_only_buffer(np.ascontiguousarray(wo, np.float32))}
     return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), degrees,
                         scale)[0]
 
 
-def kernel_bytes(tables: SgTables, corner: np.ndarray) -> int:
+def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False) -> int:
     """Bytes ``sg_shade`` loads and stores for these pixels, every gathered load counted
     (cache hits included): per pixel 4 × 12 B of indices and weights, 3 counts, per
     active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B, 3 vertices' diffuse
-    radiance × 12 B, 12 B out."""
+    radiance × 12 B, 12 B out; ``turning`` (PIXEL_NORMAL): per pixel with a slot ω_o
+    and 3 normals, 4 × 12 B."""
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
     per_pixel = 48 + 3 + 3 * 12 + 12
-    return int(len(corner) * per_pixel + slots.sum() * (9 * FIELDS * 4 + 2 * 4 * 12))
+    turn = 48 * int(np.count_nonzero(slots)) if turning else 0
+    return int(len(corner) * per_pixel + turn
+               + slots.sum() * (9 * FIELDS * 4 + 2 * 4 * 12))
 
 
 # -------------------------------------------------------------------------- frames
@@ -360,7 +438,8 @@ def kernel_bytes(tables: SgTables, corner: np.ndarray) -> int:
 class SgGBuffer:
     """One camera's pixels: ``pixel`` (P,) flat indices that hit, their face's vertices
     ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), view triangles ``view`` (P, 3)
-    and ``view_weight`` (P, 3); ``miss_pixel``/``miss_direction`` (M, 3) world ray
+    and ``view_weight`` (P, 3), ``wo`` (P, 3) float32 the unit directions to the eye
+    (−ray direction); ``miss_pixel``/``miss_direction`` (M, 3) world ray
     directions of the others; the milliseconds it took; ``back`` (P,) whether the pixel
     sees the back of its face and ``face`` (P,) the face."""
 
@@ -375,13 +454,15 @@ class SgGBuffer:
     view_lookup_ms: float
     back: np.ndarray
     face: np.ndarray
+    wo: np.ndarray
     device: dict[str, Any] = field(default_factory=dict)
 
     def buffers(self) -> dict[str, Any]:
         """Device copies of the per-pixel arrays (made on first use)."""
         if not self.device:
             self.device = {name: cl.read_only_buffer(getattr(self, name)) for name in
-                           ("corner", "bary", "view", "view_weight", "miss_direction")}
+                           ("corner", "bary", "view", "view_weight", "wo",
+                            "miss_direction")}
             self.device.update({name: cl.read_only_buffer(getattr(self, name).astype(np.int32))
                                 for name in ("pixel", "miss_pixel")})
         return self.device
@@ -401,12 +482,13 @@ def camera_gbuffer(tracer: RayTracer, vertices: np.ndarray, faces: np.ndarray, c
     corner = np.ascontiguousarray(faces[hits.prim[hit]], np.int32)
     bary = np.ascontiguousarray(np.stack([1.0 - u - v, u, v], axis=1), np.float32)
     trace_ms = (time.perf_counter() - t0) * 1e3
-    view, view_weight, lookup_ms = device_view_triangles(-directions[hit])
+    wo = np.ascontiguousarray(-directions[hit], np.float32)
+    view, view_weight, lookup_ms = device_view_triangles(wo)
     a, b, c = (np.asarray(vertices, np.float64)[corner[:, k]] for k in range(3))
     back = sees_back(directions[hit], np.cross(b - a, c - a))
     return SgGBuffer(np.flatnonzero(hit), corner, bary, view, view_weight,
                      np.flatnonzero(~hit), np.ascontiguousarray(directions[~hit]),
-                     trace_ms, lookup_ms, back, hits.prim[hit])
+                     trace_ms, lookup_ms, back, hits.prim[hit], wo)
 
 
 class SgRenderer:
@@ -424,7 +506,10 @@ class SgRenderer:
 
     def __init__(self, tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                  env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
-                 face_object: np.ndarray | None = None) -> None:
+                 face_object: np.ndarray | None = None, normal: str = "vertex") -> None:
+        if normal not in NORMALS:
+            raise PrtError("--option", f"normal={normal!r}: expected one of "
+                           f"{', '.join(NORMALS)}")
         if lambda_blend not in LAMBDA_BLENDS:
             raise PrtError("--option", f"lambda_blend={lambda_blend!r}: expected one of "
                            f"{', '.join(LAMBDA_BLENDS)}")
@@ -436,7 +521,7 @@ class SgRenderer:
         self.tables, self.vertices, self.faces = tables, vertices, faces
         self.component, self.face_object = component, face_object
         self.tracer = RayTracer(vertices, faces)
-        self.device = SgDevice(tables, lambda_blend)
+        self.device = SgDevice(tables, lambda_blend, normal)
         self.env_map = np.ascontiguousarray(env_map, np.float32)
         order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
         self.map_sh = sh.project_latlong(self.env_map, order=order)  # (order², 3), unrotated
@@ -503,11 +588,12 @@ class SgRenderer:
         notes = [] if self.face_object is None else back_face_notes(
             "sg", gbuffer.back, self.face_object[gbuffer.face], list(scene.objects))
         return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, notes,
-                     kernel_bytes=kernel_bytes(self.tables, gbuffer.corner))
+                     kernel_bytes=kernel_bytes(self.tables, gbuffer.corner,
+                                                 self.device.turning))
 
 
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
-                component: str = "all") -> SgRenderer:
+                component: str = "all", normal: str = "vertex") -> SgRenderer:
     """The method's renderer factory (pipeline/method.py): tables loaded once from the
     artifacts of ``geometry``, ``sg.relax``, ``sg.diffuse``, ``sg.env_prefilter``; the
     map for the background and the SH lighting from the scene's environment file."""
@@ -516,4 +602,4 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
     tables = load_tables(artifacts, len(vertices))
     env_map = read_environment(scene.environment.file)
     return SgRenderer(tables, vertices, faces, env_map, lambda_blend, component,
-                     np.asarray(geo.read("face_object")))
+                     np.asarray(geo.read("face_object")), normal)
