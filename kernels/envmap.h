@@ -23,6 +23,13 @@ PRT_INLINE float3 envmap_from_world(float3 d, float c, float s) {
     return (float3)(c * d.x - s * d.z, d.y, s * d.x + c * d.z);
 }
 
+/* Map-space direction of world direction d for a map turned by any rotation R:
+ * Rᵀ d, with m the 9 floats of Rᵀ, row-major (envmap.py: d @ to_world). */
+PRT_INLINE float3 envmap_into_map(float3 d, __global const float* m) {
+    return (float3)(m[0] * d.x + m[1] * d.y + m[2] * d.z, m[3] * d.x + m[4] * d.y + m[5] * d.z,
+                    m[6] * d.x + m[7] * d.y + m[8] * d.z);
+}
+
 /* Continuous texel coordinates (X, Y) of a map-space unit direction. */
 PRT_INLINE float2 envmap_texel_coords(float3 d, int width, int height) {
     float u = atan2(d.x, -d.z) * (0.5f / ENVMAP_PI);

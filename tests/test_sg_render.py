@@ -11,7 +11,12 @@ import pytest
 from pipeline.errors import PrtError
 from pipeline.images import write_exr
 from pipeline.math import sg, sh
-from pipeline.math.envmap import direction_to_uv, rotation_y, uv_to_direction
+from pipeline.math.envmap import (
+    direction_to_uv,
+    rotation_about,
+    rotation_y,
+    uv_to_direction,
+)
 from pipeline.methods.sg import render
 from pipeline.methods.sg.prefilter import prefilter
 from pipeline.methods.sg.transport import view_directions
@@ -164,15 +169,16 @@ def test_shade_kernel_matches_numpy(small_map, blend, normal):
     tables = random_tables(50, small_map, seed=3, normals=True)
     corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
     light = sh.rotate_y(sh.project_latlong(small_map), 37.0)
-    expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, 37.0, 1.7,
+    turn = rotation_about((0.3, 1.0, -0.2), 37.0)  # the map turned about a tilted axis
+    expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn, 1.7,
                                   blend, wo if normal == "pixel" else None)
     device = render.SgDevice(tables, blend, normal)
     assert device.turning == (normal == "pixel")
-    out = render.shade_arrays(device, corner, bary, view, view_weight, light, 37.0, 1.7, wo)
+    out = render.shade_arrays(device, corner, bary, view, view_weight, light, turn, 1.7, wo)
     rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
     assert rel.max() < 1e-4, rel.max()
     if normal == "pixel":  # the turn changes the pixels: the test sees it
-        plain = render.shade_numpy(tables, corner, bary, view, view_weight, light, 37.0,
+        plain = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn,
                                    1.7, blend)
         assert (np.abs(plain - expected).max(axis=1)
                 / np.abs(expected).max(axis=1)).max() > 0.1
@@ -452,3 +458,27 @@ def test_sequences_are_an_environment_rotation_and_a_camera_orbit(sg_scene):
     assert kind == "orbit" and len({s.camera.position for s in scenes}) == 3
     with pytest.raises(PrtError, match="rotate:N or orbit:N"):
         method.sequence(scene, {}, "gamma:3")
+
+
+def test_environment_turned_about_x_equals_the_turned_maps_frame(sg_scene, small_map):
+    """A half turn about +x takes world (x, y, z) to map (x, −y, −z): v → 1 − v (rows
+    reversed) and u → ½ − u (columns mirrored), a permutation of the map's texels. A
+    frame with the environment so turned (the general path: lobes' means and the
+    background by Rᵀ in the kernel, the SH by sh.rotate) equals the frame of the
+    unturned scene lit by the permuted map, with its own stack and SH; tolerance as the
+    turn about +y's (1e-4 of the largest value)."""
+    scene, geometry, _ = sg_scene
+    height, width = small_map.shape[:2]
+    columns = (width // 2 - 1 - np.arange(width)) % width
+    turned_map = np.ascontiguousarray(small_map[::-1][:, columns])
+    turn = rotation_about((1.0, 0.0, 0.0), 180.0)
+    np.testing.assert_allclose(sh.project_latlong(turned_map),
+                               sh.rotate(sh.project_latlong(small_map), turn), atol=1e-9)
+    tables = random_tables(len(geometry["vertices"]), small_map, seed=5)
+    turned_tables = random_tables(len(geometry["vertices"]), turned_map, seed=5)
+    lights = [{**scene.document["lights"][0], "rotation": 180.0, "axis": [1.0, 0.0, 0.0]}]
+    renderer = render.SgRenderer(tables, geometry["vertices"], geometry["faces"], small_map)
+    a = renderer.frame(scene.edited("lights", lights)).rgb
+    b = frame_of(scene, geometry, turned_tables, turned_map, 0.0).rgb
+    assert np.abs(a - b).max() < 1e-4 * np.abs(b).max(), np.abs(a - b).max()
+    assert np.abs(a - renderer.frame(scene).rgb).max() > 0.01 * np.abs(b).max()

@@ -187,7 +187,7 @@ def breakdown(tables: Any, geometry: dict, scene: Any, repeats: int) -> dict[str
     for _ in range(repeats + 1):  # the first round builds the kernels
         for n, device in devices.items():
             light = device.vertex_diffuse(np.zeros((sh.ORDER ** 2, 3)))
-            times[n].append(device.shade(gbuffer.buffers(), len(gbuffer.pixel), light, 0.0,
+            times[n].append(device.shade(gbuffer.buffers(), len(gbuffer.pixel), light, None,
                                          1.0)[1])
     return {"pixels": int(len(gbuffer.pixel)), "load_before": before, "load_after": load(),
             **{f"lobes_{n}_ms": median(t[1:]) for n, t in times.items()}}

@@ -101,7 +101,7 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
                        __global const float* normal, __global const float* wo,
                        __global const float* stack, __global const int* level_info,
                        const int levels, const float log_sigma0, const float inv_log_ratio,
-                       const float turn_cos, const float turn_sin,
+                       __global const float* map_turn,
                        const float scale, const int n,
                        __global float* out)
 {
@@ -175,7 +175,7 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
 #endif
         float len = length(mu);
         if (!(len > 0.0f)) continue;  /* opposite means cancel: no defined direction */
-        float3 mu_map = envmap_from_world(mu / len, turn_cos, turn_sin);
+        float3 mu_map = envmap_into_map(mu / len, map_turn);
         radiance += sg_env_integral(stack, level_info, levels, log_sigma0, inv_log_ratio,
                                     mu_map, lam, w);
     }
@@ -186,12 +186,12 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
 
 /* Pixels that miss: the environment map itself, rotated, times the light's scale. */
 __kernel void sg_background(__global const float* rgb, const int width, const int height,
-                            __global const float* direction, const float turn_cos,
-                            const float turn_sin, const float scale, const int n,
+                            __global const float* direction,
+                            __global const float* map_turn, const float scale, const int n,
                             __global float* out)
 {
     int i = get_global_id(0);
     if (i >= n) return;
-    float3 d = envmap_from_world(vload3(i, direction), turn_cos, turn_sin);
+    float3 d = envmap_into_map(vload3(i, direction), map_turn);
     vstore3(scale * envmap_radiance(rgb, width, height, d), i, out);
 }

@@ -15,14 +15,9 @@ from pipeline.scene.model import Scene
 
 
 def check_scene(scene: Scene, params: Mapping[str, Any]) -> None:
-    """Exactly one environment light, whose map reads as a valid latitude-longitude map
-    and turns about ±y, and glossy lobes the fit's grid can sample (checked before
-    anything is baked)."""
+    """Exactly one environment light, whose map reads as a valid latitude-longitude map,
+    and glossy lobes the fit's grid can sample (checked before anything is baked)."""
     check_one_environment(scene, "sg")
-    if scene.environment.turn_about_y is None:
-        raise PrtError(scene.path, f"lights: method sg turns an environment map about +y "
-                       f"only, not about axis {list(scene.environment.axis)} (method triple "
-                       "turns it about any axis)")
     check_lobe_widths(scene, params["sg.fit_grid"])
 
 

@@ -28,12 +28,12 @@ f = (1 − u − v, u, v)); ω_o = −ray direction (world, unit, towards the ey
   the stack's own coordinate; ``lambda_blend="linear"``: Σ W λ_ab). A highlight moves
   with μ between views instead of cross-fading (tests/test_sg_render.py).
 * *Integral.* ∫ w G(ω; μ, λ) L(ω) dω = w · sg.integral(λ) · P(Rᵀμ, σ = 1/√λ), P the
-  stack looked up at the map-space mean (R the environment's rotation about +y,
-  ``envmap.rotation_y``), times the light's ``scale``.
+  stack looked up at the map-space mean (R the environment's rotation about its axis,
+  ``Environment.to_world``), times the light's ``scale``.
 * *Diffuse.* Σ_a f_a max(0, Σ_k transfer[v_a, c, k] L_k,c) · scale (negative SH ringing
-  clamped per vertex), L = sh.project_latlong of
-  the map turned by the light's rotation (projected once, turned per frame by
-  ``sh.rotate_y``): the vertices' diffuse radiance D computed per frame on the host
+  clamped per vertex), L = sh.project_latlong of the map turned by the light's rotation
+  (projected once, turned per frame by ``sh.rotate_y`` about +y, ``sh.rotate`` about
+  any other axis): the vertices' diffuse radiance D computed per frame on the host
   (V × 3n² products) and interpolated in the kernel, instead of 3n² per pixel.
 * Pixels that miss see the environment map (bilinear, rotated, scaled).
 
@@ -57,8 +57,7 @@ from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math import sg, sh
-from pipeline.math.camera import camera_rays
-from pipeline.math.envmap import rotation_y
+from pipeline.math.camera import image_rays
 from pipeline.math.geodesic import icosahedron
 from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
@@ -292,13 +291,14 @@ def turn_means(mean: np.ndarray, lam: np.ndarray, axis: np.ndarray, angle: np.nd
 
 
 def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
-                view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
-                scale: float = 1.0, lambda_blend: str = "log",
-                wo: np.ndarray | None = None) -> np.ndarray:
+                view_weight: np.ndarray, light_sh: np.ndarray,
+                to_world: np.ndarray | None = None, scale: float = 1.0,
+                lambda_blend: str = "log", wo: np.ndarray | None = None) -> np.ndarray:
     """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
     vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
     ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
-    (25, 3), the environment turned by ``degrees`` about +y, times ``scale``. A slot
+    (25, 3), the environment turned by ``to_world`` (its 3×3 map-to-world rotation,
+    any axis; None: unturned), times ``scale``. A slot
     beyond a corner's stored ones is its slot 0 with w = 0; a corner with none adds
     nothing. With the directions to the eye ``wo`` (P, 3) and ``tables.normals``, each
     corner's means are turned towards the pixel's normal (:func:`turn_means`, the
@@ -314,7 +314,7 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     weight = weight * (stored > 0)[:, :, None]
     slots = tables.count[corner].max(axis=1)
     stack = [np.asarray(level, np.float64) for level in tables.stack]
-    turn = rotation_y(degrees)
+    turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
     out = np.zeros((len(corner), 3))
     for s in range(SLOTS):
         row = np.where(stored > 0, base + np.where(stored > s, s, 0), 0)
@@ -344,6 +344,14 @@ def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
     zero next to a bright window's shadow (Grace at order 5: whole patches of the bunny
     and the ground); radiance cannot, so D is clamped, as PRT renderers do."""
     return np.maximum(np.einsum("vck,kc->vc", transfer, light_sh), 0.0)
+
+
+def map_turn(to_world: np.ndarray | None) -> Any:
+    """The device buffer of Rᵀ (3×3 float32, row-major) for a map turned by the
+    map-to-world rotation ``to_world`` (None: unturned): the kernels take world
+    directions into the map by it (kernels/envmap.h ``envmap_into_map``)."""
+    turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
+    return cl.read_only_buffer(np.ascontiguousarray(turn.T, np.float32))
 
 
 @dataclass
@@ -380,29 +388,32 @@ class SgDevice:
         d = vertex_diffuse(self.tables.transfer, light_sh.astype(np.float32))
         return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
 
-    def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any, degrees: float,
-              scale: float, out_buffer: Any | None = None) -> tuple[np.ndarray | None, float]:
+    def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any,
+              to_world: np.ndarray | None, scale: float, out_buffer: Any | None = None
+              ) -> tuple[np.ndarray | None, float]:
         """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
         ``pixels`` (corner, bary, view, view_weight, wo), with the vertices' diffuse
-        radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), and the kernel's
-        milliseconds. With ``out_buffer`` (≥ n · 12 bytes on the device) the radiance
-        stays there and None is returned in its place."""
-        b, levels, a = self.buffers, self.tables.levels, np.radians(degrees)
+        radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), the map turned by
+        ``to_world`` (3×3, None: unturned), and the kernel's milliseconds. With
+        ``out_buffer`` (≥ n · 12 bytes on the device) the radiance stays there and None is
+        returned in its place."""
+        b, levels = self.buffers, self.tables.levels
         out = None if out_buffer is not None else np.empty((n, 3), np.float32)
         ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
                     pixels["view"], pixels["view_weight"], b["normals"], pixels["wo"],
                     b["stack"], b["info"],
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),
-                    np.float32(1.0 / np.log(levels.ratio)), np.float32(np.cos(a)),
-                    np.float32(np.sin(a)), np.float32(scale), np.int32(n), out=out,
+                    np.float32(1.0 / np.log(levels.ratio)), map_turn(to_world),
+                    np.float32(scale), np.int32(n), out=out,
                     writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
         return out, ms
 
 
 def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
-                 view_weight: np.ndarray, light_sh: np.ndarray, degrees: float = 0.0,
-                 scale: float = 1.0, wo: np.ndarray | None = None) -> np.ndarray:
+                 view_weight: np.ndarray, light_sh: np.ndarray,
+                 to_world: np.ndarray | None = None, scale: float = 1.0,
+                 wo: np.ndarray | None = None) -> np.ndarray:
     """The kernel on host arrays (as :func:`shade_numpy`'s arguments; ``wo`` (P, 3) is
     needed where the device turns lobes), float32 (P, 3)."""
     if wo is None:
@@ -414,7 +425,7 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
               "view": cl.read_only_buffer(np.asarray(view, np.int32)),
               "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32)),
               "wo": cl.read_only_buffer(np.ascontiguousarray(wo, np.float32))}
-    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), degrees,
+    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), to_world,
                         scale)[0]
 
 
@@ -473,9 +484,8 @@ def camera_gbuffer(tracer: RayTracer, vertices: np.ndarray, faces: np.ndarray, c
     """Trace camera ``cam``'s rays; hits' faces and barycentrics, view triangles of
     ω_o = −ray direction (kernel ``sg_view_lookup``)."""
     t0 = time.perf_counter()
-    origins, directions = camera_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                      cam.width, cam.height)
-    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
+                                     cam.width, cam.height)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     u, v = hits.u[hit], hits.v[hit]
@@ -547,8 +557,12 @@ class SgRenderer:
         gbuffer = self.gbuffers[key]
         pixels = gbuffer.buffers()
         t1 = time.perf_counter()
-        degrees, scale = scene.environment.rotation, scene.environment.scale
-        vertex_diffuse = self.device.vertex_diffuse(sh.rotate_y(self.map_sh, degrees))
+        env = scene.environment
+        to_world, scale = env.to_world, env.scale
+        about_y = env.turn_about_y
+        light_sh = sh.rotate_y(self.map_sh, about_y) if about_y is not None \
+            else sh.rotate(self.map_sh, to_world)
+        vertex_diffuse = self.device.vertex_diffuse(light_sh)
         t2 = time.perf_counter()
         # shading, background and their scatter stay on the device (render.DeviceImage)
         image = DeviceImage.of_size(self.images, cam.width * cam.height)
@@ -559,18 +573,17 @@ class SgRenderer:
         if len(gbuffer.pixel):
             shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * len(gbuffer.pixel))
             _, shade_ms = self.device.shade(pixels, len(gbuffer.pixel), vertex_diffuse,
-                                            degrees, scale, out_buffer=shaded)
+                                            to_world, scale, out_buffer=shaded)
             scatter_ms += image.scatter(shaded, pixels["pixel"], len(gbuffer.pixel))
         if background:
             if "map" not in self.static:
                 self.static["map"] = cl.read_only_buffer(env_map)
             miss = cl.scratch_buffer(image.buffers, "miss", 12 * len(gbuffer.miss_pixel))
-            a = np.radians(degrees)
             background_ms = cl.run(cl.kernel("sg_render.cl", "sg_background"),
                                    len(gbuffer.miss_pixel), self.static["map"],
                                    np.int32(env_map.shape[1]), np.int32(env_map.shape[0]),
-                                   pixels["miss_direction"], np.float32(np.cos(a)),
-                                   np.float32(np.sin(a)), np.float32(scale),
+                                   pixels["miss_direction"], map_turn(to_world),
+                                   np.float32(scale),
                                    np.int32(len(gbuffer.miss_pixel)), out=None,
                                    writes=12 * len(gbuffer.miss_pixel), out_buffer=miss,
                                    local=WORK_GROUP)
