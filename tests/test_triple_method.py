@@ -137,20 +137,21 @@ def test_a_rotation_about_any_axis(tmp_path, monkeypatch):
 def test_a_gamma_edit_at_run_time_equals_a_fresh_bake(tmp_path):
     """The renderer re-samples an edited material's glossy rows as the stage does: a
     frame of the scene baked at γ = 20 with the ball edited to γ = 60 equals the frame of
-    a bake at γ = 60 (the same rows, so to float32 rounding)."""
+    a bake at γ = 60 (the same rows, so to float32 rounding; the stored rows, budget 0:
+    the dense path's tables keep the triangles each BRDF table needs, decision 0024)."""
     env = sky(tmp_path / "sky.exr")
     scene = triple_scene(tmp_path, env)
     workdir = job.workdir_for(scene, tmp_path / "w20")
     job.bake(scene, workdir, quiet=True, methods=[get_method("triple")])
     edited = with_material_edits(scene, ["shiny.gamma=60"])
-    renderer = job.frame_renderer(scene, workdir, "triple", {})
+    renderer = job.frame_renderer(scene, workdir, "triple", {"budget": 0})
     frame = renderer.frame(edited)
     assert frame.timings["resample_ms"] > 0
     triple_scene(tmp_path, env, "g60.yaml")
     doc = yaml.safe_load((tmp_path / "g60.yaml").read_text())
     doc["materials"]["shiny"]["gamma"] = 60
     fresh = load_scene(write_scene(tmp_path, doc, "g60.yaml"))
-    baked = render(fresh, tmp_path / "w60", tmp_path / "g60.exr").rgb
+    baked = render(fresh, tmp_path / "w60", tmp_path / "g60.exr", budget=0).rgb
     assert np.abs(frame.rgb - baked).max() <= 1e-5 * np.abs(baked).max()
     assert np.abs(renderer.frame(scene).rgb - baked).max() > 1e-3 * np.abs(baked).max()
 
@@ -236,15 +237,15 @@ def test_evaluate_triple_charts_what_each_cut_reads(tmp_path):
     out = tmp_path / "eval"
     result = subprocess.run(
         [sys.executable, "-m", "pipeline", "evaluate", str(scene.path), "--method", "triple",
-         "--sweep", "render.budget=20,80", "--repeats", "1", "--reference-max-spp", "64",
+         "--sweep", "render.budget=20,80,0", "--repeats", "1", "--reference-max-spp", "64",
          "--workdir", str(tmp_path / "w"), "--out", str(out), "-q"],
         cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     records = {r["budget"]["render.budget"]: r
                for r in json.loads((out / "results.json").read_text())}
-    assert sorted(records) == [0, 20, 80]
+    assert sorted(records) == [0, 20, 80, 320]  # 320: the default, added
     assert records[20]["storage_bytes"] < records[80]["storage_bytes"] \
-        < records[0]["storage_bytes"]
+        < records[320]["storage_bytes"] <= records[0]["storage_bytes"]
     assert len({r["artifact_bytes"] for r in records.values()}) == 1
     assert all(0 < r["rel_rmse_surfaces"] < 1 for r in records.values())
 

@@ -12,12 +12,13 @@ pipeline/methods/triple/render.py.
 
 Run-time options (``prt render --option NAME=VALUE``):
 
-* ``budget`` (int, 0): coefficients per function at most (0: as stored, i.e. what the
-  bake's ``triple.store_tolerance`` chose, at most ``triple.store_budget``). Budgets up to
-  320 top-only render on the dense path, about 60× faster than the stored rows' sparse
-  path and less accurate: on bunny_grace at 128², shading 16 ms (320) and 7 ms (80)
-  against 970 ms as stored, frames 4.7 % and 16 % (relative L² over the surfaces) from
-  the stored rows' (decision 0024) — ``budget=320`` for interactive sequences;
+* ``budget`` (int, 320): coefficients per function at most (0: as stored, i.e. what
+  the bake's ``triple.store_tolerance`` chose, at most ``triple.store_budget``). Budgets
+  up to 320 top-only render on the dense path, 200–400× faster than the stored rows'
+  sparse path. 320, the default, is the fastest within 5 % of the env-direct reference
+  on the suite's scenes (decision 0041: bunny_grace 4.8 %, armadillo_forest 4.1 %,
+  teapot_sunset 5.2 % against 4.9 % as stored, at 64²; 90–130 ms a 1024×768 frame on 2
+  loaded CPU cores against 27–45 s as stored);
 * ``selection`` (str, ``top-only``): which coefficients a budget keeps: ``top-only``
   (the first ``budget`` of the layout, coarse levels first; exact up to 320 from the
   stored rows) or ``adaptive`` (the largest by area-weighted magnitude).
@@ -52,7 +53,7 @@ METHOD = Method(
     reference="env-direct",
     headline="rel_rmse_surfaces",
     options=(
-        Option("budget", int, 0, "coefficients per function at most (0: as stored)",
+        Option("budget", int, 320, "coefficients per function at most (0: as stored)",
                least=0),
         Option("selection", str, "top-only", "top-only or adaptive: which a budget keeps",
                choices=("top-only", "adaptive")),
@@ -60,11 +61,11 @@ METHOD = Method(
     sequences="pipeline.methods.triple.hooks:sequence",
     sequence_forms=("rotate:N", "orbit:N", "gamma[:MATERIAL]:N"),
     main_sequences=("rotate:8",),
-    # issue 16: 20, 80, 320 coefficients top-only and adaptive, and the default (as
-    # stored) added by prt evaluate; run-time cuts of one bake. At 64² (1024-spp
-    # references: 3.1 % noise against errors ≥ 9.8 %) the 7 budgets took 22 min on the
-    # 2 shared cores at load 15–20; studies/triple_accuracy.py studies 128²
-    evaluate_sweep={"render.budget": [20, 80, 320], "render.selection": ["top-only", "adaptive"]},
+    # 20 and 80 coefficients top-only and adaptive, the stored rows (0; the selection
+    # does not apply), and the default (320 top-only) added by prt evaluate: run-time
+    # cuts of one bake. At 64² (1024-spp references: 3.1 % noise) the budgets took
+    # 22 min on the 2 shared cores at load 15–20; studies/triple_accuracy.py studies 128²
+    evaluate_sweep={"render.budget": [20, 80, 0], "render.selection": ["top-only", "adaptive"]},
     evaluate_size=64,
     evaluate_reference_spp=1024,
     lights=("environment",),
