@@ -22,9 +22,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from benchmarks.fixtures import CACHE, load, result_path, write_result
+from benchmarks.fixtures import CACHE, ROOT, load, result_path, write_result
 
 FRAME_SIZES = "256,1024x768"
+SUITE_SCENES = ROOT / "benchmarks" / "suite_scenes"  # the suites' own scene files
+# the bunny scenes' camera (scenes/bunny_grace.yaml, bunny_sg.yaml) at half the distance
+BUNNY_CLOSEUP = {"position": [0.25, 0.1, 1.7], "look_at": [0.0, -0.15, 0.0],
+                 "up": [0, 1, 0], "fov": 32, "width": 64, "height": 64}
+
+
+def tiny_preset(sweep: str) -> list[str]:
+    """The options of a suite benchmark's smoke run: its tiny scene at 8², one budget
+    ``sweep`` (``NAME=V``), 8-spp references, frames timed at 12²."""
+    return ["--suite", "tiny", "--size", "8", "--frame-sizes", "12", "--repeats", "1",
+            "--reference-max-spp", "8", "--sweep", sweep]
 
 
 @dataclass(frozen=True)

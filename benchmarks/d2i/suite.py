@@ -6,10 +6,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from benchmarks.fixtures import ROOT, SCENES, TINY
-from benchmarks.scene_suite import SuiteScene, scene_suite
+from benchmarks.fixtures import SCENES, TINY
+from benchmarks.scene_suite import SUITE_SCENES, SuiteScene, scene_suite, tiny_preset
 
-SUITE = ROOT / "benchmarks" / "suite_scenes"
 CLOSEUP = {"position": [330, 160, 20], "look_at": [230, 110, 300], "up": [0, 1, 0],
            "fov": 39.3077, "width": 64, "height": 64}
 # the luminaire a quarter as wide and deep, 16 × as bright (the same power), just below
@@ -24,14 +23,12 @@ SCENE_SUITE = (
     SuiteScene("cornell_small_light", SCENES / "cornell_box.yaml",
                "a small bright source: the luminaire's power from 1/16 of its area",
                {"lights": SMALL_LIGHT}),
-    SuiteScene("dragon_room", SUITE / "dragon_room.yaml",
+    SuiteScene("dragon_room", SUITE_SCENES / "dragon_room.yaml",
                "not tuned on: Ward dragon, Blinn-Phong bunny, a spot light"),
 )
 TINY_SUITE = (SuiteScene("tiny_d2i", TINY / "tiny_d2i.yaml", "smoke"),)
 SWEEP = {"gather.count": [1024, 4096]}  # and the default, 16384
-PRESETS = {"default": [],
-           "tiny": ["--suite", "tiny", "--size", "8", "--frame-sizes", "12", "--repeats", "1",
-                    "--reference-max-spp", "8", "--sweep", "gather.count=32"]}
+PRESETS = {"default": [], "tiny": tiny_preset("gather.count=32")}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

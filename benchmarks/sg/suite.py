@@ -6,12 +6,15 @@ from __future__ import annotations
 
 from typing import Any
 
-from benchmarks.fixtures import ROOT, SCENES, TINY
-from benchmarks.scene_suite import SuiteScene, scene_suite
+from benchmarks.fixtures import SCENES, TINY
+from benchmarks.scene_suite import (
+    BUNNY_CLOSEUP,
+    SUITE_SCENES,
+    SuiteScene,
+    scene_suite,
+    tiny_preset,
+)
 
-SUITE = ROOT / "benchmarks" / "suite_scenes"
-CLOSEUP = {"position": [0.25, 0.1, 1.7], "look_at": [0.0, -0.15, 0.0], "up": [0, 1, 0],
-           "fov": 32, "width": 64, "height": 64}
 UFFIZI = [{"type": "environment", "file": "${PRT_DATA}/envmaps/uffizi_256x128.hdr",
            "rotation": 0, "scale": 1.0}]
 # sg renders light per vertex: the suite's teapot scene gets sg's 64 × 64 ground
@@ -25,18 +28,16 @@ SCENE_SUITE = (
     SuiteScene("dragon_sg", SCENES / "dragon_sg.yaml",
                "shipped: folds and a studio map of small sources (its limits warn)"),
     SuiteScene("bunny_sg_closeup", SCENES / "bunny_sg.yaml",
-               "a close-up camera: half the distance", {"camera": CLOSEUP}),
+               "a close-up camera: half the distance", {"camera": BUNNY_CLOSEUP}),
     SuiteScene("bunny_sg_uffizi", SCENES / "bunny_sg.yaml", "not tuned on: another map",
                {"lights": UFFIZI}),
-    SuiteScene("teapot_sunset_sg", SUITE / "teapot_sunset.yaml",
+    SuiteScene("teapot_sunset_sg", SUITE_SCENES / "teapot_sunset.yaml",
                "not tuned on: another mesh; a small bright source (Venice's low sun)",
                {"methods": ["sg"], "objects": {"teapot": TEAPOT, "ground": SG_GROUND}}),
 )
 TINY_SUITE = (SuiteScene("tiny_sg", TINY / "tiny_sg.yaml", "smoke"),)
 SWEEP = {"sg.diffuse_order": [4, 6, 8]}
-PRESETS = {"default": [],
-           "tiny": ["--suite", "tiny", "--size", "8", "--frame-sizes", "12", "--repeats", "1",
-                    "--reference-max-spp", "8", "--sweep", "sg.diffuse_order=2"]}
+PRESETS = {"default": [], "tiny": tiny_preset("sg.diffuse_order=2")}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

@@ -6,28 +6,29 @@ from __future__ import annotations
 
 from typing import Any
 
-from benchmarks.fixtures import ROOT, SCENES, TINY
-from benchmarks.scene_suite import SuiteScene, scene_suite
+from benchmarks.fixtures import SCENES, TINY
+from benchmarks.scene_suite import (
+    BUNNY_CLOSEUP,
+    SUITE_SCENES,
+    SuiteScene,
+    scene_suite,
+    tiny_preset,
+)
 
-SUITE = ROOT / "benchmarks" / "suite_scenes"
-CLOSEUP = {"position": [0.25, 0.1, 1.7], "look_at": [0.0, -0.15, 0.0], "up": [0, 1, 0],
-           "fov": 32, "width": 64, "height": 64}
 SCENE_SUITE = (
     SuiteScene("bunny_grace", SCENES / "bunny_grace.yaml", "shipped: the scene it was tuned on"),
     SuiteScene("dragon_pisa", SCENES / "dragon_pisa.yaml",
                "shipped: a detailed mesh in a small atlas (its limits warn)"),
     SuiteScene("bunny_grace_closeup", SCENES / "bunny_grace.yaml",
-               "a close-up camera: half the distance", {"camera": CLOSEUP}),
-    SuiteScene("armadillo_forest", SUITE / "armadillo_forest.yaml",
+               "a close-up camera: half the distance", {"camera": BUNNY_CLOSEUP}),
+    SuiteScene("armadillo_forest", SUITE_SCENES / "armadillo_forest.yaml",
                "not tuned on: another mesh, anisotropic Ward, a glossy ground, an outdoor sky"),
-    SuiteScene("teapot_sunset", SUITE / "teapot_sunset.yaml",
+    SuiteScene("teapot_sunset", SUITE_SCENES / "teapot_sunset.yaml",
                "a small bright source: Venice's low sun"),
 )
 TINY_SUITE = (SuiteScene("tiny_triple", TINY / "tiny_triple.yaml", "smoke"),)
 SWEEP = {"render.budget": [80, 320, 0]}
-PRESETS = {"default": [],
-           "tiny": ["--suite", "tiny", "--size", "8", "--frame-sizes", "12", "--repeats", "1",
-                    "--reference-max-spp", "8", "--sweep", "render.budget=20"]}
+PRESETS = {"default": [], "tiny": tiny_preset("render.budget=20")}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
