@@ -67,6 +67,7 @@ def run_all(folder: Path, work: Path) -> None:
                                                                  work / "sg" / "w"),
                          "sg", {"normal": "pixel"})  # sg_shade's PIXEL_NORMAL = 1
         job.render_frame(sc, wd, "triple", {"budget": 16})
+        job.render_frame(sc, wd, "triple", {"budget": 0})  # the stored rows: sparse path
         code = pytest.main(["-q", "-p", "no:cacheprovider",
                             *(str(TESTS / t) for t in TESTS_OF_TEST_KERNELS)])
         if code != 0:
