@@ -1,4 +1,5 @@
-/* Shadow rays on the device, against the BVH of pipeline/device/bvh.py (kernels/bvh.h). */
+/* Shadow rays and closest hits on the device, against the BVH of pipeline/device/bvh.py
+ * (kernels/bvh.h). */
 #include "bvh.h"
 
 /* rays: n · (origin.xyz, tmax; direction.xyz, 0); out[i] = 1 where occluded. */
@@ -10,6 +11,23 @@ __kernel void occluded_rays(__global const float4* lo, __global const float4* hi
     if (i >= n) return;
     float4 a = rays[2 * i], b = rays[2 * i + 1];
     out[i] = bvh_occluded(lo, hi, tri, leaves, a.xyz, b.xyz, a.w) ? 1 : 0;
+}
+
+/* Closest hits of n rays (as occluded_rays'): t[i] (tmax where none), the stored
+ * triangle prim[i] (-1: none) and Embree's barycentrics u[i], v[i]. */
+__kernel void closest_rays(__global const float4* lo, __global const float4* hi,
+                           __global const float4* tri, const int leaves,
+                           __global const float4* rays, const int n, __global float* t,
+                           __global int* prim, __global float* u, __global float* v)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float4 a = rays[2 * i], b = rays[2 * i + 1];
+    float h = a.w, s = 0.0f, r = 0.0f;
+    prim[i] = bvh_closest(lo, hi, tri, leaves, a.xyz, b.xyz, a.w, &h, &s, &r);
+    t[i] = h;
+    u[i] = s;
+    v[i] = r;
 }
 
 /* Visibility of every light sample from n points (build with light_defines() and

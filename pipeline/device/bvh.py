@@ -1,4 +1,5 @@
-"""A bounding-volume hierarchy for shadow rays on the OpenCL device (kernels/bvh.h).
+"""A bounding-volume hierarchy for shadow rays and closest hits on the OpenCL device
+(kernels/bvh.h).
 
 Embree traces the bake's rays and the CPU renderer's; on a GPU the renderer's shadow rays
 would cross the bus twice per frame (points out, visibility back), so they are traced
@@ -129,3 +130,52 @@ def occluded(bvh: Bvh, origins: np.ndarray, directions: np.ndarray,
                 *bvh.device, np.int32(bvh.leaves), cl.read_only_buffer(rays), np.int32(n),
                 out=out, writes=n, local=64)  # a byte per ray
     return out.astype(bool), ms
+
+
+def closest(bvh: Bvh, origins: np.ndarray, directions: np.ndarray,
+            distances: np.ndarray | None = None) -> tuple[Any, float]:
+    """The closest hits of rays (N, 3) float32, 0 < t < ``distances`` (None: unbounded),
+    traced on the device (kernel ``closest_rays``) as pipeline.device.raytrace.Hits
+    (Embree's: ``t`` (inf where none), the original face ``prim`` (-1 where none) and the
+    barycentrics ``u``, ``v``), and the kernel's milliseconds."""
+    from pipeline.device import cl
+    from pipeline.device.raytrace import Hits
+    from pipeline.math.lights import light_defines
+
+    n = len(origins)
+    rays = np.zeros((n, 2, 4), np.float32)
+    rays[:, 0, :3], rays[:, 1, :3] = origins, directions
+    rays[:, 0, 3] = np.inf if distances is None else distances
+    t, u, v = (np.empty(n, np.float32) for _ in range(3))
+    stored = np.empty(n, np.int32)
+    if n == 0:
+        return Hits(t, stored, u, v), 0.0
+    import pyopencl as pcl
+
+    defines = {**light_defines(), "BVH_LEAF": LEAF}
+    outs = [pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, 4 * n) for _ in range(4)]
+    kernel = cl.kernel("shadow_rays.cl", "closest_rays", defines)
+    event = kernel(cl.queue(), (-(-n // 64) * 64,), (64,), *bvh.device,
+                   np.int32(bvh.leaves), cl.read_only_buffer(rays), np.int32(n), *outs)
+    for array, buffer in zip((t, stored, u, v), outs, strict=True):
+        pcl.enqueue_copy(cl.queue(), array, buffer, wait_for=[event])
+    prim = np.full(n, -1, np.int32)
+    prim[stored >= 0] = bvh.order[stored[stored >= 0]]
+    t[stored < 0] = np.inf
+    return Hits(t, prim, u, v), cl.event_ms(event)
+
+
+class DeviceRayTracer:
+    """Closest hits on the device, as pipeline.device.raytrace.RayTracer's ``intersect``
+    gives them on the host (Embree): the hierarchy built once, each call one kernel
+    (:func:`closest`). On a GPU a camera's rays then never wait on the host's cores."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.bvh = Bvh.build(vertices, faces)
+        self.kernel_ms = 0.0  # the last call's
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Any:
+        """Closest hits of rays (N, 3) float32 (pipeline.device.raytrace.Hits)."""
+        hits, self.kernel_ms = closest(self.bvh, np.asarray(origins, np.float32),
+                                       np.asarray(directions, np.float32))
+        return hits

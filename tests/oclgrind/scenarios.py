@@ -4,7 +4,7 @@
 Each method's tiny scene (tests/tiny_scenes.py) baked and rendered: direct; d2i in both
 product layouts with its shadows traced by the device's BVH kernel, a light edit and a
 BRDF edit; sg (its lobes as fitted, and turned to the pixel's normal); triple's sparse
-and dense paths; the BVH's occlusion rays and the bandwidth probe; then the
+and dense paths; the BVH's occlusion and closest-hit rays and the bandwidth probe; then the
 kernel-vs-NumPy tests of the kernels only tests launch (:data:`TESTS_OF_TEST_KERNELS`).
 Sizes are cut so that Oclgrind, which interprets every work-item, gets through a launch
 in seconds.
@@ -58,6 +58,8 @@ def run_all(folder: Path, work: Path) -> None:
         rays = np.random.default_rng(0).normal(size=(64, 3))
         bvh.occluded(bvh.Bvh.build(geometry["vertices"], geometry["faces"]),
                      np.tile([0.0, 1.0, 0.0], (64, 1)), rays, np.ones(64))
+        bvh.closest(bvh.Bvh.build(geometry["vertices"], geometry["faces"]),
+                    np.tile([0.0, 1.0, 0.0], (64, 1)), rays)
         for name in ("sg", "triple"):
             sc = tiny_scene(work, name)
             wd = job.workdir_for(sc, work / name / "w")

@@ -21,7 +21,11 @@ Run-time options (``prt render --option NAME=VALUE``):
   loaded CPU cores against 27–45 s as stored);
 * ``selection`` (str, ``top-only``): which coefficients a budget keeps: ``top-only``
   (the first ``budget`` of the layout, coarse levels first; exact up to 320 from the
-  stored rows) or ``adaptive`` (the largest by area-weighted magnitude).
+  stored rows) or ``adaptive`` (the largest by area-weighted magnitude);
+* ``trace`` (str, ``auto``): who traces a new camera's rays: ``device`` (the project's
+  BVH kernel, pipeline/device/bvh.py: on a GPU the rays never wait on the host's
+  cores), ``embree`` (the host) or ``auto`` (the device on a GPU, Embree on a CPU,
+  where it is the faster).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y
 (N frames 360°/N apart, from the scene's rotation); ``orbit:N`` moves the camera once
@@ -57,6 +61,8 @@ METHOD = Method(
                least=0),
         Option("selection", str, "top-only", "top-only or adaptive: which a budget keeps",
                choices=("top-only", "adaptive")),
+        Option("trace", str, "auto", "camera rays: device (the BVH kernel), embree (host) "
+               "or auto (the device on a GPU)", choices=("device", "embree", "auto")),
     ),
     sequences="pipeline.methods.triple.hooks:sequence",
     sequence_forms=("rotate:N", "orbit:N", "gamma[:MATERIAL]:N"),

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.device import cl
+from pipeline.device.bvh import DeviceRayTracer
 from pipeline.device.raytrace import Mesh, RayTracer, surface_at
 from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
@@ -90,6 +91,8 @@ from pipeline.render import (
 )
 from pipeline.render.surface_detail import SceneDetail
 from pipeline.scene.model import Scene
+
+TRACERS = ("auto", "device", "embree")  # camera rays: the device's BVH (auto: on a GPU) or Embree
 
 
 def shade(tables: TripleTables, lookups: PixelLookups) -> tuple[np.ndarray, float, int]:
@@ -282,10 +285,13 @@ class TripleRenderer:
     device across frames (the atlas's, the map)."""
 
     def __init__(self, scene: Scene, artifacts: Mapping[str, Artifact], budget: int = 0,
-                 selection: str = "top-only") -> None:
+                 selection: str = "top-only", trace: str = "auto") -> None:
         if selection not in SELECTIONS:
             raise PrtError("--option", f"selection={selection!r}: expected one of "
                            f"{', '.join(SELECTIONS)}")
+        if trace not in TRACERS:
+            raise PrtError("--option", f"trace={trace!r}: expected one of "
+                           f"{', '.join(TRACERS)}")
         if budget < 0:
             raise PrtError("--option", f"budget={budget}: expected 0 (as stored) or a "
                            "positive number of coefficients")
@@ -302,7 +308,12 @@ class TripleRenderer:
         self.baked_shapes = {n: _shape(scene, n) for n in self.material_names}
         arrays = {n: geo.read(n) for n in
                   ("vertices", "normals", "uv", "faces", "face_object", "object_material")}
-        self.tracer = RayTracer(arrays["vertices"], arrays["faces"])
+        import pyopencl as pcl
+
+        on_gpu = bool(cl.device().type & pcl.device_type.GPU)
+        self.tracer = DeviceRayTracer(arrays["vertices"], arrays["faces"]) \
+            if trace == "device" or (trace == "auto" and on_gpu) \
+            else RayTracer(arrays["vertices"], arrays["faces"])
         self.mesh = Mesh.from_arrays(arrays)
         self.detail = SceneDetail(scene, self.material_names)
         self.env_map = np.ascontiguousarray(
