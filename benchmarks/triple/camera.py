@@ -13,7 +13,8 @@ of benchmarks/triple/frames.py, fixtures ``baked``) and rendered at
   (kernel ``triple_angles``, run once per camera);
 * ``trace``: Embree's primary-ray rate (rays/s) as the G-buffer calls it (batches of
   32768 on the task's threads), in one call on one thread, and with the rays reordered
-  into 8×8-pixel tiles (coherent batches);
+  into 8×8-pixel tiles (coherent batches); and the project's BVH kernel's
+  (``device_bvh``, ``--option trace=device``; transfers included);
 * ``frames``: camera-move frames through the renderer (the camera orbits 3° per frame),
   alternately with the NumPy G-buffer (before) and the kernel (after): medians of the
   frame's parts (renderer timings) and of the process's CPU time;
@@ -69,7 +70,8 @@ def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
             "rays": cam.width * cam.height, "shaded": len(pixel), "load": load()[0]}
 
 
-def trace_rates(tracer: Any, cam: Any, repeats: int) -> dict[str, Any]:
+def trace_rates(tracer: Any, cam: Any, repeats: int, device: Any = None
+                ) -> dict[str, Any]:
     """Primary rays per second: as the G-buffer traces them, one call on one thread,
     and reordered into 8×8 tiles (batches as the G-buffer's)."""
     from pipeline.math.camera import camera_rays
@@ -84,6 +86,8 @@ def trace_rates(tracer: Any, cam: Any, repeats: int) -> dict[str, Any]:
         "one_call_one_thread": lambda: tracer.scene.run(flat_o, flat_d, output=1),
         "tiles_8x8_batched": lambda: tracer.intersect(tiled_o, tiled_d),
     }
+    if device is not None:  # the project's BVH kernel (--option trace=device)
+        variants["device_bvh"] = lambda: device.intersect(flat_o, flat_d)
     out: dict[str, Any] = {"threads": tracer.threads}
     for name, fn in variants.items():
         fn()  # warm-up
@@ -148,7 +152,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                  "parts": parts}}
     print("gbuffer", json.dumps({k: v for k, v in result["gbuffer"].items() if k != "all"},
                                 default=float), flush=True)
-    result["trace"] = trace_rates(tracer, cam, args.repeats)
+    from pipeline.device.bvh import DeviceRayTracer
+
+    geometry = artifacts["geometry"]
+    result["trace"] = trace_rates(tracer, cam, args.repeats, DeviceRayTracer(
+        geometry.read("vertices"), geometry.read("faces")))
     print("trace", json.dumps(result["trace"], default=float), flush=True)
 
     # Frames identical: one camera shaded from both G-buffers (dense top-only path).
