@@ -39,15 +39,12 @@ def texels_per_pixel(scene: Scene, params: Mapping[str, Any],
     the texture capped at ``triple.texture_max``, or too low a density setting)."""
     if artifacts is None:
         return None
-    from pipeline.methods.triple.stages.atlas import object_piece, screen_pixels
-
     atlas, geometry = artifacts["triple.atlas"], artifacts["geometry"]
     attrs = atlas.attrs
     camera = dataclasses.asdict(scene.camera)
     found = []
     for obj, counts in attrs["texel_counts"].items():
-        pixels = screen_pixels(object_piece(geometry, "vertices", obj),
-                               object_piece(geometry, "faces", obj), camera)
+        pixels = _screen_pixels(geometry, obj, camera)
         if pixels == 0:
             continue
         density = float(np.sqrt(counts["covered"] / pixels))
@@ -66,6 +63,26 @@ def texels_per_pixel(scene: Scene, params: Mapping[str, Any],
                      f"{LEAST_TEXELS_PER_PIXEL}: texel blocks and aliased contact shadows); "
                      f"{cause}")
     return "; ".join(found) or None
+
+
+def _screen_pixels(geometry: Any, obj: str, camera: dict[str, Any]) -> int:
+    """stages/atlas.py's screen_pixels of object ``obj`` from ``camera``, remembered
+    for the last few (geometry, object, camera): a sequence that turns the map checks
+    every frame's scene, and each check would trace the whole image again."""
+    key = (str(geometry.path), geometry.record.get("key"), obj,
+           tuple((k, tuple(v) if isinstance(v, list | tuple) else v)
+                 for k, v in sorted(camera.items())))
+    if key not in _SEEN:
+        from pipeline.methods.triple.stages.atlas import object_piece, screen_pixels
+
+        if len(_SEEN) >= 16:
+            _SEEN.pop(next(iter(_SEEN)))
+        _SEEN[key] = screen_pixels(object_piece(geometry, "vertices", obj),
+                                   object_piece(geometry, "faces", obj), camera)
+    return _SEEN[key]
+
+
+_SEEN: dict[tuple, int] = {}  # _screen_pixels' last answers
 
 
 def atlas_padding(scene: Scene, params: Mapping[str, Any],
