@@ -42,7 +42,7 @@ def test_every_method_declares_checkable_limits():
 
     for name in ("d2i", "triple", "sg"):
         limits = get_method(name).limits
-        assert len(limits) >= 2
+        assert len(limits) >= 2 and len({limit.name for limit in limits}) == len(limits)
         for limit in limits:
             assert callable(resolve(limit.check)) and limit.what
     listed = json.loads(prt("methods", "--json").stdout)
@@ -51,23 +51,27 @@ def test_every_method_declares_checkable_limits():
     assert all(not m.limits for n, m in registry().items() if n == "direct")
 
 
-def test_d2i_coefficients_per_pixel(tmp_path):
-    """Fewer than 50 of D's coefficients per pixel warn before the bake; the default
-    (100) does not."""
+def test_d2i_coefficients_and_gathers_per_pixel(tmp_path):
+    """Fewer than 50 of D's coefficients per pixel warn before the bake, and so do more
+    than 2 gathers per pixel (the default 16,384 on a 16² image: 64); 100 coefficients
+    and 512 gathers (2 per pixel) do not."""
     doc = small_scene_dict(16)
-    doc["methods"] = ["d2i"]
+    doc["methods"], doc["settings"] = ["d2i"], {"gather.count": 512}
     d2i = get_method("d2i")
     assert limit_warnings(d2i, load_scene(write_scene(tmp_path, doc))) == []
-    doc["settings"] = {"truncate.d_coefficients": 20}
+    doc["settings"] = {"truncate.d_coefficients": 20, "gather.count": 512}
     (warning,) = limit_warnings(d2i, load_scene(write_scene(tmp_path, doc, "few.yaml")))
     assert warning.startswith("method d2i, coefficients-per-pixel: truncate.d_coefficients 20")
+    doc["settings"] = {}
+    (warning,) = limit_warnings(d2i, load_scene(write_scene(tmp_path, doc, "many.yaml")))
+    assert "gathers-per-pixel: gather.count 16384 is 64.0 per pixel of the 16×16" in warning
 
 
 def test_d2i_gathers_found_in_an_open_scene(tmp_path):
     """A floor alone under a point light: every gather ray escapes, none is found, and
     the check says the indirect light is missing; the floor, box and ball find theirs."""
     doc = small_scene_dict(8)
-    doc["methods"], doc["settings"] = ["d2i"], {"gather.count": 64}
+    doc["methods"], doc["settings"] = ["d2i"], {"gather.count": 64}  # 1 per pixel
     closed = load_scene(write_scene(tmp_path, doc))
     assert limit_warnings(get_method("d2i"), closed,
                           _baked(closed, tmp_path / "w1", "d2i", "d2i.gather")) == []

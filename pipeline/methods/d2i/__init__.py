@@ -73,6 +73,10 @@ METHOD = Method(
         Limit("coefficients-per-pixel", "below 50 coefficients of D per pixel "
               "(truncate.d_coefficients) the pixel blocks show and sharp indirect shadows "
               "turn bright", "pipeline.methods.d2i.limits:coefficients_per_pixel"),
+        Limit("gathers-per-pixel", "more than 2 gathers per pixel (gather.count against "
+              "the image) shoot bunches of rays from the same pixel centres and the "
+              "indirect light errs more: lower gather.count or render larger",
+              "pipeline.methods.d2i.limits:gathers_per_pixel"),
         Limit("gathers-found", "in a scene open to the sky gather rays escape: fewer than "
               "three quarters of gather.count found make the indirect light noisier, none "
               "leaves it out", "pipeline.methods.d2i.limits:gathers_found"),
