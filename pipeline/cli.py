@@ -126,9 +126,11 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
     frames = frames or Path("frames") / sc.name
     notes = [] if until or stagefile else scene_notes(sc, scene_methods(sc))
     show_notes(notes, as_json)
-    limits = [] if until or stagefile else \
-        [w for m in scene_methods(sc) for w in limit_warnings(m, sc)]
-    show_warnings(limits, as_json)
+    limits: list[str] = []
+    if not (until or stagefile):
+        job.check_device()  # no working device: its one error line, not warnings first
+        limits = show_warnings([w for m in scene_methods(sc) for w in limit_warnings(m, sc)],
+                               as_json)
     report, rendered, sequences = job.main_job(
         sc, wd, frames, until, tuple(force), cores.workers, quiet, stagefile,
         threads=threads if scheduler else cores.threads, exposure=exposure,
@@ -572,6 +574,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
     notes = scene_notes(sc, [m])
     show_notes(notes, as_json)
+    job.check_device()  # no working device: its one error line, not warnings first
     limits = show_warnings(limit_warnings(m, sc), as_json)
     wd = job.workdir_for(sc, workdir)
     if out.suffix.lower() != ".exr":
