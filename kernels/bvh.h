@@ -21,23 +21,6 @@ PRT_INLINE bool bvh_box(float4 lo, float4 hi, float3 o, float3 inv, float tmax) 
     return enter <= leave;
 }
 
-/* Möller–Trumbore, both sides: a hit at 0 < t < tmax (t in units of |d|). */
-PRT_INLINE bool bvh_triangle(__global const float4* tri, float3 o, float3 d, float tmax) {
-    float3 v0 = tri[0].xyz, e1 = tri[1].xyz, e2 = tri[2].xyz;
-    float3 p = cross(d, e2);
-    float det = dot(e1, p);
-    if (det == 0.0f) return false;  /* parallel, or a padding triangle */
-    float inv = 1.0f / det;
-    float3 s = o - v0;
-    float u = dot(s, p) * inv;
-    if (u < 0.0f || u > 1.0f) return false;
-    float3 q = cross(s, e1);
-    float v = dot(d, q) * inv;
-    if (v < 0.0f || u + v > 1.0f) return false;
-    float t = dot(e2, q) * inv;
-    return t > 0.0f && t < tmax;
-}
-
 /* Möller–Trumbore, both sides, for the closest hit: whether the ray hits the triangle
  * at 0 < t < tmax, with *t and Embree's barycentrics (*u, *v): the hit point is
  * (1 − u − v) v0 + u v1 + v v2. */
@@ -60,6 +43,12 @@ PRT_INLINE bool bvh_triangle_hit(__global const float4* tri, float3 o, float3 d,
     *u = a;
     *v = b;
     return true;
+}
+
+/* Möller–Trumbore, both sides: a hit at 0 < t < tmax (t in units of |d|). */
+PRT_INLINE bool bvh_triangle(__global const float4* tri, float3 o, float3 d, float tmax) {
+    float t, u, v;
+    return bvh_triangle_hit(tri, o, d, tmax, &t, &u, &v);
 }
 
 /* The closest hit on o + t d, 0 < t < tmax: depth first, boxes tested against the

@@ -124,8 +124,9 @@ def triangle_values(rows: WaveletRows, basis: WaveletBasis, level: int) -> np.nd
 class DenseTables:
     """Per-triangle tables of one level on its ``kept`` triangles (zero-padded to T, a
     multiple of the kernel's vector width), float16 (the kernel converts as it loads:
-    half the bytes of float32; bunny_grace at 320 and 1024×768 on two loaded CPU cores,
-    shading median 139 against 164 ms, frames equal to 4·10⁻⁵ of the largest pixel):
+    half the bytes of float32; a prototype without the row scales, bunny_grace at 320
+    and 1024×768 on two loaded CPU cores: shading median 139 against 164 ms, frames equal
+    to 4·10⁻⁵ of the largest pixel):
     ``light`` (rows, 3, T) × the
     triangles' solid angles over ``light_scale`` (rows,) float32 (channels planar: the
     kernel loads W triangles of a channel at once), ``visibility`` (rows, T) (values in
