@@ -61,3 +61,19 @@ def test_a_direct_launch_that_would_write_past_its_buffer_is_refused():
     with pytest.raises(RuntimeError, match="kernel k would write 65 bytes into a buffer "
                                            "of 64"):
         cl.check_writes("k", small, 65)
+
+
+@pytest.mark.parametrize("shape, dtype", [((463, 3), "float32"), ((7,), "uint8"), ((0, 2), "int32")])
+def test_aligned_arrays_start_on_a_page_and_carry_kernel_writes_back(shape, dtype):
+    import numpy as np
+
+    a = cl.aligned_empty(shape, dtype)
+    assert a.shape == shape and a.dtype == np.dtype(dtype) and a.flags.c_contiguous
+    if not a.size:  # an empty array holds no memory to align (buffers refuse it anyway)
+        return
+    assert a.ctypes.data % cl.PAGE == 0
+    a[...] = 0
+    buffer = cl.shared_output_buffer(a)
+    pcl.enqueue_fill_buffer(cl.queue(), buffer, np.ones(1, dtype), 0, a.nbytes)
+    cl.read_output_buffer(a, buffer)
+    assert np.all(a == 1)

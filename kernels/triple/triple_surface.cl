@@ -10,7 +10,9 @@
  *             (no uv on the face, or dP/du ∥ normal) Duff et al.'s tangent of the normal
  *             (pipeline/math/frames.py tangent_from_normal);
  *   view    = −d;  texel_xy = w·c0 + u·c1 + v·c2 of the face's atlas corners (texels);
- *   object  = the face's object. */
+ *   object  = the face's object;
+ *   back    = 1 where the ray meets the back of its face (d · n_face > 0), else 0
+ *             (pipeline/render/__init__.py sees_back). */
 
 /* Written for PoCL's loop vectorizer (POCL_VECTORIZER_REMARKS=1 reports "vectorized
  * loop (vectorization width: 4)"): no early return, scalar loads, selects instead of
@@ -37,7 +39,7 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
                              __global const float* face_uv, __global const int* face_object,
                              const int n, __global float* normal, __global float* tangent,
                              __global float* view, __global float* texel_xy,
-                             __global int* object)
+                             __global int* object, __global uchar* back)
 {
     int g = get_global_id(0);
     int i = g < n ? g : n - 1;  /* the padding items redo the last pixel (no early return) */
@@ -51,8 +53,9 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
     float ny = w * vertex_normal[a + 1] + u * vertex_normal[b + 1] + v * vertex_normal[c + 1];
     float nz = w * vertex_normal[a + 2] + u * vertex_normal[b + 2] + v * vertex_normal[c + 2];
     float len = SURFACE_SQRT(nx * nx + ny * ny + nz * nz);
-    float s = (face_normal[3 * f] * dx + face_normal[3 * f + 1] * dy
-               + face_normal[3 * f + 2] * dz) > 0.0f ? -1.0f : 1.0f;
+    int behind = (face_normal[3 * f] * dx + face_normal[3 * f + 1] * dy
+                  + face_normal[3 * f + 2] * dz) > 0.0f;
+    float s = behind ? -1.0f : 1.0f;
     float scale = s / (len > 1e-30f ? len : 1e-30f);
     nx *= scale; ny *= scale; nz *= scale;
     float fx = face_tangent[3 * f], fy = face_tangent[3 * f + 1], fz = face_tangent[3 * f + 2];
@@ -73,4 +76,5 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
     texel_xy[2 * i] = w * face_uv[6 * f] + u * face_uv[6 * f + 2] + v * face_uv[6 * f + 4];
     texel_xy[2 * i + 1] = w * face_uv[6 * f + 1] + u * face_uv[6 * f + 3] + v * face_uv[6 * f + 5];
     object[i] = face_object[f];
+    back[i] = (uchar)behind;
 }

@@ -237,6 +237,24 @@ def shared_read_only_buffer(array: Any) -> Any:
     return cl.Buffer(context(), cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
 
 
+PAGE = 4096  # bytes: a multiple of every device's base-address alignment (Intel's: 128)
+
+
+def aligned_empty(shape: Any, dtype: Any) -> Any:
+    """An uninitialised NumPy array whose data starts on a :data:`PAGE` boundary: a CPU
+    runtime uses such memory in place for the USE_HOST_PTR buffers of
+    :func:`shared_read_only_buffer` and :func:`shared_output_buffer` (Intel's copies an
+    array that is not aligned to the device's base-address alignment; NumPy's own
+    allocations are aligned to 16 bytes)."""
+    import numpy as np
+
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    raw = np.empty(nbytes + PAGE, np.uint8)
+    start = -raw.ctypes.data % PAGE
+    return raw[start:start + nbytes].view(dtype).reshape(shape)
+
+
 def shared_output_buffer(array: Any) -> Any:
     """A buffer for kernels' output into the NumPy array ``array``, starting from its
     values (entries no kernel writes keep them): on a CPU device the array's own memory

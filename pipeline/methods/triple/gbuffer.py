@@ -88,7 +88,7 @@ class GBuffer:
     def device(self) -> list[Any]:
         """The per-frame arrays as device buffers in the kernels' order (texel_xy, object,
         material_a, material_b, blend), uploaded once per camera."""
-        return [cl.read_only_buffer(a) for a in (
+        return [cl.shared_read_only_buffer(a) for a in (
             self.texel_xy, self.object, self.material_a, self.material_b, self.blend)]
 
     def angles(self, frames: FrameGrid, views: ViewGrid) -> tuple[list[Any], float]:
@@ -101,7 +101,7 @@ class GBuffer:
             return self._angles[frames, views], 0.0
         n = max(self.count, 1)
         out = [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * 4) for k in (3, 2)]
-        inputs = [cl.read_only_buffer(a) for a in (self.normal, self.tangent, self.view)]
+        inputs = [cl.shared_read_only_buffer(a) for a in (self.normal, self.tangent, self.view)]
         kernel = cl.kernel("triple.cl", "triple_angles", {"SW_LEVELS": 1})
         event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
                        *inputs, *(np.int32(x) for x in (frames.n_phi, frames.n_theta,
@@ -115,8 +115,8 @@ class GBuffer:
     def pixel_device(self) -> tuple[Any, Any]:
         """The shaded and the missing pixels' ids (P,), (M,) int32 on the device, for the
         frame's scatter into a DeviceImage (pipeline/render/__init__.py)."""
-        return (cl.read_only_buffer(self.pixel.astype(np.int32)),
-                cl.read_only_buffer(self.miss_pixel.astype(np.int32)))
+        return (cl.shared_read_only_buffer(self.pixel.astype(np.int32)),
+                cl.shared_read_only_buffer(self.miss_pixel.astype(np.int32)))
 
     def turned(self, to_world: np.ndarray) -> GBuffer:
         """This G-buffer as the map's own frame sees it, for a map turned by the
@@ -145,20 +145,20 @@ class GBuffer:
         turn/2π to u (kernel ``triple_background``), so the trigonometry runs once per
         camera."""
         u, v = direction_to_uv(self.miss.astype(np.float64))
-        return cl.read_only_buffer(np.stack([u, v], axis=-1).astype(np.float32))
+        return cl.shared_read_only_buffer(np.stack([u, v], axis=-1).astype(np.float32))
 
 
 def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,
                        pixel: np.ndarray, static: dict[str, Any] | None = None
                        ) -> dict[str, np.ndarray]:
     """Kernel ``triple_surface`` (kernels/triple/triple_surface.cl): the G-buffer's ``normal``,
-    ``tangent``, ``view`` (P, 3), ``texel_xy`` (P, 2) float32 and ``object`` (P,) int32
-    at the camera rays ``pixel`` (P,) of ``hits`` and unit ``directions`` (N, 3) (all
-    of them hits), from the mesh's vertex normals (blended in float32), unit face normals
-    and unit uv tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels
-    (uploaded once where ``static``, a renderer's cache of device buffers, is given). Its
-    NumPy twin is pipeline.device.raytrace.Surface with Atlas.texel_xy."""
-    import pyopencl as pcl
+    ``tangent``, ``view`` (P, 3), ``texel_xy`` (P, 2) float32, ``object`` (P,) int32 and
+    ``back`` (P,) uint8 (1: the ray meets the back of its face) at the camera rays
+    ``pixel`` (P,) of ``hits`` and unit ``directions`` (N, 3) (all of them hits), from
+    the mesh's vertex normals (blended in float32), unit face normals and unit uv
+    tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels (uploaded once where
+    ``static``, a renderer's cache of device buffers, is given). Its NumPy twin is
+    pipeline.device.raytrace.Surface with Atlas.texel_xy and render.sees_back."""
 
     n = len(pixel)
     static = {} if static is None else static
@@ -169,21 +169,22 @@ def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: 
             (mesh.faces, np.int32), (mesh.normals, np.float32),
             (mesh.face_normal, np.float32), (tangent, np.float32), (face_uv, np.float32),
             (mesh.face_object, np.int32))]
-    inputs = [cl.read_only_buffer(np.asarray(a, dtype)) for a, dtype in (
+    inputs = [cl.shared_read_only_buffer(np.asarray(a, dtype)) for a, dtype in (
         (pixel, np.int32), (hits.prim, np.int32), (hits.u, np.float32), (hits.v, np.float32),
         (directions, np.float32))] + static["surface_mesh"]
-    out = {"normal": np.empty((n, 3), np.float32), "tangent": np.empty((n, 3), np.float32),
-           "view": np.empty((n, 3), np.float32), "texel_xy": np.empty((n, 2), np.float32),
-           "object": np.empty(n, np.int32)}
+    # aligned: on a CPU device the kernel writes them in place, and the G-buffer's
+    # device buffers (GBuffer.device, .angles) are these arrays again, not copies
+    out = {name: cl.aligned_empty((n, k) if k > 1 else (n,), dtype) for name, k, dtype in (
+        ("normal", 3, np.float32), ("tangent", 3, np.float32), ("view", 3, np.float32),
+        ("texel_xy", 2, np.float32), ("object", 1, np.int32), ("back", 1, np.uint8))}
     if not n:
         return out
-    buffers = [pcl.Buffer(cl.context(), pcl.mem_flags.WRITE_ONLY, a.nbytes)
-               for a in out.values()]
+    buffers = [cl.shared_output_buffer(a) for a in out.values()]
     kernel = cl.kernel("triple_surface.cl", "triple_surface")
-    event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *inputs,
-                   np.int32(n), *buffers)
+    kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *inputs,
+           np.int32(n), *buffers)
     for a, buffer in zip(out.values(), buffers, strict=True):
-        pcl.enqueue_copy(cl.queue(), a, buffer, wait_for=[event])
+        cl.read_output_buffer(a, buffer)
     return out
 
 

@@ -207,10 +207,10 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
                                        normal_dtype=np.float32))
         s["normal"][which], s["tangent"][which] = shading.normal, shading.tangent
         material_b[which], blend[which] = shading.material_b, shading.blend
-    back = sees_back(directions[pixel], mesh.face_normal[hits.prim[pixel]])
+    miss = np.flatnonzero(~hit)
     return GBuffer(cam.width, cam.height, pixel, s["normal"], s["tangent"], s["view"],
                    s["texel_xy"], s["object"], material, material_b, blend,
-                   np.flatnonzero(~hit), directions[~hit], back)
+                   miss, directions[miss], s["back"].view(bool))
 
 
 def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
