@@ -214,7 +214,7 @@ def test_visibility_texture_example_integrates_the_stored_rows(tmp_path):
     doc["lights"] = [{"type": "environment", "file": str(tmp_path / "env.exr")}]
     doc["settings"] = {"triple.leaf_level": 3, "triple.frame_grid": [16, 9, 16],
                        "triple.view_grid": [16, 8], "triple.light_block": 576,
-                       "triple.store_budget": 320}
+                       "triple.store_budget": 320, "triple.light_budget": 320}
     workdir = bake_and_draw(tmp_path, doc, "triple.visibility", "visibility_texture")
 
     fractions = open_fractions(tmp_path / "work")

@@ -213,7 +213,8 @@ def sky(path: Path, warm: float = 6.0) -> Path:
 
 TRIPLE = {"triple.leaf_level": 3, "triple.frame_grid": [16, 9, 16],
           "triple.view_grid": [16, 8], "triple.texels_per_pixel": 2.0,
-          "triple.light_block": 576, "triple.store_budget": 320}
+          "triple.light_block": 576, "triple.store_budget": 320,
+          "triple.light_budget": 320}
 SG = {"sg.fit_grid": [9, 16], "sg.fit_batch": 64, "sg.indirect_samples": 0,
       "sg.diffuse_samples": 64}
 D2I = {"gather.count": 256, "transfer.tile": 8, "gbuffer.tile": 8}

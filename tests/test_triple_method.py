@@ -28,7 +28,8 @@ from pipeline.scene.file import load_scene
 # the visibility textures blur this 24² image's contact shadows: 6.3 % against 2.2 %).
 SETTINGS = {"triple.leaf_level": 3, "triple.frame_grid": [16, 9, 16],
             "triple.view_grid": [16, 8], "triple.texels_per_pixel": 4.0,
-            "triple.light_block": 576, "triple.store_budget": 320}
+            "triple.light_block": 576, "triple.store_budget": 320,
+            "triple.light_budget": 320}
 
 
 def sky(path, roll: int = 0):
@@ -262,7 +263,8 @@ def test_a_sun_twelve_orders_brighter_than_the_sky_gives_no_negative_pixel(tmp_p
     write_exr(env, rgb)
     doc = small_scene_dict(32)  # 3 negative pixels before the clamp (16² had none)
     doc["methods"] = ["triple"]
-    doc["settings"] = {"triple.leaf_level": 3, "triple.store_budget": 320}
+    doc["settings"] = {"triple.leaf_level": 3, "triple.store_budget": 320,
+                       "triple.light_budget": 320}
     doc["lights"] = [{"type": "environment", "file": str(env)}]
     frame = render(load_scene(write_scene(tmp_path, doc)), tmp_path / "w", tmp_path / "o.exr")
     assert np.isfinite(frame.rgb).all() and frame.rgb.min() >= 0.0

@@ -131,8 +131,8 @@ def test_lighting_stage_rows_match_the_numpy_path():
     rgb = rng.random((32, 64, 3)).astype(np.float32)
     rgb[10, 13] = [40.0, 30.0, 20.0]
     params = {"triple.frame_grid": [8, 5, 4], "triple.leaf_level": 2,
-              "triple.light_refine": 1, "triple.store_tolerance": 0.02,
-              "triple.store_budget": 200, "triple.store_top": 80}
+              "triple.light_refine": 1, "triple.light_tolerance": 0.02,
+              "triple.light_budget": 200, "triple.store_top": 80}
     span = (23, 131)  # cuts φ slices at both ends
     rows = light_stage.run_chunk(_light_ctx(rgb, params, span))
     grid = light_stage.frame_grid(params)

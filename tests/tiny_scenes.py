@@ -14,7 +14,7 @@ SETTINGS = {
     "triple": {"triple.leaf_level": 2, "triple.visibility_refine": 1,
                "triple.frame_grid": [8, 5, 8], "triple.view_grid": [8, 4],
                "triple.texture_max": 16, "triple.texel_tile": 16, "triple.light_block": 64,
-               "triple.store_budget": 64},
+               "triple.store_budget": 64, "triple.light_budget": 64},
     "sg": {"sg.fit_grid": [9, 18], "sg.indirect_samples": 4, "sg.diffuse_samples": 16,
            "sg.diffuse_order": 3, "sg.fit_batch": 32},
 }

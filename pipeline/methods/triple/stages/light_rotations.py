@@ -169,8 +169,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     means = leaf_means_buffer(rgb, grid, start, end, level, refine)
     coefficients = forward_device(means, (end - start) * 3, level)  # (rows, 3, N)
     rows = select_rows_buffer(coefficients, 0, end - start, 3,
-                              level, int(ctx.params["triple.store_budget"]),
-                              float(ctx.params["triple.store_tolerance"]),
+                              level, int(ctx.params["triple.light_budget"]),
+                              float(ctx.params["triple.light_tolerance"]),
                               int(ctx.params["triple.store_top"]), LUMINANCE, half=True)
     ctx.meta.update(map_width=int(ctx.environment.shape[1]),
                     worst_residual=float(rows["residual"].max()),
@@ -183,9 +183,9 @@ def layout(ctx: AssembleContext) -> Layout:
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
-    """Attributes, and whether every row met ``triple.store_tolerance``."""
-    tolerance = float(ctx.params["triple.store_tolerance"])
-    budget = int(ctx.params["triple.store_budget"])
+    """Attributes, and whether every row met ``triple.light_tolerance``."""
+    tolerance = float(ctx.params["triple.light_tolerance"])
+    budget = int(ctx.params["triple.light_budget"])
     worst = max(m["worst_residual"] for _, m in metas)
     most = max(m["most_coefficients"] for _, m in metas)
     short = worst > tolerance
@@ -204,5 +204,5 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
     }, tolerances=[ToleranceResult(
         "environment lighting", "worst relative L2 error of a stored row (luminance-weighted)",
         tolerance, worst, {"coefficients": most},
-        f"triple.store_budget {budget}" if short else "",
-        "raise triple.store_budget" if short else "")])
+        f"triple.light_budget {budget}" if short else "",
+        "raise triple.light_budget" if short else "")])
