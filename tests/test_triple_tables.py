@@ -213,7 +213,7 @@ def test_select_rows_keeps_the_top_meets_the_tolerance_and_sorts_depth_first():
 SETTINGS = {"triple.leaf_level": LEVEL, "triple.frame_grid": [8, 5, 4],
             "triple.light_refine": 1, "triple.light_block": 30, "triple.view_grid": [8, 4],
             "triple.brdf_refine": 2, "triple.store_tolerance": 0.02, "triple.store_budget": 200,
-            "triple.store_top": 80}
+            "triple.light_tolerance": 0.02, "triple.light_budget": 200, "triple.store_top": 80}
 
 
 def _scene(tmp_path, env: np.ndarray | None = None, name: str = "scene.yaml",
