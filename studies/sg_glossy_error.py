@@ -134,6 +134,18 @@ class Truth:
         direct = (f[:, miss] @ lin[miss]) * self.specular
         return total, direct
 
+    def unshadowed(self, n: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """(3,) glossy radiance towards ``wo`` (3,) of a surface with normal n under the
+        map alone: no visibility, no indirect light (decision 0042's U, exact)."""
+        s = np.flatnonzero(self.dirs @ n > 0)
+        t = tangent_from_normal(n[None])[0]
+        lo = to_local(wo[None], n, t)
+        if lo[0, 2] <= 0:
+            return np.zeros(3)
+        li = to_local(self.dirs[s], n, t)
+        f = glossy(li, lo, self.brdf) * li[:, 2] * self.omega[s]
+        return (f @ self.env[s]) * self.specular
+
     def lobes(self, mean: np.ndarray, lam: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """∫ Σ_k w_k G_k L dω on the fine grid: mean (F, N, 3), lam (F, N), weight
         (F, N, 3) -> (F, 3)."""
@@ -216,6 +228,33 @@ def turn_part(a: np.ndarray, b: np.ndarray, v: np.ndarray, fraction: float) -> n
 def reflect(wo: np.ndarray, n: np.ndarray) -> np.ndarray:
     """The mirror direction 2(ωo·n)n − ωo."""
     return 2.0 * float(wo @ n) * n - wo
+
+
+def brdf_lobe(n: np.ndarray, wo: np.ndarray, gamma: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Blinn–Phong lobe × cosine as one SG in ωi (Wang et al. 2009's spherical
+    warp, decision 0042): mean reflect(ωo, n), λ = γ / (4 n·ωo), peak (γ + 2)/(2π) n·ωo
+    (the cosine at the mirror direction), without ρs; n, wo (P, 3) unit -> (P, 3),
+    (P,), (P,); peak 0 where n·ωo ≤ 0."""
+    c = np.sum(n * wo, axis=-1)
+    mu = 2.0 * c[:, None] * n - wo
+    lam = gamma / (4.0 * np.maximum(c, 1e-3))
+    return mu, lam, (gamma + 2.0) / (2.0 * math.pi) * np.maximum(c, 0.0)
+
+
+def ratio(up: np.ndarray, f: np.ndarray, u: np.ndarray, bary: np.ndarray,
+          per_vertex: bool = False) -> np.ndarray:
+    """Decision 0042's estimator: U_p Σ f_a F_a / Σ f_a U_a (or Σ f_a F_a U_p / U_a with
+    ``per_vertex``), per channel; up (P, 3), f and u (P, 3 corners, 3), bary (P, 3).
+    Where the denominator is ≤ 1e-6 of U_p (or 0) F is blended uncorrected."""
+    if per_vertex:
+        ok = u > 1e-6 * up[:, None]
+        r = np.where(ok, up[:, None] / np.where(ok, u, 1.0), 1.0)
+        return np.einsum("pa,pac->pc", bary, f * r)
+    fs = np.einsum("pa,pac->pc", bary, f)
+    us = np.einsum("pa,pac->pc", bary, u)
+    ok = us > 1e-6 * up
+    return np.where(ok, fs * up / np.where(ok, us, 1.0), fs)
 
 
 def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
@@ -581,6 +620,61 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
                for k, v in turned.items()}
 
     norm = float(np.sqrt(np.sum(e0 ** 2)))
+    # ---- decision 0042: the BRDF at the pixel's normal, visibility and indirect light
+    # from the vertices, as a ratio: U_p Σ f_a F_a / Σ f_a U_a, U the glossy radiance
+    # under the map alone (no visibility), F what the vertex holds at the pixel's view
+    gamma = float(brdf.gamma)
+    spec = np.asarray(brdf.specular, np.float64)
+    vn = vscene.normals[corner]                                         # (P, 3, 3)
+    up_ex = np.array([truth.unshadowed(nrm[p], wo[p]) for p in range(P)])
+    ua_ex = np.array([[truth.unshadowed(vn[p, a], wo[p]) for a in range(3)]
+                      for p in range(P)])
+
+    def sg_u(n):  # U by the BRDF's SG and the stack lookup, (len(n), 3)
+        nn = n / np.linalg.norm(n, axis=1, keepdims=True)
+        ww = np.repeat(wo, len(nn) // len(wo), axis=0)
+        mu, lam, peak = brdf_lobe(nn, ww, gamma)
+        mu /= np.linalg.norm(mu, axis=1, keepdims=True)
+        return sg.env_integral(stack, levels, mu, lam, peak[:, None] * spec)
+    up_sg = sg_u(nrm)
+    ua_sg = sg_u(vn.reshape(-1, 3)).reshape(P, 3, 3)
+    r_exact = np.array([[exact[(int(corner[p, a]), ("p", p))] for a in range(3)]
+                        for p in range(P)])                             # (P, 3, 3)
+    fit_pv = np.array([[[fitted(int(corner[p, a]), ("p", p), n) for a in range(3)]
+                        for p in range(P)] for n in range(MAX_N)])     # (N, P, 3, 3)
+    fit_views = np.zeros((MAX_N, P, 3, 3))  # N-lobe fits' radiances blended over views
+    for p in range(P):
+        for a in range(3):
+            for b in range(3):
+                for n in range(MAX_N):
+                    fit_views[n, p, a] += vw[p, b] * fitted(int(corner[p, a]),
+                                                            ("v", int(vidx[p, b])), n)
+    f_lobes = np.zeros((P, 3, 3))  # the renderer's N = 1 lobes blended over the views
+    if per_vertex:
+        f_lookup = sg.env_integral(stack, levels, np.array([t[2] for t in per_vertex]),
+                                   np.array([t[3] for t in per_vertex]),
+                                   np.array([t[4] for t in per_vertex]))
+        for (p, a, *_), fi in zip(per_vertex, f_lookup, strict=True):
+            f_lobes[p, a] = fi
+    ratio_rows = {
+        "ratio_exact_U_exact_transport": ratio(up_ex, r_exact, ua_ex, bary),
+        "ratio_sg_U_exact_transport": ratio(up_sg, r_exact, ua_sg, bary),
+        "ratio_sg_U_exact_transport_per_vertex": ratio(up_sg, r_exact, ua_sg, bary, True),
+        "additive_sg_U_exact_transport": np.einsum("pa,pac->pc", bary, r_exact)
+        + up_sg - np.einsum("pa,pac->pc", bary, ua_sg),
+        **{f"ratio_sg_U_fit_N{n + 1}_pixel_view": ratio(up_sg, fit_pv[n], ua_sg, bary)
+           for n in range(MAX_N)},
+        **{f"ratio_sg_U_fit_N{n + 1}_views_radiance_blend": ratio(up_sg, fit_views[n],
+                                                                   ua_sg, bary)
+           for n in range(MAX_N)},
+        "ratio_sg_U_method_vertex_lobes": ratio(up_sg, f_lobes, ua_sg, bary),
+        "ratio_sg_U_method_vertex_lobes_per_vertex": ratio(up_sg, f_lobes, ua_sg, bary,
+                                                           True),
+        "ratio_sg_U_method_pixel": ratio(up_sg, np.repeat(ed[:, None], 3, axis=1), ua_sg,
+                                         bary),
+        "method_vertex_lobes_radiance_blend": np.einsum("pa,pac->pc", bary, f_lobes),
+        "U_sg_vs_U_exact_pixel": up_sg,
+    }
     n_counts = np.bincount(list(n_rule.values()), minlength=MAX_N + 1)[1:].tolist()
     stages = {
         "a_vertex_sampling": rel(ea, e0, norm),
@@ -623,6 +717,9 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
         **{f"turned_chain_radiance_blend_N{n + 1}_vs_E0": rel(rbc[n], e0, norm)
            for n in range(MAX_N)},
         "chain_without_vertex_sampling": rel(ed, ea, norm),
+        **{k: rel(v, up_ex if k == "U_sg_vs_U_exact_pixel" else e0, norm
+                  if k != "U_sg_vs_U_exact_pixel" else float(np.sqrt(np.sum(up_ex ** 2))))
+           for k, v in ratio_rows.items()},
     }
     report = {"scene": name, "size": size, "pixels": P, "glossy_pixels": len(candidates),
               "vertices": len(verts), "fine_grid": list(fine),
@@ -655,7 +752,10 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
         Path(state).write_bytes(pickle.dumps({
             "lobe": lobe, "req": req, "corner": corner, "bary": bary, "wo": wo,
             "normal": nrm, "vertex_normals": vscene.normals, "vidx": vidx, "vw": vw,
-            "views": views92, "e0": e0, "ed": ed, "stack": stack, "levels": levels}))
+            "views": views92, "e0": e0, "ed": ed, "stack": stack, "levels": levels,
+            "up_ex": up_ex, "ua_ex": ua_ex, "up_sg": up_sg, "ua_sg": ua_sg,
+            "r_exact": r_exact, "fit_pv": fit_pv, "fit_views": fit_views,
+            "f_lobes": f_lobes, "gamma": gamma, "specular": spec}))
     np.savez_compressed(OUT / f"sg_glossy_error_{name}.npz", pixel=chosen, e0=e0,
                         e0_direct=e0_direct, ea=ea, a_normal=a_normal, a_point=a_point,
                         ec=ec, etab=etab, eb=eb, ebc=ebc, em=em,

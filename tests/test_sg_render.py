@@ -155,29 +155,53 @@ def random_pixels(tables: render.SgTables, n: int, seed: int) -> tuple[np.ndarra
             wo.astype(np.float32))
 
 
+def with_lobe_tables(tables: render.SgTables) -> render.SgTables:
+    """``tables`` with the BRDF lobes of two Blinn–Phong materials (γ 60 and 15):
+    vertices 0–24 the first, 25–44 the second, the rest none (decision 0042)."""
+    from dataclasses import replace
+
+    from pipeline.math.brdf import BrdfParams
+
+    brdfs = [BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (0.1, 0.1, 0.1), 60.0),
+             BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (0.1, 0.1, 0.1), 15.0), None]
+    vertices = len(tables.count)
+    material = np.where(np.arange(vertices) < 25, 0, np.where(np.arange(vertices) < 45, 1, 2))
+    return replace(tables, **render.vertex_lobe_tables(brdfs, material))
+
+
 @pytest.mark.parametrize("normal", render.NORMALS)
 @pytest.mark.parametrize("blend", render.LAMBDA_BLENDS)
 def test_shade_kernel_matches_numpy(small_map, blend, normal):
     """sg_shade against shade_numpy on random contract-shaped tables (all lobe counts,
     turned map, scale, random vertex normals; ``normal="pixel"``: the lobes turned to
-    the pixel's normal, ``vertex``: not). Tolerance 1e-4 of the pixel's largest
-    channel: the lookup's 1e-4 (tests/test_sg.py's env kernel test), float32 sums of 9
-    weights and of 225 SH products (~1e-6), the float32 log/exp of λ (1e-6 of λ → as
-    much of a level step), the float32 turn (~1e-6 rad, k ≤ 1e6 only where two mirror
-    directions are nearly opposite, random normals: rarely); measured 5e-7 (and 0.85
-    with the rotation's sign flipped)."""
+    the pixel's normal, ``vertex``: not; ``ratio``: the BRDF's ratio at the pixel's
+    normal, two materials and vertices without one, faces of one material and mixed).
+    Tolerance 1e-4 of the pixel's largest channel: the lookup's 1e-4 (tests/test_sg.py's
+    env kernel test), float32 sums of 9 weights and of 225 SH products (~1e-6), the
+    float32 log/exp of λ (1e-6 of λ → as much of a level step), the float32 turn (~1e-6
+    rad, k ≤ 1e6 only where two mirror directions are nearly opposite, random normals:
+    rarely), the float32 ratio of two lookups (2e-4 where its denominator is 1e-4 of its
+    numerator: random normals, rarely); measured 5e-7 (and 0.85 with the rotation's sign
+    flipped)."""
     tables = random_tables(50, small_map, seed=3, normals=True)
+    if normal == "ratio":
+        tables = with_lobe_tables(tables)
     corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
+    if normal == "ratio":  # a third of the pixels on faces of one material
+        corner[:1000] = corner[:1000] % 25
+        corner[1000:2000] = 25 + corner[1000:2000] % 20
     light = sh.rotate_y(sh.project_latlong(small_map), 37.0)
     turn = rotation_about((0.3, 1.0, -0.2), 37.0)  # the map turned about a tilted axis
     expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn, 1.7,
-                                  blend, wo if normal == "pixel" else None)
+                                  blend, None if normal == "vertex" else wo,
+                                  ratio=normal == "ratio")
     device = render.SgDevice(tables, blend, normal)
     assert device.turning == (normal == "pixel")
+    assert device.ratio == (normal == "ratio")
     out = render.shade_arrays(device, corner, bary, view, view_weight, light, turn, 1.7, wo)
     rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
     assert rel.max() < 1e-4, rel.max()
-    if normal == "pixel":  # the turn changes the pixels: the test sees it
+    if normal != "vertex":  # the turn, or the ratio, changes the pixels: the test sees it
         plain = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn,
                                    1.7, blend)
         assert (np.abs(plain - expected).max(axis=1)

@@ -49,9 +49,11 @@ METHOD = Method(
                     "log or linear: how a lobe's sharpness is blended between views",
                     choices=("log", "linear")),
              Option("normal", str, "vertex",
-                    "vertex or pixel: the lobes as fitted at the vertex (paper 003), or "
-                    "turned towards the pixel's blended normal (decision 0039)",
-                    choices=("vertex", "pixel")),
+                    "vertex, pixel or ratio: the lobes as fitted at the vertex (paper "
+                    "003), turned towards the pixel's blended normal (decision 0039), or "
+                    "the BRDF at the pixel's normal by a ratio of unshadowed radiances "
+                    "(decision 0042)",
+                    choices=("vertex", "pixel", "ratio")),
              Option("component", str, "all",
                     "all, glossy or diffuse: the whole frame, or the light reflected by "
                     "the lobes or by the SH term alone (no background)",
