@@ -291,6 +291,75 @@ def test_a_highlight_follows_the_pixels_normal_between_the_vertices(small_map):
     assert np.all(got["vertex"] < 0.5 * at_light), (got["vertex"], at_light)
 
 
+def test_the_ratio_takes_the_brdf_at_the_pixels_normal_and_keeps_the_vertices_shadow():
+    """Decision 0042's ``normal="ratio"`` on a face whose 3 vertex normals fan out 30°
+    about the pixel's blended normal, seen from a stored view (weights 1, 0, 0), under a
+    small light (σ = 3°) at the pixel's mirror direction. Each vertex stores the BRDF's
+    own lobe (Blinn–Phong γ 200, brdf_lobe's table) at its normal for every view, times
+    a visibility 0.3: its F_a is 0.3 U_a, so the pixel is 0.3 U_p, the face's BRDF lobe
+    at the pixel's normal integrated (0.5 %: float32 kernel; each vertex's own U_a is
+    0.2–2 % of U_p). ``vertex`` blends the lobes' means instead and stays under half of
+    it (measured: 6e-7 off, and 30 %). Times 1.5 (the vertices hold more than the
+    unshadowed light: indirect light) the pixel is F + U_p − U, U = Σ f_a U_a: the
+    excess is added, not scaled by U_p/U (≈ 100 here)."""
+    from pipeline.math.brdf import BrdfParams
+    from pipeline.methods.sg.brdf_lobe import brdf_lobe
+
+    views = view_directions()
+    wo = views[17]
+    n_pix = unit(np.array([0.1, 1.0, 0.3]))
+    n_pix = unit(n_pix + (0.4 - n_pix @ wo) * wo)  # n_pix · ωo = 0.4 or so: a side view
+    side = unit(np.cross(n_pix, wo))
+    up = np.cross(side, n_pix)
+    tilt = np.radians(30.0)
+    normals = np.stack([unit(np.cos(tilt) * n_pix + np.sin(tilt)
+                             * (np.cos(a) * side + np.sin(a) * up))
+                        for a in np.radians([90.0, 210.0, 330.0])])
+    bary = np.full((1, 3), 1.0 / 3.0)
+    brdf = BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 200.0)
+    lobe_tables = render.vertex_lobe_tables([brdf], np.zeros(3, np.int64))
+    table = lobe_tables["lobe_table"][0].astype(np.float64)
+    mu_p, lam_p, a_p = brdf_lobe(table, n_pix[None], wo[None])
+    rgb = spot_map(64, mu_p[0], np.radians(3.0), [40.0, 40.0, 40.0])
+    lobes = np.zeros((3, len(views), render.SLOTS, render.FIELDS))
+    for v in range(3):
+        mu, lam, a = brdf_lobe(table, np.repeat(normals[v:v + 1], len(views), 0), views)
+        lobes[v, :, 0, 0:3] = 0.3 * a[:, None]
+        lobes[v, :, :, 3:6] = mu[:, None]
+        lobes[v, :, :, 6] = lam[:, None]
+    tables = tables_of(lobes, np.ones(3), np.zeros((3, 3, sh.ORDER ** 2)), rgb,
+                       normals=normals)
+    from dataclasses import replace
+    tables = replace(tables, **lobe_tables)
+    corner = np.array([[0, 1, 2]])
+    view, weight = render.view_triangles(render.view_triangulation(), wo[None])
+    assert weight[0].max() > 1 - 1e-9
+    no_light = np.zeros((sh.ORDER ** 2, 3))
+    u_p = sg.env_integral(tables.stack, tables.levels, mu_p, lam_p,
+                          np.repeat(a_p[:, None], 3, 1))[0]
+    got = {}
+    for normal in ("vertex", "ratio"):
+        device = render.SgDevice(tables, normal=normal)
+        got[normal] = render.shade_arrays(device, corner, bary.astype(np.float32), view,
+                                          weight.astype(np.float32), no_light,
+                                          wo=wo[None])[0]
+    np.testing.assert_allclose(got["ratio"], 0.3 * u_p, rtol=5e-3)
+    np.testing.assert_allclose(render.shade_numpy(tables, corner, bary, view, weight,
+                                                  no_light, wo=wo[None], ratio=True)[0],
+                               0.3 * u_p, rtol=1e-6)
+    assert np.all(got["vertex"] < 0.5 * 0.3 * u_p), (got["vertex"], 0.3 * u_p)
+    brighter = replace(tables, lobes=tables.lobes * np.array([5.0] * 3 + [1.0] * 4,
+                                                             np.float32))
+    u = sum(sg.env_integral(tables.stack, tables.levels,
+                            *brdf_lobe(table, normals[c:c + 1], wo[None])[:2],
+                            np.repeat(brdf_lobe(table, normals[c:c + 1], wo[None])[2][:, None],
+                                      3, 1))[0] / 3.0 for c in range(3))
+    got = render.shade_arrays(render.SgDevice(brighter, normal="ratio"), corner,
+                              bary.astype(np.float32), view, weight.astype(np.float32),
+                              no_light, wo=wo[None])[0]
+    np.testing.assert_allclose(got, 1.5 * u + u_p - u, rtol=5e-3)
+
+
 def test_interpolated_lobes_keep_a_highlights_peak_tabulated_values_dip(small_map):
     """Two neighbouring views A, B whose lobe (σ = 3°) reflects towards μ_A, μ_B 30°
     apart, under a small light (σ = 3°) at μ_M = normalise(μ_A + μ_B). Halfway between

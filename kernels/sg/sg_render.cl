@@ -28,15 +28,19 @@
  * turn of every lobe measured worse than none: decision 0039). No turn where
  * |r_a x r_p| <= 1e-6 or n_p is undefined. w_o per pixel (P x 3), n per vertex (V x 3).
  * With BRDF_RATIO = 1 (decision 0042) the lobes are not turned: each vertex's lobes are
- * blended over its 3 views alone and integrated, F_a, and the glossy light is
- *     U_p * sum_a f_a F_a / sum_a f_a U_a   (per channel),
- * U the radiance of the face's BRDF lobe under the map alone (no visibility): one
- * Gaussian per view elevation c = n.w_o from the material's table (lobe_table, rows of
- * SG_LOBE_TABLE x (theta, lam, a), pipeline/methods/sg/brdf_lobe.py; vertex_lobe: each
- * vertex's row block, -1 none), U_p at the pixel's normal n_p, U_a at the vertex's. The
- * vertices keep the visibility and the indirect light, the pixel's normal places the
- * highlight. No ratio (1) where a corner has no table or another than corner 0's, where
- * n_p is undefined or n_p.w_o <= 0, or where sum f_a U_a <= 1e-6 U_p.
+ * blended over its 3 views alone and integrated, F_a; with F = sum_a f_a F_a and
+ * U = sum_a f_a U_a the glossy light is, per channel,
+ *     F + v (U_p - U),   v = min(1, F / U)
+ * (= U_p F / U where the vertices hold less than the unshadowed light, a visibility
+ * ratio; F + U_p - U where they hold more, indirect light: no ratio blows up where the
+ * vertices' BRDF lobes miss a source the pixel's sees), U the radiance of the face's
+ * BRDF lobe under the map alone (no visibility): one Gaussian per view elevation
+ * c = n.w_o from the material's table (lobe_table, rows of SG_LOBE_TABLE x (theta, lam,
+ * a), pipeline/methods/sg/brdf_lobe.py; vertex_lobe: each vertex's row block, -1 none),
+ * U_p at the pixel's normal n_p, U_a at the vertex's. The vertices keep the visibility
+ * and the indirect light, the pixel's normal places the highlight. F alone where a
+ * corner has no table or another than corner 0's, or where n_p is undefined or
+ * n_p.w_o <= 0; v = 1 where U <= 1e-6 U_p.
  * The lobe is integrated against the environment by the prefiltered stack at R^T mu (sg.h's
  * sg_env_integral); plus the diffuse SH term sum_k (sum_v bary_v transfer[v, c, k])
  * L[k, c] = sum_v bary_v D[v, c], D[v, c] = sum_k transfer[v, c, k] L[k, c] computed
@@ -226,8 +230,10 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
                                                   envmap_into_map(mu, map_turn), lam,
                                                   (float3)(a));
             }
+            /* v = min(1, F / U_a-sum): the vertices' share of the unshadowed light */
             int3 ok = isgreater(ua, 1e-6f * up) && isgreater(ua, (float3)(0.0f));
-            radiance *= select((float3)(1.0f), up / ua, ok);
+            float3 v = select((float3)(1.0f), fmin(radiance / ua, (float3)(1.0f)), ok);
+            radiance += v * (up - ua);
         }
     }
 #else

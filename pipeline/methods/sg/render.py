@@ -79,8 +79,8 @@ LAMBDA_BLENDS = ("log", "linear")
 # where the glossy light takes its normal from: the lobes as fitted at the vertex (paper
 # 003, the default); the lobes turned towards the pixel's blended normal (decision 0039:
 # no gain on bunny_sg and dragon_sg, 8x the shading kernel's time; a gain on coarse
-# unoccluded meshes); or the BRDF at the pixel's normal by the ratio of unshadowed
-# radiances, the vertices' lobes keeping visibility and indirect light (decision 0042)
+# unoccluded meshes); or the BRDF at the pixel's normal, the vertices' lobes keeping
+# visibility and indirect light as a ratio to unshadowed radiances (decision 0042)
 NORMALS = ("vertex", "pixel", "ratio")
 # what a frame shows: everything, or the reflected light of the lobes or of the SH term
 COMPONENTS = ("all", "glossy", "diffuse")
@@ -391,11 +391,13 @@ def ratio_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: n
                  view_weight: np.ndarray, wo: np.ndarray, turn: np.ndarray,
                  lambda_blend: str = "log") -> np.ndarray:
     """The glossy radiance (P, 3) of decision 0042 (the kernel's BRDF_RATIO = 1, float64):
-    U_p Σ_a f_a F_a / Σ_a f_a U_a per channel, F_a corner a's lobes blended over its 3
-    views and integrated, U the face's BRDF lobe (:func:`brdf_lobe`) integrated at the
-    pixel's normal n_p = normalise(Σ f_a n_a) and at the corners' n_a; ratio 1 where
-    the corners' ``vertex_lobe`` rows are not one row ≥ 0, n_p·ωo ≤ 0 or Σ f_a U_a ≤
-    1e-6 U_p. ``turn``: the map's 3×3 map-to-world rotation; ``wo`` (P, 3) unit."""
+    per channel F + v (U_p − U), v = min(1, F/U), F = Σ_a f_a F_a with F_a corner a's
+    lobes blended over its 3 views and integrated, U = Σ_a f_a U_a, U the face's BRDF
+    lobe (:func:`brdf_lobe`) integrated at the pixel's normal n_p = normalise(Σ f_a n_a)
+    (U_p) and at the corners' n_a (U_a): the visibility ratio U_p F/U where F ≤ U, F
+    + U_p − U where F > U. F alone where the corners' ``vertex_lobe`` rows are not one
+    row ≥ 0 or n_p·ωo ≤ 0; v = 1 where U ≤ 1e-6 U_p. ``turn``: the map's 3×3
+    map-to-world rotation; ``wo`` (P, 3) unit."""
     bary = np.asarray(bary, np.float64)
     view = np.asarray(view, np.int64)
     base = tables.first[corner].astype(np.int64)
@@ -445,7 +447,8 @@ def ratio_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: n
     up = unshadowed(npix[idx] / length[idx, None], idx)
     ua = sum(bary[idx, c, None] * unshadowed(n[idx, c], idx) for c in range(3))
     ok = (ua > 1e-6 * up) & (ua > 0)
-    out[idx] *= np.where(ok, up / np.where(ok, ua, 1.0), 1.0)
+    v = np.where(ok, np.minimum(out[idx] / np.where(ok, ua, 1.0), 1.0), 1.0)
+    out[idx] += v * (up - ua)
     return out
 
 
