@@ -43,6 +43,16 @@ Every quantity is computed deterministically (no Monte-Carlo reference):
   or by G(r_v; μ, λ) of that angle, the renderer's ``normal=pixel``
   (``turned_aligned_chain_method_N1_vs_E0``).
 
+* **the BRDF at the pixel's normal** (decision 0042): U_p and U_a, the glossy radiance
+  under the map alone (no visibility, no indirect light) at the pixel's normal and at
+  each corner's, exact (quadrature), by the renderer's fitted BRDF lobe (brdf_lobe.py's
+  table, stack lookup; ``U_p_table_vs_exact``) or by the spherical warp of Wang et al.
+  2009 (``U_p_warp_vs_exact``); with F_a what corner a holds at the pixel's view (the
+  exact transport, the renderer's N = 1 lobes blended over its views, or the N-lobe
+  fits' radiances blended over the views), F = Σ f_a F_a, U = Σ f_a U_a: ``ratio_*``
+  U_p F/U, ``additive_*`` F + U_p − U, ``hybrid_*`` F + min(1, F/U)(U_p − U) (the
+  renderer's ``normal=ratio``), each against E0.
+
 ``--quick`` leaves out the denser-sampling rows; ``--state PREFIX`` pickles the fitted
 lobes and pixels (PREFIX_<scene>.pkl) to try render-time variants offline.
 
@@ -59,6 +69,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +87,7 @@ from pipeline.math.camera import camera_rays  # noqa: E402
 from pipeline.math.frames import tangent_from_normal  # noqa: E402
 from pipeline.methods.sg import fit as sg_fit  # noqa: E402
 from pipeline.methods.sg import support as sg_support  # noqa: E402
+from pipeline.methods.sg.brdf_lobe import brdf_lobe, lobe_table  # noqa: E402
 from pipeline.methods.sg.prefilter import prefilter  # noqa: E402
 from pipeline.methods.sg.render import view_triangles, view_triangulation  # noqa: E402
 from pipeline.methods.sg.stages import fit as stage  # noqa: E402
@@ -230,31 +242,33 @@ def reflect(wo: np.ndarray, n: np.ndarray) -> np.ndarray:
     return 2.0 * float(wo @ n) * n - wo
 
 
-def brdf_lobe(n: np.ndarray, wo: np.ndarray, gamma: float
+def warp_lobe(n: np.ndarray, wo: np.ndarray, gamma: float
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The Blinn–Phong lobe × cosine as one SG in ωi (Wang et al. 2009's spherical
-    warp, decision 0042): mean reflect(ωo, n), λ = γ / (4 n·ωo), peak (γ + 2)/(2π) n·ωo
-    (the cosine at the mirror direction), without ρs; n, wo (P, 3) unit -> (P, 3),
-    (P,), (P,); peak 0 where n·ωo ≤ 0."""
+    """The Blinn–Phong lobe × cosine as one SG in ωi by Wang et al. (2009)'s spherical
+    warp (decision 0042's first try): mean reflect(ωo, n), λ = γ / (4 n·ωo), peak
+    (γ + 2)/(2π) n·ωo, without ρs; n, wo (P, 3) unit -> (P, 3), (P,), (P,); peak 0
+    where n·ωo ≤ 0."""
     c = np.sum(n * wo, axis=-1)
     mu = 2.0 * c[:, None] * n - wo
     lam = gamma / (4.0 * np.maximum(c, 1e-3))
     return mu, lam, (gamma + 2.0) / (2.0 * math.pi) * np.maximum(c, 0.0)
 
 
-def ratio(up: np.ndarray, f: np.ndarray, u: np.ndarray, bary: np.ndarray,
-          per_vertex: bool = False) -> np.ndarray:
-    """Decision 0042's estimator: U_p Σ f_a F_a / Σ f_a U_a (or Σ f_a F_a U_p / U_a with
-    ``per_vertex``), per channel; up (P, 3), f and u (P, 3 corners, 3), bary (P, 3).
-    Where the denominator is ≤ 1e-6 of U_p (or 0) F is blended uncorrected."""
-    if per_vertex:
-        ok = u > 1e-6 * up[:, None]
-        r = np.where(ok, up[:, None] / np.where(ok, u, 1.0), 1.0)
-        return np.einsum("pa,pac->pc", bary, f * r)
+def corrected(up: np.ndarray, f: np.ndarray, u: np.ndarray, bary: np.ndarray,
+              form: str) -> np.ndarray:
+    """Decision 0042's estimators, per channel, from U_p (P, 3) and per corner F_a, U_a
+    (P, 3, 3) with F = Σ f_a F_a, U = Σ f_a U_a: ``ratio`` U_p F / U, ``additive``
+    F + U_p − U, ``hybrid`` (the renderer's) F + min(1, F/U)(U_p − U); where U ≤ 1e-6
+    U_p the ratio is 1 and v = 1."""
     fs = np.einsum("pa,pac->pc", bary, f)
     us = np.einsum("pa,pac->pc", bary, u)
     ok = us > 1e-6 * up
-    return np.where(ok, fs * up / np.where(ok, us, 1.0), fs)
+    if form == "ratio":
+        return np.where(ok, fs * up / np.where(ok, us, 1.0), fs)
+    if form == "additive":
+        return fs + up - us
+    v = np.where(ok, np.minimum(fs / np.where(ok, us, 1.0), 1.0), 1.0)
+    return fs + v * (up - us)
 
 
 def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
@@ -621,27 +635,28 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
 
     norm = float(np.sqrt(np.sum(e0 ** 2)))
     # ---- decision 0042: the BRDF at the pixel's normal, visibility and indirect light
-    # from the vertices, as a ratio: U_p Σ f_a F_a / Σ f_a U_a, U the glossy radiance
-    # under the map alone (no visibility), F what the vertex holds at the pixel's view
-    gamma = float(brdf.gamma)
-    spec = np.asarray(brdf.specular, np.float64)
+    # from the vertices: U_p, U_a the glossy radiance under the map alone (no
+    # visibility) at the pixel's and the corners' normals, F_a what corner a holds at
+    # the pixel's view; U exact (quadrature), by the renderer's fitted BRDF lobe
+    # (brdf_lobe.py's table, stack lookup) or by the spherical warp
     vn = vscene.normals[corner]                                         # (P, 3, 3)
-    up_ex = np.array([truth.unshadowed(nrm[p], wo[p]) for p in range(P)])
-    ua_ex = np.array([[truth.unshadowed(vn[p, a], wo[p]) for a in range(3)]
-                      for p in range(P)])
+    u_exact = (np.array([truth.unshadowed(nrm[p], wo[p]) for p in range(P)]),
+               np.array([[truth.unshadowed(vn[p, a], wo[p]) for a in range(3)]
+                         for p in range(P)]))
+    table = lobe_table(replace(brdf, albedo=(0.0, 0.0, 0.0)))
 
-    def sg_u(n):  # U by the BRDF's SG and the stack lookup, (len(n), 3)
-        nn = n / np.linalg.norm(n, axis=1, keepdims=True)
-        ww = np.repeat(wo, len(nn) // len(wo), axis=0)
-        mu, lam, peak = brdf_lobe(nn, ww, gamma)
+    def lobe_u(lobe_of):  # U_p (P, 3) and U_a (P, 3, 3) by a lobe and the stack lookup
+        nn = np.concatenate([nrm, vn.reshape(-1, 3)])
+        mu, lam, peak = lobe_of(nn / np.linalg.norm(nn, axis=1, keepdims=True),
+                                np.concatenate([wo, np.repeat(wo, 3, axis=0)]))
         mu /= np.linalg.norm(mu, axis=1, keepdims=True)
-        return sg.env_integral(stack, levels, mu, lam, peak[:, None] * spec)
-    up_sg = sg_u(nrm)
-    ua_sg = sg_u(vn.reshape(-1, 3)).reshape(P, 3, 3)
+        u = sg.env_integral(stack, levels, mu, lam,
+                            peak[:, None] * np.asarray(brdf.specular, np.float64))
+        return u[:P], u[P:].reshape(P, 3, 3)
+    u_table = lobe_u(lambda n, w: brdf_lobe(table, n, w))
+    u_warp = lobe_u(lambda n, w: warp_lobe(n, w, float(brdf.gamma)))
     r_exact = np.array([[exact[(int(corner[p, a]), ("p", p))] for a in range(3)]
                         for p in range(P)])                             # (P, 3, 3)
-    fit_pv = np.array([[[fitted(int(corner[p, a]), ("p", p), n) for a in range(3)]
-                        for p in range(P)] for n in range(MAX_N)])     # (N, P, 3, 3)
     fit_views = np.zeros((MAX_N, P, 3, 3))  # N-lobe fits' radiances blended over views
     for p in range(P):
         for a in range(3):
@@ -649,32 +664,25 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
                 for n in range(MAX_N):
                     fit_views[n, p, a] += vw[p, b] * fitted(int(corner[p, a]),
                                                             ("v", int(vidx[p, b])), n)
-    f_lobes = np.zeros((P, 3, 3))  # the renderer's N = 1 lobes blended over the views
+    f_lobes = np.zeros((P, 3, 3))  # the renderer's: N = 1 lobes blended over the views
     if per_vertex:
         f_lookup = sg.env_integral(stack, levels, np.array([t[2] for t in per_vertex]),
                                    np.array([t[3] for t in per_vertex]),
                                    np.array([t[4] for t in per_vertex]))
         for (p, a, *_), fi in zip(per_vertex, f_lookup, strict=True):
             f_lobes[p, a] = fi
-    ratio_rows = {
-        "ratio_exact_U_exact_transport": ratio(up_ex, r_exact, ua_ex, bary),
-        "ratio_sg_U_exact_transport": ratio(up_sg, r_exact, ua_sg, bary),
-        "ratio_sg_U_exact_transport_per_vertex": ratio(up_sg, r_exact, ua_sg, bary, True),
-        "additive_sg_U_exact_transport": np.einsum("pa,pac->pc", bary, r_exact)
-        + up_sg - np.einsum("pa,pac->pc", bary, ua_sg),
-        **{f"ratio_sg_U_fit_N{n + 1}_pixel_view": ratio(up_sg, fit_pv[n], ua_sg, bary)
-           for n in range(MAX_N)},
-        **{f"ratio_sg_U_fit_N{n + 1}_views_radiance_blend": ratio(up_sg, fit_views[n],
-                                                                   ua_sg, bary)
-           for n in range(MAX_N)},
-        "ratio_sg_U_method_vertex_lobes": ratio(up_sg, f_lobes, ua_sg, bary),
-        "ratio_sg_U_method_vertex_lobes_per_vertex": ratio(up_sg, f_lobes, ua_sg, bary,
-                                                           True),
-        "ratio_sg_U_method_pixel": ratio(up_sg, np.repeat(ed[:, None], 3, axis=1), ua_sg,
-                                         bary),
-        "method_vertex_lobes_radiance_blend": np.einsum("pa,pac->pc", bary, f_lobes),
-        "U_sg_vs_U_exact_pixel": up_sg,
-    }
+    ratio_rows = {"method_vertex_lobes_radiance_blend": np.einsum("pa,pac->pc", bary,
+                                                                  f_lobes)}
+    for u_name, (up, ua) in (("exact_U", u_exact), ("table_U", u_table),
+                             ("warp_U", u_warp)):
+        for f_name, f in (("exact_transport", r_exact), ("method_vertex_lobes", f_lobes),
+                          *((f"fit_N{n + 1}_views_radiance_blend", fit_views[n])
+                            for n in range(MAX_N))):
+            for form in ("ratio", "additive", "hybrid"):
+                ratio_rows[f"{form}_{u_name}_{f_name}"] = corrected(up, f, ua, bary, form)
+    u_rows = {f"U_p_{name}_vs_exact": rel(u[0], u_exact[0],
+                                          float(np.sqrt(np.sum(u_exact[0] ** 2))))
+              for name, u in (("table", u_table), ("warp", u_warp))}
     n_counts = np.bincount(list(n_rule.values()), minlength=MAX_N + 1)[1:].tolist()
     stages = {
         "a_vertex_sampling": rel(ea, e0, norm),
@@ -717,9 +725,8 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
         **{f"turned_chain_radiance_blend_N{n + 1}_vs_E0": rel(rbc[n], e0, norm)
            for n in range(MAX_N)},
         "chain_without_vertex_sampling": rel(ed, ea, norm),
-        **{k: rel(v, up_ex if k == "U_sg_vs_U_exact_pixel" else e0, norm
-                  if k != "U_sg_vs_U_exact_pixel" else float(np.sqrt(np.sum(up_ex ** 2))))
-           for k, v in ratio_rows.items()},
+        **{k: rel(v, e0, norm) for k, v in ratio_rows.items()},
+        **u_rows,
     }
     report = {"scene": name, "size": size, "pixels": P, "glossy_pixels": len(candidates),
               "vertices": len(verts), "fine_grid": list(fine),
@@ -753,9 +760,8 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
             "lobe": lobe, "req": req, "corner": corner, "bary": bary, "wo": wo,
             "normal": nrm, "vertex_normals": vscene.normals, "vidx": vidx, "vw": vw,
             "views": views92, "e0": e0, "ed": ed, "stack": stack, "levels": levels,
-            "up_ex": up_ex, "ua_ex": ua_ex, "up_sg": up_sg, "ua_sg": ua_sg,
-            "r_exact": r_exact, "fit_pv": fit_pv, "fit_views": fit_views,
-            "f_lobes": f_lobes, "gamma": gamma, "specular": spec}))
+            "u_exact": u_exact, "u_table": u_table, "u_warp": u_warp,
+            "r_exact": r_exact, "fit_views": fit_views, "f_lobes": f_lobes}))
     np.savez_compressed(OUT / f"sg_glossy_error_{name}.npz", pixel=chosen, e0=e0,
                         e0_direct=e0_direct, ea=ea, a_normal=a_normal, a_point=a_point,
                         ec=ec, etab=etab, eb=eb, ebc=ebc, em=em,
