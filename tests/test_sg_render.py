@@ -208,6 +208,28 @@ def test_shade_kernel_matches_numpy(small_map, blend, normal):
                 / np.abs(expected).max(axis=1)).max() > 0.1
 
 
+def test_the_ratio_without_a_glossy_material_blends_the_vertices_integrals(small_map):
+    """``normal="ratio"`` on tables whose vertices have no BRDF lobe (an empty table, rows
+    −1: every material Lambertian): no correction, the kernel gives the twin's F, each
+    vertex's lobes blended over its views and integrated (1e-4), which differs from the
+    lobes blended over the vertices (``vertex``)."""
+    from dataclasses import replace
+
+    tables = random_tables(50, small_map, seed=6, normals=True)
+    tables = replace(tables, lobe_table=np.zeros((0, 32, 3), np.float32),
+                     vertex_lobe=np.full(50, -1, np.int32))
+    corner, bary, view, view_weight, wo = random_pixels(tables, 500, seed=7)
+    light = sh.project_latlong(small_map)
+    expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, wo=wo,
+                                  ratio=True)
+    device = render.SgDevice(tables, normal="ratio")
+    assert device.ratio
+    out = render.shade_arrays(device, corner, bary, view, view_weight, light, wo=wo)
+    assert (np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)).max() < 1e-4
+    plain = render.shade_numpy(tables, corner, bary, view, view_weight, light)
+    assert (np.abs(plain - expected).max(axis=1) / np.abs(expected).max(axis=1)).max() > 0.1
+
+
 def test_the_turn_takes_a_lobe_at_the_corners_mirror_direction_to_the_pixels():
     """turn_rotations + turn_means: for random normals, barycentrics and views, a lobe
     centred on its corner's mirror direction reflect(ωo, n_a) is turned onto the pixel's

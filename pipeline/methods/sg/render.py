@@ -494,7 +494,8 @@ class SgDevice:
         self.ratio = self.normal == "ratio" and t.normals is not None \
             and t.lobe_table is not None and t.vertex_lobe is not None
         normals = t.normals if self.turning or self.ratio else np.zeros((1, 3), np.float32)
-        table = t.lobe_table if self.ratio else np.zeros((1, TABLE, 3), np.float32)
+        table = t.lobe_table if self.ratio and t.lobe_table.size \
+            else np.zeros((1, TABLE, 3), np.float32)  # no glossy material: a dummy row
         vertex_lobe = t.vertex_lobe if self.ratio else np.full(1, -1, np.int32)
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
             ("lobes", lobes), ("first", t.first), ("count", t.count), ("stack", flat),
