@@ -344,8 +344,8 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     corner's means are turned towards the pixel's normal (:func:`turn_means`, the
     kernel's PIXEL_NORMAL = 1); without, they are not (PIXEL_NORMAL = 0). ``ratio``
     (with ``wo``, ``tables.normals`` and its lobe tables): the lobes are not turned but
-    blended per corner and scaled by the BRDF's ratio (:func:`ratio_glossy`, the
-    kernel's BRDF_RATIO = 1)."""
+    blended per corner, and the BRDF is applied at the pixel's normal
+    (:func:`ratio_glossy`, the kernel's BRDF_RATIO = 1)."""
     corner = np.asarray(corner, np.int64)
     if ratio:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
