@@ -43,6 +43,16 @@ Every quantity is computed deterministically (no Monte-Carlo reference):
   or by G(r_v; μ, λ) of that angle, the renderer's ``normal=pixel``
   (``turned_aligned_chain_method_N1_vs_E0``).
 
+* **the BRDF at the pixel's normal** (decision 0042): U_p and U_a, the glossy radiance
+  under the map alone (no visibility, no indirect light) at the pixel's normal and at
+  each corner's, exact (quadrature), by the renderer's fitted BRDF lobe (brdf_lobe.py's
+  table, stack lookup; ``U_p_table_vs_exact``) or by the spherical warp of Wang et al.
+  2009 (``U_p_warp_vs_exact``); with F_a what corner a holds at the pixel's view (the
+  exact transport, the renderer's N = 1 lobes blended over its views, or the N-lobe
+  fits' radiances blended over the views), F = Σ f_a F_a, U = Σ f_a U_a: ``ratio_*``
+  U_p F/U, ``additive_*`` F + U_p − U, ``hybrid_*`` F + min(1, F/U)(U_p − U) (the
+  renderer's ``normal=ratio``), each against E0.
+
 ``--quick`` leaves out the denser-sampling rows; ``--state PREFIX`` pickles the fitted
 lobes and pixels (PREFIX_<scene>.pkl) to try render-time variants offline.
 
@@ -59,6 +69,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +87,7 @@ from pipeline.math.camera import camera_rays  # noqa: E402
 from pipeline.math.frames import tangent_from_normal  # noqa: E402
 from pipeline.methods.sg import fit as sg_fit  # noqa: E402
 from pipeline.methods.sg import support as sg_support  # noqa: E402
+from pipeline.methods.sg.brdf_lobe import brdf_lobe, lobe_table  # noqa: E402
 from pipeline.methods.sg.prefilter import prefilter  # noqa: E402
 from pipeline.methods.sg.render import view_triangles, view_triangulation  # noqa: E402
 from pipeline.methods.sg.stages import fit as stage  # noqa: E402
@@ -133,6 +145,18 @@ class Truth:
         total = (f @ lin) * self.specular
         direct = (f[:, miss] @ lin[miss]) * self.specular
         return total, direct
+
+    def unshadowed(self, n: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """(3,) glossy radiance towards ``wo`` (3,) of a surface with normal n under the
+        map alone: no visibility, no indirect light (decision 0042's U, exact)."""
+        s = np.flatnonzero(self.dirs @ n > 0)
+        t = tangent_from_normal(n[None])[0]
+        lo = to_local(wo[None], n, t)
+        if lo[0, 2] <= 0:
+            return np.zeros(3)
+        li = to_local(self.dirs[s], n, t)
+        f = glossy(li, lo, self.brdf) * li[:, 2] * self.omega[s]
+        return (f @ self.env[s]) * self.specular
 
     def lobes(self, mean: np.ndarray, lam: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """∫ Σ_k w_k G_k L dω on the fine grid: mean (F, N, 3), lam (F, N), weight
@@ -216,6 +240,35 @@ def turn_part(a: np.ndarray, b: np.ndarray, v: np.ndarray, fraction: float) -> n
 def reflect(wo: np.ndarray, n: np.ndarray) -> np.ndarray:
     """The mirror direction 2(ωo·n)n − ωo."""
     return 2.0 * float(wo @ n) * n - wo
+
+
+def warp_lobe(n: np.ndarray, wo: np.ndarray, gamma: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Blinn–Phong lobe × cosine as one SG in ωi by Wang et al. (2009)'s spherical
+    warp (decision 0042's first try): mean reflect(ωo, n), λ = γ / (4 n·ωo), peak
+    (γ + 2)/(2π) n·ωo, without ρs; n, wo (P, 3) unit -> (P, 3), (P,), (P,); peak 0
+    where n·ωo ≤ 0."""
+    c = np.sum(n * wo, axis=-1)
+    mu = 2.0 * c[:, None] * n - wo
+    lam = gamma / (4.0 * np.maximum(c, 1e-3))
+    return mu, lam, (gamma + 2.0) / (2.0 * math.pi) * np.maximum(c, 0.0)
+
+
+def corrected(up: np.ndarray, f: np.ndarray, u: np.ndarray, bary: np.ndarray,
+              form: str) -> np.ndarray:
+    """Decision 0042's estimators, per channel, from U_p (P, 3) and per corner F_a, U_a
+    (P, 3, 3) with F = Σ f_a F_a, U = Σ f_a U_a: ``ratio`` U_p F / U, ``additive``
+    F + U_p − U, ``hybrid`` (the renderer's) F + min(1, F/U)(U_p − U); where U ≤ 1e-6
+    U_p the ratio is 1 and v = 1."""
+    fs = np.einsum("pa,pac->pc", bary, f)
+    us = np.einsum("pa,pac->pc", bary, u)
+    ok = us > 1e-6 * up
+    if form == "ratio":
+        return np.where(ok, fs * up / np.where(ok, us, 1.0), fs)
+    if form == "additive":
+        return fs + up - us
+    v = np.where(ok, np.minimum(fs / np.where(ok, us, 1.0), 1.0), 1.0)
+    return fs + v * (up - us)
 
 
 def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
@@ -581,6 +634,55 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
                for k, v in turned.items()}
 
     norm = float(np.sqrt(np.sum(e0 ** 2)))
+    # ---- decision 0042: the BRDF at the pixel's normal, visibility and indirect light
+    # from the vertices: U_p, U_a the glossy radiance under the map alone (no
+    # visibility) at the pixel's and the corners' normals, F_a what corner a holds at
+    # the pixel's view; U exact (quadrature), by the renderer's fitted BRDF lobe
+    # (brdf_lobe.py's table, stack lookup) or by the spherical warp
+    vn = vscene.normals[corner]                                         # (P, 3, 3)
+    u_exact = (np.array([truth.unshadowed(nrm[p], wo[p]) for p in range(P)]),
+               np.array([[truth.unshadowed(vn[p, a], wo[p]) for a in range(3)]
+                         for p in range(P)]))
+    table = lobe_table(replace(brdf, albedo=(0.0, 0.0, 0.0)))
+
+    def lobe_u(lobe_of):  # U_p (P, 3) and U_a (P, 3, 3) by a lobe and the stack lookup
+        nn = np.concatenate([nrm, vn.reshape(-1, 3)])
+        mu, lam, peak = lobe_of(nn / np.linalg.norm(nn, axis=1, keepdims=True),
+                                np.concatenate([wo, np.repeat(wo, 3, axis=0)]))
+        mu /= np.linalg.norm(mu, axis=1, keepdims=True)
+        u = sg.env_integral(stack, levels, mu, lam,
+                            peak[:, None] * np.asarray(brdf.specular, np.float64))
+        return u[:P], u[P:].reshape(P, 3, 3)
+    u_table = lobe_u(lambda n, w: brdf_lobe(table, n, w))
+    u_warp = lobe_u(lambda n, w: warp_lobe(n, w, float(brdf.gamma)))
+    r_exact = np.array([[exact[(int(corner[p, a]), ("p", p))] for a in range(3)]
+                        for p in range(P)])                             # (P, 3, 3)
+    fit_views = np.zeros((MAX_N, P, 3, 3))  # N-lobe fits' radiances blended over views
+    for p in range(P):
+        for a in range(3):
+            for b in range(3):
+                for n in range(MAX_N):
+                    fit_views[n, p, a] += vw[p, b] * fitted(int(corner[p, a]),
+                                                            ("v", int(vidx[p, b])), n)
+    f_lobes = np.zeros((P, 3, 3))  # the renderer's: N = 1 lobes blended over the views
+    if per_vertex:
+        f_lookup = sg.env_integral(stack, levels, np.array([t[2] for t in per_vertex]),
+                                   np.array([t[3] for t in per_vertex]),
+                                   np.array([t[4] for t in per_vertex]))
+        for (p, a, *_), fi in zip(per_vertex, f_lookup, strict=True):
+            f_lobes[p, a] = fi
+    ratio_rows = {"method_vertex_lobes_radiance_blend": np.einsum("pa,pac->pc", bary,
+                                                                  f_lobes)}
+    for u_name, (up, ua) in (("exact_U", u_exact), ("table_U", u_table),
+                             ("warp_U", u_warp)):
+        for f_name, f in (("exact_transport", r_exact), ("method_vertex_lobes", f_lobes),
+                          *((f"fit_N{n + 1}_views_radiance_blend", fit_views[n])
+                            for n in range(MAX_N))):
+            for form in ("ratio", "additive", "hybrid"):
+                ratio_rows[f"{form}_{u_name}_{f_name}"] = corrected(up, f, ua, bary, form)
+    u_rows = {f"U_p_{name}_vs_exact": rel(u[0], u_exact[0],
+                                          float(np.sqrt(np.sum(u_exact[0] ** 2))))
+              for name, u in (("table", u_table), ("warp", u_warp))}
     n_counts = np.bincount(list(n_rule.values()), minlength=MAX_N + 1)[1:].tolist()
     stages = {
         "a_vertex_sampling": rel(ea, e0, norm),
@@ -623,6 +725,8 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
         **{f"turned_chain_radiance_blend_N{n + 1}_vs_E0": rel(rbc[n], e0, norm)
            for n in range(MAX_N)},
         "chain_without_vertex_sampling": rel(ed, ea, norm),
+        **{k: rel(v, e0, norm) for k, v in ratio_rows.items()},
+        **u_rows,
     }
     report = {"scene": name, "size": size, "pixels": P, "glossy_pixels": len(candidates),
               "vertices": len(verts), "fine_grid": list(fine),
@@ -655,7 +759,9 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
         Path(state).write_bytes(pickle.dumps({
             "lobe": lobe, "req": req, "corner": corner, "bary": bary, "wo": wo,
             "normal": nrm, "vertex_normals": vscene.normals, "vidx": vidx, "vw": vw,
-            "views": views92, "e0": e0, "ed": ed, "stack": stack, "levels": levels}))
+            "views": views92, "e0": e0, "ed": ed, "stack": stack, "levels": levels,
+            "u_exact": u_exact, "u_table": u_table, "u_warp": u_warp,
+            "r_exact": r_exact, "fit_views": fit_views, "f_lobes": f_lobes}))
     np.savez_compressed(OUT / f"sg_glossy_error_{name}.npz", pixel=chosen, e0=e0,
                         e0_direct=e0_direct, ea=ea, a_normal=a_normal, a_point=a_point,
                         ec=ec, etab=etab, eb=eb, ebc=ebc, em=em,

@@ -48,3 +48,23 @@ def test_truth_lobe_integral_matches_the_map_quadrature():
     w = np.array([[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]])
     got = truth.lobes(mu[:, None], lam[:, None], w[:, None])
     assert np.allclose(got, sg.env_integral_reference(rgb, mu, lam, w), rtol=1e-10)
+
+
+def test_the_hybrid_is_the_ratio_below_the_unshadowed_light_and_additive_above():
+    """studies/sg_glossy_error.py ``corrected`` (decision 0042): per channel, where the
+    corners hold less than their unshadowed light (F ≤ U) the hybrid is U_p F/U, where
+    more it is F + U_p − U; U = 0 leaves v = 1."""
+    rng = np.random.default_rng(5)
+    bary = rng.dirichlet([1, 1, 1], 400)
+    u = rng.uniform(0.1, 2.0, (400, 3, 3))
+    f = u * rng.uniform(0.0, 2.0, (400, 3, 1))
+    up = rng.uniform(0.1, 3.0, (400, 3))
+    fs, us = np.einsum("pa,pac->pc", bary, f), np.einsum("pa,pac->pc", bary, u)
+    ratio = study.corrected(up, f, u, bary, "ratio")
+    additive = study.corrected(up, f, u, bary, "additive")
+    hybrid = study.corrected(up, f, u, bary, "hybrid")
+    below = fs <= us
+    assert 0 < below.mean() < 1
+    assert np.allclose(hybrid[below], ratio[below]) and np.allclose(ratio, fs * up / us)
+    assert np.allclose(hybrid[~below], additive[~below])
+    assert np.allclose(study.corrected(up, f, 0 * u, bary, "hybrid"), fs + up)

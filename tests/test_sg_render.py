@@ -155,33 +155,79 @@ def random_pixels(tables: render.SgTables, n: int, seed: int) -> tuple[np.ndarra
             wo.astype(np.float32))
 
 
+def with_lobe_tables(tables: render.SgTables) -> render.SgTables:
+    """``tables`` with the BRDF lobes of two Blinn–Phong materials (γ 60 and 15):
+    vertices 0–24 the first, 25–44 the second, the rest none (decision 0042)."""
+    from dataclasses import replace
+
+    from pipeline.math.brdf import BrdfParams
+
+    brdfs = [BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (0.1, 0.1, 0.1), 60.0),
+             BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (0.1, 0.1, 0.1), 15.0), None]
+    vertices = len(tables.count)
+    material = np.where(np.arange(vertices) < 25, 0, np.where(np.arange(vertices) < 45, 1, 2))
+    return replace(tables, **render.vertex_lobe_tables(brdfs, material))
+
+
 @pytest.mark.parametrize("normal", render.NORMALS)
 @pytest.mark.parametrize("blend", render.LAMBDA_BLENDS)
 def test_shade_kernel_matches_numpy(small_map, blend, normal):
     """sg_shade against shade_numpy on random contract-shaped tables (all lobe counts,
     turned map, scale, random vertex normals; ``normal="pixel"``: the lobes turned to
-    the pixel's normal, ``vertex``: not). Tolerance 1e-4 of the pixel's largest
-    channel: the lookup's 1e-4 (tests/test_sg.py's env kernel test), float32 sums of 9
-    weights and of 225 SH products (~1e-6), the float32 log/exp of λ (1e-6 of λ → as
-    much of a level step), the float32 turn (~1e-6 rad, k ≤ 1e6 only where two mirror
-    directions are nearly opposite, random normals: rarely); measured 5e-7 (and 0.85
-    with the rotation's sign flipped)."""
+    the pixel's normal, ``vertex``: not; ``ratio``: the BRDF's ratio at the pixel's
+    normal, two materials and vertices without one, faces of one material and mixed).
+    Tolerance 1e-4 of the pixel's largest channel: the lookup's 1e-4 (tests/test_sg.py's
+    env kernel test), float32 sums of 9 weights and of 225 SH products (~1e-6), the
+    float32 log/exp of λ (1e-6 of λ → as much of a level step), the float32 turn (~1e-6
+    rad, k ≤ 1e6 only where two mirror directions are nearly opposite, random normals:
+    rarely), the float32 ratio of two lookups (2e-4 where its denominator is 1e-4 of its
+    numerator: random normals, rarely); measured 5e-7 (and 0.85 with the rotation's sign
+    flipped)."""
     tables = random_tables(50, small_map, seed=3, normals=True)
+    if normal == "ratio":
+        tables = with_lobe_tables(tables)
     corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
+    if normal == "ratio":  # a third of the pixels on faces of one material
+        corner[:1000] = corner[:1000] % 25
+        corner[1000:2000] = 25 + corner[1000:2000] % 20
     light = sh.rotate_y(sh.project_latlong(small_map), 37.0)
     turn = rotation_about((0.3, 1.0, -0.2), 37.0)  # the map turned about a tilted axis
     expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn, 1.7,
-                                  blend, wo if normal == "pixel" else None)
+                                  blend, None if normal == "vertex" else wo,
+                                  ratio=normal == "ratio")
     device = render.SgDevice(tables, blend, normal)
     assert device.turning == (normal == "pixel")
+    assert device.ratio == (normal == "ratio")
     out = render.shade_arrays(device, corner, bary, view, view_weight, light, turn, 1.7, wo)
     rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
     assert rel.max() < 1e-4, rel.max()
-    if normal == "pixel":  # the turn changes the pixels: the test sees it
+    if normal != "vertex":  # the turn, or the ratio, changes the pixels: the test sees it
         plain = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn,
                                    1.7, blend)
         assert (np.abs(plain - expected).max(axis=1)
                 / np.abs(expected).max(axis=1)).max() > 0.1
+
+
+def test_the_ratio_without_a_glossy_material_blends_the_vertices_integrals(small_map):
+    """``normal="ratio"`` on tables whose vertices have no BRDF lobe (an empty table, rows
+    −1: every material Lambertian): no correction, the kernel gives the twin's F, each
+    vertex's lobes blended over its views and integrated (1e-4), which differs from the
+    lobes blended over the vertices (``vertex``)."""
+    from dataclasses import replace
+
+    tables = random_tables(50, small_map, seed=6, normals=True)
+    tables = replace(tables, lobe_table=np.zeros((0, 32, 3), np.float32),
+                     vertex_lobe=np.full(50, -1, np.int32))
+    corner, bary, view, view_weight, wo = random_pixels(tables, 500, seed=7)
+    light = sh.project_latlong(small_map)
+    expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, wo=wo,
+                                  ratio=True)
+    device = render.SgDevice(tables, normal="ratio")
+    assert device.ratio
+    out = render.shade_arrays(device, corner, bary, view, view_weight, light, wo=wo)
+    assert (np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)).max() < 1e-4
+    plain = render.shade_numpy(tables, corner, bary, view, view_weight, light)
+    assert (np.abs(plain - expected).max(axis=1) / np.abs(expected).max(axis=1)).max() > 0.1
 
 
 def test_the_turn_takes_a_lobe_at_the_corners_mirror_direction_to_the_pixels():
@@ -265,6 +311,75 @@ def test_a_highlight_follows_the_pixels_normal_between_the_vertices(small_map):
                                           weight, no_light, wo=wo[None])[0]
     np.testing.assert_allclose(got["pixel"], at_light, rtol=5e-3)
     assert np.all(got["vertex"] < 0.5 * at_light), (got["vertex"], at_light)
+
+
+def test_the_ratio_takes_the_brdf_at_the_pixels_normal_and_keeps_the_vertices_shadow():
+    """Decision 0042's ``normal="ratio"`` on a face whose 3 vertex normals fan out 30°
+    about the pixel's blended normal, seen from a stored view (weights 1, 0, 0), under a
+    small light (σ = 3°) at the pixel's mirror direction. Each vertex stores the BRDF's
+    own lobe (Blinn–Phong γ 200, brdf_lobe's table) at its normal for every view, times
+    a visibility 0.3: its F_a is 0.3 U_a, so the pixel is 0.3 U_p, the face's BRDF lobe
+    at the pixel's normal integrated (0.5 %: float32 kernel; each vertex's own U_a is
+    0.2–2 % of U_p). ``vertex`` blends the lobes' means instead and stays under half of
+    it (measured: 6e-7 off, and 30 %). Times 1.5 (the vertices hold more than the
+    unshadowed light: indirect light) the pixel is F + U_p − U, U = Σ f_a U_a: the
+    excess is added, not scaled by U_p/U (≈ 100 here)."""
+    from pipeline.math.brdf import BrdfParams
+    from pipeline.methods.sg.brdf_lobe import brdf_lobe
+
+    views = view_directions()
+    wo = views[17]
+    n_pix = unit(np.array([0.1, 1.0, 0.3]))
+    n_pix = unit(n_pix + (0.4 - n_pix @ wo) * wo)  # n_pix · ωo = 0.4 or so: a side view
+    side = unit(np.cross(n_pix, wo))
+    up = np.cross(side, n_pix)
+    tilt = np.radians(30.0)
+    normals = np.stack([unit(np.cos(tilt) * n_pix + np.sin(tilt)
+                             * (np.cos(a) * side + np.sin(a) * up))
+                        for a in np.radians([90.0, 210.0, 330.0])])
+    bary = np.full((1, 3), 1.0 / 3.0)
+    brdf = BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 200.0)
+    lobe_tables = render.vertex_lobe_tables([brdf], np.zeros(3, np.int64))
+    table = lobe_tables["lobe_table"][0].astype(np.float64)
+    mu_p, lam_p, a_p = brdf_lobe(table, n_pix[None], wo[None])
+    rgb = spot_map(64, mu_p[0], np.radians(3.0), [40.0, 40.0, 40.0])
+    lobes = np.zeros((3, len(views), render.SLOTS, render.FIELDS))
+    for v in range(3):
+        mu, lam, a = brdf_lobe(table, np.repeat(normals[v:v + 1], len(views), 0), views)
+        lobes[v, :, 0, 0:3] = 0.3 * a[:, None]
+        lobes[v, :, :, 3:6] = mu[:, None]
+        lobes[v, :, :, 6] = lam[:, None]
+    tables = tables_of(lobes, np.ones(3), np.zeros((3, 3, sh.ORDER ** 2)), rgb,
+                       normals=normals)
+    from dataclasses import replace
+    tables = replace(tables, **lobe_tables)
+    corner = np.array([[0, 1, 2]])
+    view, weight = render.view_triangles(render.view_triangulation(), wo[None])
+    assert weight[0].max() > 1 - 1e-9
+    no_light = np.zeros((sh.ORDER ** 2, 3))
+    u_p = sg.env_integral(tables.stack, tables.levels, mu_p, lam_p,
+                          np.repeat(a_p[:, None], 3, 1))[0]
+    got = {}
+    for normal in ("vertex", "ratio"):
+        device = render.SgDevice(tables, normal=normal)
+        got[normal] = render.shade_arrays(device, corner, bary.astype(np.float32), view,
+                                          weight.astype(np.float32), no_light,
+                                          wo=wo[None])[0]
+    np.testing.assert_allclose(got["ratio"], 0.3 * u_p, rtol=5e-3)
+    np.testing.assert_allclose(render.shade_numpy(tables, corner, bary, view, weight,
+                                                  no_light, wo=wo[None], ratio=True)[0],
+                               0.3 * u_p, rtol=1e-6)
+    assert np.all(got["vertex"] < 0.5 * 0.3 * u_p), (got["vertex"], 0.3 * u_p)
+    brighter = replace(tables, lobes=tables.lobes * np.array([5.0] * 3 + [1.0] * 4,
+                                                             np.float32))
+    u = sum(sg.env_integral(tables.stack, tables.levels,
+                            *brdf_lobe(table, normals[c:c + 1], wo[None])[:2],
+                            np.repeat(brdf_lobe(table, normals[c:c + 1], wo[None])[2][:, None],
+                                      3, 1))[0] / 3.0 for c in range(3))
+    got = render.shade_arrays(render.SgDevice(brighter, normal="ratio"), corner,
+                              bary.astype(np.float32), view, weight.astype(np.float32),
+                              no_light, wo=wo[None])[0]
+    np.testing.assert_allclose(got, 1.5 * u + u_p - u, rtol=5e-3)
 
 
 def test_interpolated_lobes_keep_a_highlights_peak_tabulated_values_dip(small_map):

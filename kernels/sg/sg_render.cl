@@ -27,6 +27,20 @@
  * indirect light) keeps its place, since its light does not follow the normal (a full
  * turn of every lobe measured worse than none: decision 0039). No turn where
  * |r_a x r_p| <= 1e-6 or n_p is undefined. w_o per pixel (P x 3), n per vertex (V x 3).
+ * With BRDF_RATIO = 1 (decision 0042) the lobes are not turned: each vertex's lobes are
+ * blended over its 3 views alone and integrated, F_a; with F = sum_a f_a F_a and
+ * U = sum_a f_a U_a the glossy light is, per channel,
+ *     F + v (U_p - U),   v = min(1, F / U)
+ * (= U_p F / U where the vertices hold less than the unshadowed light, a visibility
+ * ratio; F + U_p - U where they hold more, indirect light: no ratio blows up where the
+ * vertices' BRDF lobes miss a source the pixel's sees), U the radiance of the face's
+ * BRDF lobe under the map alone (no visibility): one Gaussian per view elevation
+ * c = n.w_o from the material's table (lobe_table, rows of SG_LOBE_TABLE x (theta, lam,
+ * a), pipeline/methods/sg/brdf_lobe.py; vertex_lobe: each vertex's row block, -1 none),
+ * U_p at the pixel's normal n_p, U_a at the vertex's. The vertices keep the visibility
+ * and the indirect light, the pixel's normal places the highlight. F alone where a
+ * corner has no table or another than corner 0's, or where n_p is undefined or
+ * n_p.w_o <= 0; v = 1 where U <= 1e-6 U_p.
  * The lobe is integrated against the environment by the prefiltered stack at R^T mu (sg.h's
  * sg_env_integral); plus the diffuse SH term sum_k (sum_v bary_v transfer[v, c, k])
  * L[k, c] = sum_v bary_v D[v, c], D[v, c] = sum_k transfer[v, c, k] L[k, c] computed
@@ -41,6 +55,12 @@
 #endif
 #ifndef PIXEL_NORMAL
 #define PIXEL_NORMAL 0
+#endif
+#ifndef BRDF_RATIO
+#define BRDF_RATIO 0
+#endif
+#ifndef SG_LOBE_TABLE
+#define SG_LOBE_TABLE 32
 #endif
 #define SG_FIELDS 7
 
@@ -60,6 +80,27 @@ PRT_INLINE float3 sg_reflect(float3 w, float3 n) { return 2.0f * dot(w, n) * n -
 PRT_INLINE float3 sg_turn(float3 t, float angle, float3 v) {
     float c = cos(angle), s = sin(angle);
     return c * v + s * cross(t, v) + (1.0f - c) * dot(t, v) * t;
+}
+
+/* The BRDF lobe of a material's table (SG_LOBE_TABLE rows of theta, lam, a; linear in
+ * c = n.d between rows) at unit normal n and eye direction d: the mean (cos theta n -
+ * sin theta t, t the unit part of d along the surface) and sharpness; returns a, 0 where
+ * n.d <= 0 (brdf_lobe.py's brdf_lobe). */
+PRT_INLINE float sg_brdf_lobe(__global const float* table, float3 n, float3 d, float3* mu,
+                              float* lam) {
+    float c = dot(n, d);
+    float x = clamp(c, 0.0f, 1.0f) * (float)(SG_LOBE_TABLE - 1);
+    int k = min((int)floor(x), SG_LOBE_TABLE - 2);
+    float t = x - (float)k;
+    __global const float* r = table + 3 * k;
+    float theta = (1.0f - t) * r[0] + t * r[3];
+    *lam = (1.0f - t) * r[1] + t * r[4];
+    float a = (1.0f - t) * r[2] + t * r[5];
+    float3 side = d - c * n;
+    float len = length(side);
+    side = len > 1e-6f ? side / len : (float3)(0.0f);
+    *mu = normalize(cos(theta) * n - sin(theta) * side);
+    return c > 0.0f ? a : 0.0f;
 }
 
 __kernel void sg_view_lookup(__global const float* parent_inverse,  /* 20 x 9 */
@@ -99,6 +140,7 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
                        __global const int* corner, __global const float* bary,
                        __global const int* view, __global const float* view_weight,
                        __global const float* normal, __global const float* wo,
+                       __global const float* lobe_table, __global const int* vertex_lobe,
                        __global const float* stack, __global const int* level_info,
                        const int levels, const float log_sigma0, const float inv_log_ratio,
                        __global const float* map_turn,
@@ -142,6 +184,59 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
     }
 #endif
     float3 radiance = (float3)(0.0f);
+#if BRDF_RATIO
+    for (int s = 0; s < slots; ++s) {
+        for (int a = 0; a < 3; ++a) {
+            if (stored[a] == 0) continue;
+            int row = base[a] + (s < stored[a] ? s : 0);
+            float keep = s < stored[a] ? 1.0f : 0.0f;
+            float3 w = (float3)(0.0f), mu = (float3)(0.0f);
+            float lam = 0.0f;
+            for (int b = 0; b < 3; ++b) {
+                __global const float* p = lobes + (row * views + j[b]) * SG_FIELDS;
+                w += (vb[b] * keep) * (float3)(p[0], p[1], p[2]);
+                mu += vb[b] * (float3)(p[3], p[4], p[5]);
+                lam += vb[b] * p[6];
+            }
+#if LAMBDA_LOG
+            lam = exp(lam);
+#endif
+            float len = length(mu);
+            if (!(len > 0.0f)) continue;
+            radiance += fb[a] * sg_env_integral(stack, level_info, levels, log_sigma0,
+                                                inv_log_ratio,
+                                                envmap_into_map(mu / len, map_turn), lam, w);
+        }
+    }
+    int m = vertex_lobe[v[0]];
+    if (slots > 0 && m >= 0 && vertex_lobe[v[1]] == m && vertex_lobe[v[2]] == m) {
+        float3 n[3] = {vload3(v[0], normal), vload3(v[1], normal), vload3(v[2], normal)};
+        float3 np = fb[0] * n[0] + fb[1] * n[1] + fb[2] * n[2];
+        float len_np = length(np);
+        float3 d = vload3(i, wo);
+        if (len_np > 0.0f && dot(np, d) > 0.0f) {
+            __global const float* table = lobe_table + 3 * SG_LOBE_TABLE * m;
+            float3 mu;
+            float lam;
+            float a = sg_brdf_lobe(table, np / len_np, d, &mu, &lam);
+            float3 up = sg_env_integral(stack, level_info, levels, log_sigma0, inv_log_ratio,
+                                        envmap_into_map(mu, map_turn), lam, (float3)(a));
+            float3 ua = (float3)(0.0f);
+            for (int c = 0; c < 3; ++c) {
+                a = sg_brdf_lobe(table, n[c], d, &mu, &lam);
+                if (a > 0.0f)
+                    ua += fb[c] * sg_env_integral(stack, level_info, levels, log_sigma0,
+                                                  inv_log_ratio,
+                                                  envmap_into_map(mu, map_turn), lam,
+                                                  (float3)(a));
+            }
+            /* v = min(1, F / U_a-sum): the vertices' share of the unshadowed light */
+            int3 ok = isgreater(ua, 1e-6f * up) && isgreater(ua, (float3)(0.0f));
+            float3 v = select((float3)(1.0f), fmin(radiance / ua, (float3)(1.0f)), ok);
+            radiance += v * (up - ua);
+        }
+    }
+#else
     for (int s = 0; s < slots; ++s) {
         float3 w = (float3)(0.0f), mu = (float3)(0.0f);
         float lam = 0.0f;
@@ -179,6 +274,7 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
         radiance += sg_env_integral(stack, level_info, levels, log_sigma0, inv_log_ratio,
                                     mu_map, lam, w);
     }
+#endif
     float3 diffuse = fb[0] * vload3(v[0], vertex_diffuse) + fb[1] * vload3(v[1], vertex_diffuse)
                    + fb[2] * vload3(v[2], vertex_diffuse);
     vstore3(scale * (radiance + diffuse), i, out);

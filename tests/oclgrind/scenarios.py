@@ -68,6 +68,9 @@ def run_all(folder: Path, work: Path) -> None:
         job.render_frame(tiny_scene(work, "sg"), job.workdir_for(tiny_scene(work, "sg"),
                                                                  work / "sg" / "w"),
                          "sg", {"normal": "pixel"})  # sg_shade's PIXEL_NORMAL = 1
+        job.render_frame(tiny_scene(work, "sg"), job.workdir_for(tiny_scene(work, "sg"),
+                                                                 work / "sg" / "w"),
+                         "sg", {"normal": "ratio"})  # sg_shade's BRDF_RATIO = 1
         job.render_frame(sc, wd, "triple", {"budget": 16})
         job.render_frame(sc, wd, "triple", {"budget": 0})  # the stored rows: sparse path
         code = pytest.main(["-q", "-p", "no:cacheprovider",

@@ -20,7 +20,9 @@ the SH term alone, without the background (``prt evaluate`` measures each agains
 ``vertex``): the lobes as fitted at the vertices (paper 003), or ``pixel``: each
 vertex's lobes about its mirror direction turned to the pixel's (its blended normal's)
 so that the highlight follows the pixel's normal (decision 0039: no gain on bunny_sg
-and dragon_sg, 8x the shading kernel's time; 23.5 -> 17.2 % on a coarse ball).
+and dragon_sg, 8x the shading kernel's time; 23.5 -> 17.2 % on a coarse ball), or
+``ratio``: the BRDF's lobe at the pixel's normal, the vertices' lobes kept as a
+visibility ratio to the unshadowed light (decision 0042; pipeline/methods/sg/brdf_lobe.py).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -49,9 +51,11 @@ METHOD = Method(
                     "log or linear: how a lobe's sharpness is blended between views",
                     choices=("log", "linear")),
              Option("normal", str, "vertex",
-                    "vertex or pixel: the lobes as fitted at the vertex (paper 003), or "
-                    "turned towards the pixel's blended normal (decision 0039)",
-                    choices=("vertex", "pixel")),
+                    "vertex, pixel or ratio: the lobes as fitted at the vertex (paper "
+                    "003), turned towards the pixel's blended normal (decision 0039), or "
+                    "the BRDF at the pixel's normal by a ratio of unshadowed radiances "
+                    "(decision 0042)",
+                    choices=("vertex", "pixel", "ratio")),
              Option("component", str, "all",
                     "all, glossy or diffuse: the whole frame, or the light reflected by "
                     "the lobes or by the SH term alone (no background)",

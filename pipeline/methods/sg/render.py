@@ -57,8 +57,10 @@ from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math import sg, sh
+from pipeline.math.brdf import BrdfParams, scene_brdfs
 from pipeline.math.camera import image_rays
 from pipeline.math.geodesic import icosahedron
+from pipeline.methods.sg.brdf_lobe import TABLE, brdf_lobe, lobe_table
 from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
 from pipeline.methods.sg.transport import view_directions
@@ -74,10 +76,12 @@ from pipeline.scene.model import Scene
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
 LAMBDA_BLENDS = ("log", "linear")
-# where a vertex's lobes point: as fitted at the vertex (paper 003, the default), or
-# turned towards the pixel's blended normal (decision 0039: no gain on bunny_sg and
-# dragon_sg, 8x the shading kernel's time; a gain on coarse unoccluded meshes)
-NORMALS = ("vertex", "pixel")
+# where the glossy light takes its normal from: the lobes as fitted at the vertex (paper
+# 003, the default); the lobes turned towards the pixel's blended normal (decision 0039:
+# no gain on bunny_sg and dragon_sg, 8x the shading kernel's time; a gain on coarse
+# unoccluded meshes); or the BRDF at the pixel's normal, the vertices' lobes keeping
+# visibility and indirect light as a ratio to unshadowed radiances (decision 0042)
+NORMALS = ("vertex", "pixel", "ratio")
 # what a frame shows: everything, or the reflected light of the lobes or of the SH term
 COMPONENTS = ("all", "glossy", "diffuse")
 
@@ -178,7 +182,9 @@ class SgTables:
     transfer); ``stack``/``levels`` the prefiltered map (sg.PrefilterLevels, levels
     (H_ℓ, W_ℓ, 3) float32, W/(m² sr)); ``normals`` (V, 3) float32 the unit vertex
     normals the lobes were fitted at (geometry's), None: the lobes are not turned to the
-    pixel's normal (``normal="vertex"``)."""
+    pixel's normal (``normal="vertex"``); ``lobe_table`` (M, brdf_lobe.TABLE, 3) float32
+    the glossy materials' BRDF lobes (brdf_lobe.lobe_table) and ``vertex_lobe`` (V,)
+    int32 each vertex's material row (−1: none), None: no ratio (decision 0042)."""
 
     lobes: np.ndarray
     first: np.ndarray
@@ -187,6 +193,8 @@ class SgTables:
     stack: list[np.ndarray]
     levels: sg.PrefilterLevels
     normals: np.ndarray | None = None
+    lobe_table: np.ndarray | None = None
+    vertex_lobe: np.ndarray | None = None
 
     @classmethod
     def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
@@ -206,7 +214,8 @@ class SgTables:
     def nbytes(self) -> int:
         return self.lobes.nbytes + self.first.nbytes + self.count.nbytes \
             + self.transfer.nbytes + sum(level.nbytes for level in self.stack) \
-            + (0 if self.normals is None else self.normals.nbytes)
+            + sum(0 if a is None else a.nbytes
+                  for a in (self.normals, self.lobe_table, self.vertex_lobe))
 
 
 def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
@@ -251,6 +260,36 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
                     stack, levels, normals)
 
 
+def vertex_lobe_tables(brdfs: list[BrdfParams | None], vertex_material: np.ndarray
+                       ) -> dict[str, np.ndarray]:
+    """``lobe_table`` (M, TABLE, 3) float32 of the glossy materials among ``brdfs`` (None:
+    no glossy part) and ``vertex_lobe`` (V,) int32, each vertex's row in it (−1: none),
+    from ``vertex_material`` (V,) indices into ``brdfs`` (decision 0042)."""
+    rows, tables = np.full(len(brdfs), -1, np.int32), []
+    for m, brdf in enumerate(brdfs):
+        if brdf is not None:
+            rows[m] = len(tables)
+            tables.append(lobe_table(brdf))
+    table = np.asarray(tables, np.float32).reshape(-1, TABLE, 3)
+    return {"lobe_table": table, "vertex_lobe": rows[np.asarray(vertex_material, np.int64)]}
+
+
+def scene_lobe_tables(scene: Scene, geometry: Artifact) -> dict[str, np.ndarray]:
+    """:func:`vertex_lobe_tables` of the scene's materials on ``geometry``'s vertices
+    (its ``material_names``, ``object_ranges``, ``object_material``)."""
+    names = list(geometry.attrs["material_names"])
+    brdfs: list[BrdfParams | None] = []
+    for brdf in scene_brdfs(scene, names):
+        glossy_part = brdf.model != "lambert" and max(brdf.specular) > 0
+        brdfs.append(replace(brdf, albedo=(0.0, 0.0, 0.0)) if glossy_part else None)
+    material = np.full(len(geometry.read("vertices")), len(brdfs), np.int64)
+    for (start, end, *_), m in zip(np.asarray(geometry.read("object_ranges")),
+                                   np.asarray(geometry.read("object_material")),
+                                   strict=True):
+        material[start:end] = m
+    return vertex_lobe_tables([*brdfs, None], material)
+
+
 # ------------------------------------------------------------------------- shading
 
 
@@ -293,7 +332,8 @@ def turn_means(mean: np.ndarray, lam: np.ndarray, axis: np.ndarray, angle: np.nd
 def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
                 view_weight: np.ndarray, light_sh: np.ndarray,
                 to_world: np.ndarray | None = None, scale: float = 1.0,
-                lambda_blend: str = "log", wo: np.ndarray | None = None) -> np.ndarray:
+                lambda_blend: str = "log", wo: np.ndarray | None = None,
+                ratio: bool = False) -> np.ndarray:
     """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
     vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
     ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
@@ -302,8 +342,17 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     beyond a corner's stored ones is its slot 0 with w = 0; a corner with none adds
     nothing. With the directions to the eye ``wo`` (P, 3) and ``tables.normals``, each
     corner's means are turned towards the pixel's normal (:func:`turn_means`, the
-    kernel's PIXEL_NORMAL = 1); without, they are not (PIXEL_NORMAL = 0)."""
+    kernel's PIXEL_NORMAL = 1); without, they are not (PIXEL_NORMAL = 0). ``ratio``
+    (with ``wo``, ``tables.normals`` and its lobe tables): the lobes are not turned but
+    blended per corner, and the BRDF is applied at the pixel's normal
+    (:func:`ratio_glossy`, the kernel's BRDF_RATIO = 1)."""
     corner = np.asarray(corner, np.int64)
+    if ratio:
+        turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
+        diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh)[corner]
+        return scale * (ratio_glossy(tables, corner, bary, view, view_weight, wo, turn,
+                                     lambda_blend)
+                        + np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse))
     turning = wo is not None and tables.normals is not None
     if turning:
         axis, angle, mirror = turn_rotations(tables.normals, corner, bary, wo)
@@ -338,6 +387,71 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     return scale * out
 
 
+def ratio_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
+                 view_weight: np.ndarray, wo: np.ndarray, turn: np.ndarray,
+                 lambda_blend: str = "log") -> np.ndarray:
+    """The glossy radiance (P, 3) of decision 0042 (the kernel's BRDF_RATIO = 1, float64):
+    per channel F + v (U_p − U), v = min(1, F/U), F = Σ_a f_a F_a with F_a corner a's
+    lobes blended over its 3 views and integrated, U = Σ_a f_a U_a, U the face's BRDF
+    lobe (:func:`brdf_lobe`) integrated at the pixel's normal n_p = normalise(Σ f_a n_a)
+    (U_p) and at the corners' n_a (U_a): the visibility ratio U_p F/U where F ≤ U, F
+    + U_p − U where F > U. F alone where the corners' ``vertex_lobe`` rows are not one
+    row ≥ 0 or n_p·ωo ≤ 0; v = 1 where U ≤ 1e-6 U_p. ``turn``: the map's 3×3
+    map-to-world rotation; ``wo`` (P, 3) unit."""
+    bary = np.asarray(bary, np.float64)
+    view = np.asarray(view, np.int64)
+    base = tables.first[corner].astype(np.int64)
+    stored = tables.first[corner + 1] - base                                  # (P, 3)
+    slots = tables.count[corner].max(axis=1)
+    stack = [np.asarray(level, np.float64) for level in tables.stack]
+    vw = np.asarray(view_weight, np.float64)
+    out = np.zeros((len(corner), 3))
+    for s in range(SLOTS):
+        row = np.where(stored > 0, base + np.where(stored > s, s, 0), 0)
+        lobe = tables.lobes[row[:, :, None], view[:, None, :]].astype(np.float64)
+        keep = (stored > s) & (slots > s)[:, None]                           # (P, 3)
+        w = np.einsum("pb,pabc->pac", vw, lobe[..., 0:3]) * keep[..., None]
+        mu = np.einsum("pb,pabc->pac", vw, lobe[..., 3:6])
+        if lambda_blend == "log":
+            lam = np.exp(np.einsum("pb,pab->pa", vw, np.log(lobe[..., 6])))
+        else:
+            lam = np.einsum("pb,pab->pa", vw, lobe[..., 6])
+        length = np.linalg.norm(mu, axis=2)
+        ok = (stored > 0) & (slots > s)[:, None] & (length > 0)
+        p, a = np.nonzero(ok)
+        mu_map = (mu[p, a] / length[p, a, None]) @ turn
+        f = sg.env_integral(stack, tables.levels, mu_map, lam[p, a], w[p, a])
+        np.add.at(out, p, bary[p, a, None] * f)
+    if tables.lobe_table is None or tables.vertex_lobe is None or tables.normals is None:
+        return out
+    m = tables.vertex_lobe[corner]                                            # (P, 3)
+    n = np.asarray(tables.normals, np.float64)[corner]                        # (P, 3, 3)
+    wo = np.asarray(wo, np.float64)
+    npix = np.einsum("pa,pac->pc", bary, n)
+    length = np.linalg.norm(npix, axis=1)
+    use = (slots > 0) & (m[:, 0] >= 0) & (m[:, 1] == m[:, 0]) & (m[:, 2] == m[:, 0]) \
+        & (length > 0) & (np.sum(npix * wo, axis=1) > 0)
+    idx = np.flatnonzero(use)
+    if not len(idx):
+        return out
+    table = np.asarray(tables.lobe_table, np.float64)
+
+    def unshadowed(normal: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        mu, lam, a = np.zeros((len(rows), 3)), np.ones(len(rows)), np.zeros(len(rows))
+        for k in np.unique(m[rows, 0]):
+            sel = m[rows, 0] == k
+            mu[sel], lam[sel], a[sel] = brdf_lobe(table[k], normal[sel], wo[rows[sel]])
+        u = sg.env_integral(stack, tables.levels, mu @ turn, lam, np.repeat(a[:, None], 3, 1))
+        return np.where(a[:, None] > 0, u, 0.0)
+
+    up = unshadowed(npix[idx] / length[idx, None], idx)
+    ua = sum(bary[idx, c, None] * unshadowed(n[idx, c], idx) for c in range(3))
+    ok = (ua > 1e-6 * up) & (ua > 0)
+    v = np.where(ok, np.minimum(out[idx] / np.where(ok, ua, 1.0), 1.0), 1.0)
+    out[idx] += v * (up - ua)
+    return out
+
+
 def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
     """The vertices' diffuse radiance D (V, 3) = max(0, Σ_k transfer[v, c, k]
     light_sh[k, c]) (without the light's scale). A truncated SH product can ring below
@@ -360,7 +474,9 @@ class SgDevice:
     lobes' last field holds log λ, as the kernel blends it); ``shade`` runs
     ``sg_shade``. ``normal``: ``vertex`` the paper's lobes as fitted, ``pixel`` each
     vertex's lobes turned towards the pixel's normal (PIXEL_NORMAL = 1; needs
-    ``tables.normals``, else as ``vertex``; decision 0039)."""
+    ``tables.normals``, else as ``vertex``; decision 0039), ``ratio`` the BRDF at the
+    pixel's normal by the ratio of unshadowed radiances (BRDF_RATIO = 1; needs
+    ``tables.normals`` and its lobe tables, else as ``vertex``; decision 0042)."""
 
     tables: SgTables
     lambda_blend: str = "log"
@@ -375,13 +491,21 @@ class SgDevice:
             lobes = lobes.copy()
             lobes[..., 6] = np.log(lobes[..., 6])
         self.turning = self.normal == "pixel" and t.normals is not None
-        normals = t.normals if self.turning else np.zeros((1, 3), np.float32)
+        self.ratio = self.normal == "ratio" and t.normals is not None \
+            and t.lobe_table is not None and t.vertex_lobe is not None
+        normals = t.normals if self.turning or self.ratio else np.zeros((1, 3), np.float32)
+        table = t.lobe_table if self.ratio and t.lobe_table.size \
+            else np.zeros((1, TABLE, 3), np.float32)  # no glossy material: a dummy row
+        vertex_lobe = t.vertex_lobe if self.ratio else np.full(1, -1, np.int32)
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
             ("lobes", lobes), ("first", t.first), ("count", t.count), ("stack", flat),
-            ("info", info), ("normals", normals))}
+            ("info", info), ("normals", normals),
+            ("lobe_table", np.ascontiguousarray(table, np.float32)),
+            ("vertex_lobe", np.ascontiguousarray(vertex_lobe, np.int32)))}
         self.kernel = cl.kernel("sg_render.cl", "sg_shade",
                                 {"LAMBDA_LOG": int(self.lambda_blend == "log"),
-                                 "PIXEL_NORMAL": int(self.turning)})
+                                 "PIXEL_NORMAL": int(self.turning),
+                                 "BRDF_RATIO": int(self.ratio), "SG_LOBE_TABLE": TABLE})
 
     def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
         """A device buffer of :func:`vertex_diffuse` (V, 3) float32."""
@@ -402,7 +526,7 @@ class SgDevice:
         ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
                     pixels["view"], pixels["view_weight"], b["normals"], pixels["wo"],
-                    b["stack"], b["info"],
+                    b["lobe_table"], b["vertex_lobe"], b["stack"], b["info"],
                     np.int32(levels.count), np.float32(np.log(levels.sigma0)),
                     np.float32(1.0 / np.log(levels.ratio)), map_turn(to_world),
                     np.float32(scale), np.int32(n), out=out,
@@ -417,8 +541,8 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
     """The kernel on host arrays (as :func:`shade_numpy`'s arguments; ``wo`` (P, 3) is
     needed where the device turns lobes), float32 (P, 3)."""
     if wo is None:
-        if device.turning:
-            raise ValueError("shade_arrays: normal='pixel' needs the directions wo")
+        if device.turning or device.ratio:
+            raise ValueError(f"shade_arrays: normal={device.normal!r} needs the directions wo")
         wo = np.zeros((1, 3))
     pixels = {"corner": cl.read_only_buffer(np.asarray(corner, np.int32)),
               "bary": cl.read_only_buffer(np.asarray(bary, np.float32)),
@@ -429,17 +553,24 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
                         scale)[0]
 
 
-def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False) -> int:
+def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
+                 ratio: bool = False) -> int:
     """Bytes ``sg_shade`` loads and stores for these pixels, every gathered load counted
     (cache hits included): per pixel 4 × 12 B of indices and weights, 3 counts, per
-    active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B, 3 vertices' diffuse
-    radiance × 12 B, 12 B out; ``turning`` (PIXEL_NORMAL): per pixel with a slot ω_o
-    and 3 normals, 4 × 12 B."""
+    active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B (``ratio``: 3 × the
+    texels, one lookup per corner), 3 vertices' diffuse radiance × 12 B, 12 B out;
+    ``turning`` (PIXEL_NORMAL): per pixel with a slot ω_o and 3 normals, 4 × 12 B;
+    ``ratio`` (BRDF_RATIO): per pixel with a slot also 3 × 4 B of table rows, 4 BRDF
+    lobes × 2 table rows × 12 B and 4 lookups × 2 levels × 4 texels × 12 B."""
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
     per_pixel = 48 + 3 + 3 * 12 + 12
-    turn = 48 * int(np.count_nonzero(slots)) if turning else 0
-    return int(len(corner) * per_pixel + turn
-               + slots.sum() * (9 * FIELDS * 4 + 2 * 4 * 12))
+    active = int(np.count_nonzero(slots))
+    extra = 48 * active if turning or ratio else 0
+    if ratio:
+        extra += active * (12 + 4 * 2 * 12 + 4 * 2 * 4 * 12)
+    lookups = 3 if ratio else 1
+    return int(len(corner) * per_pixel + extra
+               + slots.sum() * (9 * FIELDS * 4 + lookups * 2 * 4 * 12))
 
 
 # -------------------------------------------------------------------------- frames
@@ -602,7 +733,7 @@ class SgRenderer:
             "sg", gbuffer.back, self.face_object[gbuffer.face], list(scene.objects))
         return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, notes,
                      kernel_bytes=kernel_bytes(self.tables, gbuffer.corner,
-                                                 self.device.turning))
+                                                 self.device.turning, self.device.ratio))
 
 
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
@@ -613,6 +744,8 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
     geo = artifacts["geometry"]
     vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
     tables = load_tables(artifacts, len(vertices))
+    if normal == "ratio":  # the glossy materials' BRDF lobes (decision 0042)
+        tables = replace(tables, **scene_lobe_tables(scene, geo))
     env_map = read_environment(scene.environment.file)
     return SgRenderer(tables, vertices, faces, env_map, lambda_blend, component,
                      np.asarray(geo.read("face_object")), normal)
