@@ -63,7 +63,8 @@ def test_a_direct_launch_that_would_write_past_its_buffer_is_refused():
         cl.check_writes("k", small, 65)
 
 
-@pytest.mark.parametrize("shape, dtype", [((463, 3), "float32"), ((7,), "uint8"), ((0, 2), "int32")])
+@pytest.mark.parametrize("shape, dtype",
+                         [((463, 3), "float32"), ((7,), "uint8"), ((0, 2), "int32")])
 def test_aligned_arrays_start_on_a_page_and_carry_kernel_writes_back(shape, dtype):
     import numpy as np
 
