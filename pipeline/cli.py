@@ -441,7 +441,7 @@ def methods_cmd(as_json) -> None:
             "sequence_forms": list(m.sequence_forms),
             "main_sequences": list(m.main_sequences), "lights": list(m.lights),
             "materials": list(m.materials), "features": list(m.features),
-            "limits": {limit.name: limit.what for limit in m.limits}}
+            "edits": list(m.edits), "limits": {limit.name: limit.what for limit in m.limits}}
             for name, m in methods.items()}))
         return
     for name, m in methods.items():
@@ -456,6 +456,8 @@ def methods_cmd(as_json) -> None:
             runs = f" (prt run writes {', '.join(m.main_sequences)})" if m.main_sequences \
                 else ""
             click.echo(f"  sequences (--frames): {', '.join(m.sequence_forms)}{runs}")
+        if m.edits:
+            click.echo(f"  run-time edits (prt render, prt view): {', '.join(m.edits)}")
         for limit in m.limits:
             click.echo(f"  limit {limit.name}: {limit.what}")
 
@@ -582,7 +584,8 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
         check_method_scene(m, sc)
         baked = job.bake(bake_scene, wd, jobs=cores.workers, quiet=quiet, methods=[m],
                          threads=cores.threads)
-        plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
+        if sequence:
+            plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
     renderer_of = job.shared_renderer(sc, wd, m.name, values)  # the frame's and the sequence's
     result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
                         threads=cores.threads, exposure=exposure, renderer_of=renderer_of,
