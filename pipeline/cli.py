@@ -671,6 +671,8 @@ def view_cmd(scene, method, size, port, open_browser, save_dir, workdir, jobs, t
         from pipeline.view.encode import encode
 
         encode(engine.frame({})[1], "jpeg")  # renderer, first frame and encoder warm
+        if m.drag_options:  # and the drag's renderer, so that the first drag is not slow
+            engine.frame({}, dragging=True)
         folder = save_dir or Path("frames") / sc.name / "view"
 
         def ready(url: str) -> None:

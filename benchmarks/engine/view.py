@@ -147,10 +147,23 @@ def drag(page, control: tuple[str, float, float], seconds: float, fmt: str
             "release": summary(release[-1:], 0.0) if release else None}
 
 
+def workdir_of(scene_file: Path, size: int) -> tuple[Any, Any]:
+    """The scene at ``size``² baked in the benchmark cache's folder of the file's own
+    size (benchmarks/fixtures.py ``baked``): another size keeps only its camera-dependent
+    artifacts apart (``views/WxH``), as ``prt view --size`` does, sharing the rest."""
+    from pipeline import job
+    from pipeline.engine.keys import digest
+
+    cam = job.open_scene(scene_file).camera
+    folder = CACHE / f"{job.open_scene(scene_file).name}_{cam.width}x{cam.height}_" \
+        f"{digest({})[:8]}"
+    return baked(scene_file, size, workdir=folder)
+
+
 def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats: list[str],
             seconds: float, browser) -> dict[str, Any]:
     t0 = time.perf_counter()
-    scene, work = baked(scene_file, size)
+    scene, work = workdir_of(scene_file, size)
     bake_s = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as save:
         proc, url = start_viewer(scene_file, size, work.root, Path(save))
