@@ -45,7 +45,7 @@ def shoot(method: str, size: int, out: Path, browser) -> Path:
                 page.mouse.move(x, y)
                 page.mouse.down()
                 for i in range(30):
-                    page.mouse.move(x - 4 * i, y + 1.5 * i)
+                    page.mouse.move(x + 3 * i, y)
                 page.mouse.up()
                 last = page.evaluate("window.prtView.request(false)")
             page.wait_for_function(f"window.prtView.lastPainted >= {last} && "

@@ -189,6 +189,10 @@ def d2i_viewer(tmp_path_factory):
         pytest.skip(browser_missing())
     tmp = tmp_path_factory.mktemp("view_d2i")
     scene = tiny_scene(tmp, "d2i", size=16).path
+    # a reference cached for the file's edits (the viewer finds it at start)
+    done = prt("reference", scene, "--transport", "first-glossy", "--max-spp", 16,
+               "--workdir", tmp / "w", "--out", tmp / "ref.exr", "-q", cwd=tmp)
+    assert done.returncode == 0, done.stderr
     viewer = Viewer(scene, tmp / "w", tmp / "saved")
     yield viewer
     code, output = viewer.stop()
@@ -255,11 +259,16 @@ def test_bad_edit_and_closed_tab(d2i_viewer, browser):
 @needs_browser
 @pytest.mark.timeout(600)
 def test_cached_state_is_instant_and_reference_view(d2i_viewer, browser, tmp_path):
-    """Returning to a state is answered from the render cache; without a cached
-    reference the difference view says which command caches one."""
+    """Returning to a state is answered from the render cache; the reference cached for
+    the file's edits is shown beside the frame; for edits without one, the difference
+    view says which command caches it."""
     page = browser.new_page()
     page.goto(d2i_viewer.url)
-    wait_frame(page, 0)
+    assert wait_frame(page, 0)["reference"]
+    page.select_option("#view", "side by side")
+    page.wait_for_function("!document.getElementById('second').hidden", timeout=60_000)
+    assert page.inner_text("#error") == ""
+    page.select_option("#view", "frame")
     first = page.evaluate("window.prtView.set('mat-shiny-specular', 0.08)")
     assert not wait_frame(page, first - 1)["cached"]
     other = page.evaluate("window.prtView.set('mat-shiny-specular', 0.05)")

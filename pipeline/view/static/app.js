@@ -194,7 +194,7 @@ function setupDrag(canvas, dsel) {
     if (t.kind === "light") {
       const d = edits.lights[t.index];
       for (let k = 0; k < 3; k++) {
-        const step = (dx * spec.camera.right[k] - dy * spec.camera.up[k]) * spec.diagonal;
+        const step = 0.5 * (dx * spec.camera.right[k] - dy * spec.camera.up[k]) * spec.diagonal;
         d[k] = Math.max(-spec.reach, Math.min(spec.reach, d[k] + step));
         syncSlider(`light-${t.index}-${"xyz"[k]}`, d[k]);
       }
