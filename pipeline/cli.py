@@ -625,6 +625,9 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
 @click.option("--port", type=click.IntRange(0, 65535), default=8043, show_default=True,
               help="Port on localhost (0: any free port).")
 @click.option("--open", "open_browser", is_flag=True, help="Open the page in a browser.")
+@click.option("--exposure", metavar="EV", type=float, default=None,
+              help="The page's exposure at start, in stops [default: 0, or the stops "
+                   "that make a dark first frame readable, as prt render's note says].")
 @click.option("--save-dir", type=click.Path(path_type=Path), default=None,
               help="Where the page's save button writes [default: ./frames/<scene "
                    "name>/view].")
@@ -632,8 +635,8 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
 @JOBS
 @THREADS
 @QUIET
-def view_cmd(scene, method, size, port, open_browser, save_dir, workdir, jobs, threads,
-             quiet) -> None:
+def view_cmd(scene, method, size, port, open_browser, exposure, save_dir, workdir, jobs,
+             threads, quiet) -> None:
     """Bake what is stale, then relight the scene interactively in the browser: the
     method's run-time edits (lights, environment, camera, materials, options) as
     controls, frames as you drag, a save button writing what `prt render` writes."""
@@ -650,6 +653,8 @@ def view_cmd(scene, method, size, port, open_browser, save_dir, workdir, jobs, t
     from pipeline.view.state import ViewScene, scene_diagonal
 
     cores = cores_option(jobs, threads)
+    if exposure is not None:
+        check_exposure(exposure)
     sc = job.open_scene(scene, parse_size(size))
     m = get_method(method) if method else scene_methods(sc)[0]
     check_method_scene(m, sc)
@@ -668,9 +673,13 @@ def view_cmd(scene, method, size, port, open_browser, save_dir, workdir, jobs, t
                          scene_diagonal(wd.artifact("geometry"), sc),
                          None if workdir is None else str(workdir))
         engine = Engine(view, wd)
+        from pipeline.images import readable_exposure
         from pipeline.view.encode import encode
 
-        encode(engine.frame({})[1], "jpeg")  # renderer, first frame and encoder warm
+        first = engine.frame({})[1]
+        encode(first, "jpeg")  # renderer, first frame and encoder warm
+        engine.exposure = exposure if exposure is not None else \
+            float(readable_exposure(first) or 0)
         if m.drag_options:  # and the drag's renderer, so that the first drag is not slow
             engine.frame({}, dragging=True)
         folder = save_dir or Path("frames") / sc.name / "view"

@@ -70,6 +70,7 @@ class Engine:
         self.frames: OrderedDict[str, tuple[np.ndarray, dict[str, float]]] = OrderedDict()
         self.mode: tuple[str, Any] | None = None  # (key, frame function) of an edit mode
         self.stats = Stats()
+        self.exposure = 0.0  # the page's exposure at start (EV)
         self.references = self._cached_references()
         self.lock = threading.Lock()
 
@@ -285,6 +286,7 @@ def make_app(engine: Engine, save_dir: Path) -> web.Application:
     async def spec(_: web.Request) -> web.Response:
         body = engine.view.spec() | {"formats": list(FORMATS), "format": DEFAULT_FORMAT,
                                      "reference_transport": engine.view.method.reference,
+                                     "exposure": engine.exposure,
                                      "save_dir": str(save_dir)}
         return web.json_response(body)
 

@@ -83,7 +83,9 @@ function build() {
     (v) => el("option", {value: v, textContent: v})));
   vsel.addEventListener("change", () => { view = vsel.value; showSecond(); });
   vc.append(el("label", {}, [el("span", {textContent: "reference"}), vsel, el("span")]));
-  slider(vc, "exposure", "exposure EV", -10, 10, 0.1, 0, "exposure", (v) => { exposure = v; });
+  exposure = spec.exposure;
+  slider(vc, "exposure", "exposure EV", -16, 16, 0.1, exposure, "exposure",
+         (v) => { exposure = v; });
   const targets = [];
   const dsel = el("select", {id: "drag"});
   vc.append(el("label", {}, [el("span", {textContent: "drag moves"}), dsel, el("span")]));
