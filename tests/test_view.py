@@ -245,7 +245,7 @@ def test_bad_edit_and_closed_tab(d2i_viewer, browser):
     wait_frame(page, 0)
     page.evaluate("window.prtView.edits.materials.shiny.gamma = 5000; "
                   "window.prtView.request(false)")
-    page.wait_for_function("window.prtView.errors.length > 0", timeout=60_000)
+    page.wait_for_function("window.prtView.errors.length > 0", timeout=120_000)
     message = page.inner_text("#error")
     assert message.startswith("error: ") and "outside the baked range [3, 300]" in message
     page.evaluate("window.prtView.set('light-0-z', -0.2)")
@@ -266,7 +266,7 @@ def test_cached_state_is_instant_and_reference_view(d2i_viewer, browser, tmp_pat
     page.goto(d2i_viewer.url)
     assert wait_frame(page, 0)["reference"]
     page.select_option("#view", "side by side")
-    page.wait_for_function("!document.getElementById('second').hidden", timeout=60_000)
+    page.wait_for_function("!document.getElementById('second').hidden", timeout=120_000)
     assert page.inner_text("#error") == ""
     page.select_option("#view", "frame")
     first = page.evaluate("window.prtView.set('mat-shiny-specular', 0.08)")
@@ -277,7 +277,8 @@ def test_cached_state_is_instant_and_reference_view(d2i_viewer, browser, tmp_pat
     header = wait_frame(page, back - 1)
     assert header["cached"] and header["render_ms"] == 0
     page.select_option("#view", "difference")
-    page.wait_for_function("document.getElementById('error').textContent.length > 0")
+    page.wait_for_function("document.getElementById('error').textContent.length > 0",
+                           timeout=120_000)
     assert "prt reference" in page.inner_text("#error")
     page.close()
 

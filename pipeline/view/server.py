@@ -33,7 +33,7 @@ from pipeline.engine.store import Workdir, open_artifact, read_record
 from pipeline.errors import PrtError
 from pipeline.render import Frame, Renderer
 from pipeline.view.encode import DEFAULT_FORMAT, FORMATS, difference, encode
-from pipeline.view.state import Resolved, ViewScene
+from pipeline.view.state import Resolved, ViewScene, number
 
 FRAME_CACHE = 48  # frames kept (a 512² frame: 3 MB)
 RENDERERS = 2  # renderers kept, by options (the release's and a drag's budget)
@@ -208,46 +208,64 @@ class Viewer:
             asyncio.get_running_loop().create_task(self.drain())
 
     async def drain(self) -> None:
+        """Render the waiting request while the previous frame is encoded and sent: at
+        most one render and one encoding per viewer at a time (no backlog of either),
+        the frames sent in the order rendered."""
+        sending: asyncio.Task | None = None
         try:
             while self.pending is not None and not self.ws.closed:
                 request, self.pending = self.pending, None
-                await self.serve(request)
+                rendered = await self.render(request)
+                if sending is not None:
+                    await sending
+                sending = None if rendered is None else \
+                    asyncio.get_running_loop().create_task(self.send(request, *rendered))
+            if sending is not None:
+                await sending
         finally:
             self.busy = False
 
-    async def serve(self, request: dict[str, Any]) -> None:
+    async def render(self, request: dict[str, Any]) -> tuple | None:
+        """The request's frame (resolved edits, linear RGB, what it cost, when its render
+        started), or None when an error was sent instead."""
         engine, stats, loop = self.engine, self.engine.stats, asyncio.get_running_loop()
         start = time.perf_counter()
-        fmt = request.get("format") or DEFAULT_FORMAT
-        exposure = float(request.get("exposure") or 0.0)
         self.in_flight += 1
         stats.in_flight += 1
         stats.max_in_flight_viewer = max(stats.max_in_flight_viewer, self.in_flight)
         stats.max_in_flight = max(stats.max_in_flight, stats.in_flight)
         try:
-            if fmt not in FORMATS:
-                raise PrtError("format", f"unknown frame format {fmt!r}")
+            if (request.get("format") or DEFAULT_FORMAT) not in FORMATS:
+                raise PrtError("format", f"unknown frame format {request.get('format')!r}")
+            exposure = number(request.get("exposure") or 0.0, "exposure")
             if not -64 <= exposure <= 64:
                 raise PrtError("exposure", f"{exposure!r}: expected stops between -64 and 64")
             resolved, rgb, info = await loop.run_in_executor(
                 engine.executor, engine.frame, request.get("edits") or {},
                 bool(request.get("dragging")), request.get("control"))
-            t1 = time.perf_counter()
-            payload = await loop.run_in_executor(None, encode, rgb, fmt, exposure)
-            encode_ms = (time.perf_counter() - t1) * 1e3
         except PrtError as exc:
-            stats.errors += 1
-            await self._send_json({"type": "error", "id": request.get("id"),
-                                   "message": f"error: {exc.one_line()}"})
-            return
+            await self.error(request, f"error: {exc.one_line()}")
+            return None
         except Exception as exc:  # a renderer's failure: shown, the server goes on
-            stats.errors += 1
-            await self._send_json({"type": "error", "id": request.get("id"),
-                                   "message": f"error: {type(exc).__name__}: {exc}"})
-            return
+            await self.error(request, f"error: {type(exc).__name__}: {exc}")
+            return None
         finally:
             self.in_flight -= 1
             stats.in_flight -= 1
+        return resolved, rgb, info, start
+
+    async def send(self, request: dict[str, Any], resolved: Resolved, rgb: np.ndarray,
+                   info: dict[str, Any], start: float) -> None:
+        engine, loop = self.engine, asyncio.get_running_loop()
+        fmt = request.get("format") or DEFAULT_FORMAT
+        exposure = float(request.get("exposure") or 0.0)
+        t1 = time.perf_counter()
+        try:
+            payload = await loop.run_in_executor(None, encode, rgb, fmt, exposure)
+        except Exception as exc:  # noqa: BLE001 - shown in the page, the server goes on
+            await self.error(request, f"error: cannot encode the frame ({exc})")
+            return
+        encode_ms = (time.perf_counter() - t1) * 1e3
         header = {"type": "frame", "id": request.get("id"), "format": fmt,
                   "width": int(rgb.shape[1]), "height": int(rgb.shape[0]),
                   "dragging": bool(request.get("dragging")), **info,
@@ -261,6 +279,10 @@ class Viewer:
         if not self.ws.closed:
             with contextlib.suppress(ConnectionError, RuntimeError):
                 await self.ws.send_bytes(struct.pack("<I", len(head)) + head + payload)
+
+    async def error(self, request: dict[str, Any], message: str) -> None:
+        self.engine.stats.errors += 1
+        await self._send_json({"type": "error", "id": request.get("id"), "message": message})
 
     async def _send_json(self, body: dict[str, Any]) -> None:
         if not self.ws.closed:
