@@ -23,6 +23,8 @@ MARKER = (
 SUITE_MARKER = (
     "<!-- generated: the scene suite table for {m} is inserted here by python -m benchmarks "
     "table -->")
+VIEW_MARKER = ("<!-- generated: prt view's latency table is inserted here by python -m "
+               "benchmarks table -->")
 README_MARKER = ("<!-- generated: the methods' headline figures are inserted here by python -m "
                  "benchmarks table -->")
 
@@ -111,6 +113,35 @@ def headline_rows(results: dict[str, dict[str, Any]]) -> list[str]:
     return lines
 
 
+def view_table(result: dict[str, Any]) -> list[str]:
+    """engine.view's figures: per method, size, control and frame format, fps while
+    dragging and the latency split (medians, ms), and the frame on release."""
+    if result.get("skipped"):
+        return [f"Not measured: {result['skipped']}."]
+    lines = ["| method, scene | size | drag | format | fps | latency (p90) | render | encode "
+             "| wait | transfer | paint | KiB | release: latency (render) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in result["results"]:
+        for name, run in row["runs"].items():
+            d, r = run["drag"], run.get("release") or {}
+            control = name.partition("/")[0]
+            lines.append(
+                f"| {row['method']}, {row['scene']} | {row['size']}² | {control} | "
+                f"{run['format']} | {d['fps']} | {_ms(d.get('latency_ms'))} "
+                f"({_ms(d.get('latency_p90_ms'))}) | {_ms(d.get('render_ms'))} | "
+                f"{_ms(d.get('encode_ms'))} | {_ms(d.get('queue_ms'))} | "
+                f"{_ms(d.get('transfer_ms'))} | {_ms(d.get('paint_ms'))} | {d.get('kib')} | "
+                f"{_ms(r.get('latency_ms'))} ({_ms(r.get('render_ms'))}) |")
+    m = result["machine"]
+    lines += ["", f"Milliseconds, medians over the frames painted while a slider moved once "
+              f"per animation frame for {result['seconds']:g} s (headless Chromium, "
+              f"`python -m benchmarks run engine.view`); wait: the request's time queued "
+              f"behind the render in flight. {m['cpu']}, OpenCL {m.get('opencl_device', '?')}, "
+              f"load average {result['load_before'][0]:.2f} before, "
+              f"{result.get('load_after', [0])[0]:.2f} after, {result['finished'][:10]}."]
+    return lines
+
+
 def _replace_block(path: Path, marker: str, lines: list[str]) -> bool:
     """Replace what follows ``marker`` in ``path`` up to the next heading or blank-line
     paragraph that is not a table with ``lines``; False if the marker is absent."""
@@ -152,6 +183,12 @@ def write_tables(results: Path) -> list[Path]:
             page = DOCS / "methods" / f"{m}.md"
             if _replace_block(page, marker.format(m=m), table) and page not in written:
                 written.append(page)
+    view = results / "engine" / "view.json"
+    if view.is_file():
+        table = view_table(json.loads(view.read_text()))
+        out += ["## prt view: latency while dragging", "", *table, ""]
+        if _replace_block(DOCS / "view.md", VIEW_MARKER, table):
+            written.append(DOCS / "view.md")
     others = sorted(p for p in results.rglob("*.json")
                     if p.parent.name in ("engine", *METHODS)
                     and p.name not in ("accuracy.json", "suite.json"))

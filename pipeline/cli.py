@@ -14,7 +14,7 @@ from pipeline.device.threads import available_cpus
 from pipeline.engine.executors.local import Cores, use_cores
 from pipeline.errors import PrtError
 from pipeline.evaluation import reference_cache
-from pipeline.scene.model import MAX_IMAGE_SIDE, Scene
+from pipeline.scene.model import MAX_IMAGE_SIDE
 
 SCENE = click.argument("scene", required=False, type=click.Path(path_type=Path))
 WORKDIR = click.option("--workdir", type=click.Path(path_type=Path), default=None,
@@ -206,18 +206,6 @@ def check_exposure(ev: float) -> None:
     """PrtError unless ``ev`` (stops) is finite and within ±64 stops."""
     if not -64.0 <= ev <= 64.0:
         raise PrtError("--exposure", f"{ev!r}: expected stops between -64 and 64")
-
-
-def environment_edits(scene: Scene, env_file: Path | None, env_rotate: float | None
-                      ) -> Scene:
-    """``scene`` with ``--env`` and ``--env-rotate`` applied (pipeline/scene/edits.py)."""
-    from pipeline.scene.edits import with_environment_file, with_environment_rotation
-
-    if env_file is not None:
-        scene = with_environment_file(scene, env_file)
-    if env_rotate is not None:
-        scene = with_environment_rotation(scene, env_rotate)
-    return scene
 
 
 def show_warnings(warnings: list[str], as_json: bool) -> list[str]:
@@ -453,7 +441,7 @@ def methods_cmd(as_json) -> None:
             "sequence_forms": list(m.sequence_forms),
             "main_sequences": list(m.main_sequences), "lights": list(m.lights),
             "materials": list(m.materials), "features": list(m.features),
-            "limits": {limit.name: limit.what for limit in m.limits}}
+            "edits": list(m.edits), "limits": {limit.name: limit.what for limit in m.limits}}
             for name, m in methods.items()}))
         return
     for name, m in methods.items():
@@ -468,6 +456,8 @@ def methods_cmd(as_json) -> None:
             runs = f" (prt run writes {', '.join(m.main_sequences)})" if m.main_sequences \
                 else ""
             click.echo(f"  sequences (--frames): {', '.join(m.sequence_forms)}{runs}")
+        if m.edits:
+            click.echo(f"  run-time edits (prt render, prt view): {', '.join(m.edits)}")
         for limit in m.limits:
             click.echo(f"  limit {limit.name}: {limit.what}")
 
@@ -538,6 +528,12 @@ def devices_text(info: dict) -> list[str]:
               help="Run-time material edit (repeatable): NAME a material or object, KEY "
                    "gamma, specular or albedo, VALUE a number or r,g,b; gamma must lie in "
                    "the material's baked gamma_range.")
+@click.option("--move-light", "moves", metavar="INDEX=DX,DY,DZ", multiple=True,
+              help="Move light INDEX (an index into lights: a point, spot or quad light) "
+                   "by this offset in scene units (repeatable; no re-bake for d2i).")
+@click.option("--camera", "camera", metavar="X,Y,Z", default=None,
+              help="Move the camera to X,Y,Z, still looking at its look_at point (the "
+                   "methods that trace the camera at run time: triple, sg).")
 @click.option("--env", "env_file", type=click.Path(path_type=Path), default=None,
               help="Light the scene with this environment map (EXR or HDR, lat-long) "
                    "instead of its environment light's file.")
@@ -550,8 +546,8 @@ def devices_text(info: dict) -> list[str]:
 @JOBS
 @THREADS
 @QUIET
-def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env_file,
-               env_rotate, as_json, workdir, jobs, threads, quiet) -> None:
+def render_cmd(scene, method, out, sequence, options, size, exposure, edits, moves, camera,
+               env_file, env_rotate, as_json, workdir, jobs, threads, quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
@@ -562,13 +558,17 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
         scene_methods,
         scene_notes,
     )
-    from pipeline.scene.edits import with_material_edits
+    from pipeline.scene.edits import with_run_time_edits
 
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
-    sc = environment_edits(with_material_edits(job.open_scene(scene, parse_size(size)),
-                                               list(edits)), env_file, env_rotate)
+    opened = job.open_scene(scene, parse_size(size))
+    sc = with_run_time_edits(opened, list(edits), list(moves), camera, env_file, env_rotate)
     m = get_method(method) if method else scene_methods(sc)[0]
+    # a method that follows the camera at run time renders a moved camera from the bake
+    # of the file's (as its orbit sequence does); another bakes for the moved one
+    bake_scene = with_run_time_edits(opened, list(edits), list(moves), None, env_file,
+                                     env_rotate) if camera and "camera" in m.edits else sc
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
@@ -580,11 +580,12 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
     baked = None
-    if sequence:  # a bad spec, or one the scene cannot show, fails before any frame
+    if sequence or bake_scene is not sc:  # a bad spec fails before any frame
         check_method_scene(m, sc)
-        baked = job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m],
+        baked = job.bake(bake_scene, wd, jobs=cores.workers, quiet=quiet, methods=[m],
                          threads=cores.threads)
-        plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
+        if sequence:
+            plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
     renderer_of = job.shared_renderer(sc, wd, m.name, values)  # the frame's and the sequence's
     result = job.render(sc, wd, m.name, out, jobs=cores.workers, quiet=quiet, options=values,
                         threads=cores.threads, exposure=exposure, renderer_of=renderer_of,
@@ -614,6 +615,87 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, env
     t = frame.timings
     click.echo(f"Wrote {result.exr} and {result.png} ({frame.width}x{frame.height}, "
                f"{m.name}; setup {t['setup_ms']:.1f} ms, kernel {t['kernel_ms']:.1f} ms)")
+
+
+@cli.command("view")
+@SCENE
+@click.option("--method", default=None, metavar="NAME",
+              help="Rendering method [default: the scene's first method].")
+@SIZE
+@click.option("--port", type=click.IntRange(0, 65535), default=8043, show_default=True,
+              help="Port on localhost (0: any free port).")
+@click.option("--open", "open_browser", is_flag=True, help="Open the page in a browser.")
+@click.option("--exposure", metavar="EV", type=float, default=None,
+              help="The page's exposure at start, in stops [default: 0, or the stops "
+                   "that make a dark first frame readable, as prt render's note says].")
+@click.option("--save-dir", type=click.Path(path_type=Path), default=None,
+              help="Where the page's save button writes [default: ./frames/<scene "
+                   "name>/view].")
+@WORKDIR
+@JOBS
+@THREADS
+@QUIET
+def view_cmd(scene, method, size, port, open_browser, exposure, save_dir, workdir, jobs,
+             threads, quiet) -> None:
+    """Bake what is stale, then relight the scene interactively in the browser: the
+    method's run-time edits (lights, environment, camera, materials, options) as
+    controls, frames as you drag, a save button writing what `prt render` writes."""
+    from pipeline import job
+    from pipeline.registry import (
+        check_method_scene,
+        get_method,
+        limit_warnings,
+        scene_methods,
+        scene_notes,
+    )
+    from pipeline.view import bind, serve
+    from pipeline.view.server import Engine
+    from pipeline.view.state import ViewScene, scene_diagonal
+
+    cores = cores_option(jobs, threads)
+    if exposure is not None:
+        check_exposure(exposure)
+    sc = job.open_scene(scene, parse_size(size))
+    m = get_method(method) if method else scene_methods(sc)[0]
+    check_method_scene(m, sc)
+    if not m.renders:
+        raise PrtError(None, f"method {m.name} has no renderer yet; nothing to view")
+    sock = bind(port)  # a port in use fails before the bake
+    try:
+        show_notes(scene_notes(sc, [m]), False)
+        job.check_device()
+        show_warnings(limit_warnings(m, sc), False)
+        wd = job.workdir_for(sc, workdir)
+        baked = job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m],
+                         threads=cores.threads)
+        show_warnings(job.tolerance_warnings(baked), False)
+        view = ViewScene(sc, m, None if scene is None else str(scene), size,
+                         scene_diagonal(wd.artifact("geometry"), sc),
+                         None if workdir is None else str(workdir))
+        engine = Engine(view, wd)
+        from pipeline.images import readable_exposure
+        from pipeline.view.encode import encode
+
+        first = engine.frame({})[1]
+        encode(first, "jpeg")  # renderer, first frame and encoder warm
+        engine.exposure = exposure if exposure is not None else \
+            float(readable_exposure(first) or 0)
+        if m.drag_options:  # and the drag's renderer, so that the first drag is not slow
+            engine.frame({}, dragging=True)
+        folder = save_dir or Path("frames") / sc.name / "view"
+
+        def ready(url: str) -> None:
+            click.echo(f"Viewing {sc.name} with method {m.name} at {url} (Ctrl-C stops)")
+            sys.stdout.flush()
+            if open_browser:
+                import webbrowser
+
+                webbrowser.open(url)
+
+        serve(engine, sock, folder, ready)
+    finally:
+        sock.close()
+    click.echo("Stopped; the work directory was only read.")
 
 
 @cli.command("reference")

@@ -97,15 +97,26 @@ def exposure_note(rgb: np.ndarray, exposure: float) -> str | None:
     mean = float(luminance.mean()) if luminance.size else 0.0
     if mean <= 0.0:
         return "the frame is black (no pixel has any light)"
-    shown = mean * 2.0 ** exposure
-    if shown >= PREVIEW_GREY / 16:
+    better = readable_exposure(rgb, exposure)
+    if better is None:
+        return None
+    return (f"the preview is dark (mean luminance {mean * 2.0 ** exposure:.2g} at "
+            f"{exposure:+g} EV): --exposure {better} shows it")
+
+
+def readable_exposure(rgb: np.ndarray, exposure: float = 0.0) -> int | None:
+    """The ``--exposure`` (whole stops) that :func:`exposure_note` suggests for a dark
+    preview of linear ``rgb`` × 2^``exposure``; None when it is readable, or black."""
+    from pipeline.math.envmap import LUMINANCE
+
+    luminance = np.asarray(rgb, np.float64).reshape(-1, 3) @ np.asarray(LUMINANCE)
+    mean = float(luminance.mean()) if luminance.size else 0.0
+    if mean <= 0.0 or mean * 2.0 ** exposure >= PREVIEW_GREY / 16:
         return None
     bright = float(np.percentile(luminance, 99))
     stops = min(math.log2(PREVIEW_GREY / mean), math.log2(1.0 / bright) if bright > 0
                 else math.inf)
-    better = max(math.floor(stops), math.ceil(exposure) + 1)
-    return (f"the preview is dark (mean luminance {shown:.2g} at {exposure:+g} EV): "
-            f"--exposure {better} shows it")
+    return max(math.floor(stops), math.ceil(exposure) + 1)
 
 def read_exr(path: str | Path) -> np.ndarray:
     """Read the RGB channels of an EXR as (height, width, 3) float32."""

@@ -32,6 +32,19 @@ FEATURES = {
 }
 
 
+# The scene edits a method can declare it follows at run time (``Method.edits``), each
+# with what it is; pipeline/scene/edits.py applies them, ``prt render`` takes each as an
+# option and ``prt view`` shows a control for each.
+EDITS = {
+    "light": "move a light with a position (point, spot, quad): --move-light",
+    "environment": "turn the environment map about its axis: --env-rotate",
+    "camera": "move the camera about its look_at point: --camera",
+    "gamma": "a glossy material's exponent γ within its gamma_range: --set M.gamma=",
+    "specular": "a glossy material's ρs: --set M.specular=",
+    "albedo": "a material's diffuse albedo: --set M.albedo=",
+}
+
+
 class NotApplicable(PrtError):
     """Raised by a method's ``sequences`` function when the scene has nothing the
     sequence edits (no light that can move, no glossy material): ``prt run`` skips that
@@ -148,6 +161,13 @@ class Method:
     ``default``: the method is baked for a scene that names none (``methods:`` absent).
     ``limits``: where its picture breaks down (:class:`Limit`), checked before the bake
     and at render time; each that applies prints a ``warning:`` line.
+    ``edits``: the scene edits its renderer follows at run time, without a re-bake (of
+    :data:`EDITS`): what ``prt view`` shows controls for (pipeline/view/).
+    ``edit_modes``: edit (of ``edits``) -> the ``edit_mode`` kind of its renderer that
+    follows a run of that edit alone faster (d2i: a light moved -> ``light``): ``prt
+    view`` renders a drag in that mode, the frame on release with ``frame``.
+    ``drag_options``: run-time options (NAME, VALUE) that ``prt view`` renders with
+    while the user drags (a cheaper budget), the accurate frame on release.
     """
 
     name: str
@@ -174,6 +194,9 @@ class Method:
     renders: bool = True
     default: bool = False
     limits: tuple[Limit, ...] = ()
+    edits: tuple[str, ...] = ()
+    edit_modes: dict[str, str] = field(default_factory=dict)
+    drag_options: tuple[tuple[str, Any], ...] = ()
 
     def option_values(self, given: dict[str, str]) -> dict[str, Any]:
         """Defaults overridden by ``given`` (NAME -> text), parsed; unknown names fail."""

@@ -25,7 +25,7 @@ from pipeline.engine.planning import stage_params
 from pipeline.engine.stagefile import StageFile, default_stagefile_path, load_stagefile
 from pipeline.errors import PrtError
 from pipeline.math.brdf import specular_albedo_bound
-from pipeline.method import FEATURES, Method, resolve
+from pipeline.method import EDITS, FEATURES, Method, resolve
 from pipeline.scene.model import Scene
 from pipeline.searchpath import add_kernel_dir, add_schema_dir
 
@@ -54,6 +54,10 @@ def _registry(modules: tuple[str, ...]) -> dict[str, Method]:
                             (method.kernel_dir, add_kernel_dir)):
             if folder is not None:
                 add(folder)
+        unknown = [e for e in (*method.edits, *method.edit_modes) if e not in EDITS]
+        if unknown:
+            raise PrtError(module.__file__, f"method {method.name!r} declares an unknown "
+                           f"run-time edit {unknown[0]!r} (edits: {', '.join(EDITS)})")
         methods[method.name] = method
     return methods
 

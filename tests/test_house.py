@@ -42,7 +42,7 @@ FLOORS = (
     ("pipeline.method", "pipeline.render", "pipeline.stages"),
     ("pipeline.methods", "pipeline.registry"),
     ("pipeline.job",),
-    ("pipeline.evaluation",),
+    ("pipeline.evaluation", "pipeline.view"),
     ("pipeline.cli", "pipeline.__main__"),
 )
 PURE_MATH = {"__future__", "numpy", "scipy", "math", "dataclasses", "functools",

@@ -100,3 +100,15 @@ def test_installed_prt_bakes_the_default_scene(installed, tmp_path):
         assert (work / f"{stage}.zarr" / "zarr.json").is_file(), sorted(work.glob("*"))
     methods = _run([installed / "bin" / "prt", "methods"], cwd=tmp_path, env=env)
     assert methods.returncode == 0 and "d2i:" in methods.stdout, methods.stderr
+
+
+def test_installed_package_holds_the_viewer_page(installed, tmp_path):
+    """``prt view``'s page and script are package data (pipeline/view/static), read from
+    DIR."""
+    probe = ("import pipeline.view.server as s; print(s.__file__); "
+             "print(len(s.static_text('index.html')), len(s.static_text('app.js')))")
+    done = _run([sys.executable, "-c", probe], cwd=tmp_path, env=_environment(installed))
+    assert done.returncode == 0, done.stderr
+    where, sizes = done.stdout.split("\n", 1)
+    assert Path(where).resolve().is_relative_to(installed.resolve())
+    assert all(int(n) > 1000 for n in sizes.split())

@@ -112,3 +112,54 @@ def with_environment_file(scene: Scene, path: str | Path) -> Scene:
     raw = [{**r, "file": str(file)} if r["type"] == "environment" else r
            for r in scene.document["lights"]]
     return scene.edited("lights", raw, relit_from=scene.relit_from or scene.environment_file())
+
+
+def _numbers(where: str, text: str, count: int, path) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise PrtError(path, f"{where}: expected {count} finite numbers separated by commas, "
+                       f"found {text!r}")
+    return values
+
+
+def with_light_move(scene: Scene, move: str) -> Scene:
+    """The scene with ``INDEX=DX,DY,DZ`` applied (``prt render --move-light``): light
+    INDEX (an index into ``lights``) moved by that offset (:func:`with_light_offset`)."""
+    where = f"--move-light {move}"
+    index_text, eq, offset = move.partition("=")
+    if not eq or not index_text.strip().isdigit():
+        raise PrtError(scene.path, f"{where}: expected INDEX=DX,DY,DZ, e.g. 0=0.1,0,-0.2")
+    index = int(index_text)
+    if index >= len(scene.lights):
+        raise PrtError(scene.path, f"{where}: no light {index} (the scene has "
+                       f"{len(scene.lights)})")
+    return with_light_offset(scene, index, tuple(_numbers(where, offset, 3, scene.path)))
+
+
+def with_camera_text(scene: Scene, position: str) -> Scene:
+    """The scene seen from ``X,Y,Z`` (``prt render --camera``), still looking at its
+    look_at point (:func:`with_camera_position`)."""
+    return with_camera_position(scene, tuple(_numbers(f"--camera {position}", position, 3,
+                                                      scene.path)))
+
+
+def with_run_time_edits(scene: Scene, sets: list[str] = (), moves: list[str] = (),
+                        camera: str | None = None, env_file: str | Path | None = None,
+                        env_rotate: float | None = None) -> Scene:
+    """Every run-time edit of ``prt render`` applied, in its order: material edits
+    (``--set``), light moves (``--move-light``), the camera (``--camera``), the map's file
+    (``--env``) and turn (``--env-rotate``). ``prt view`` applies its edits through this
+    one function, so that a frame it saves is the frame ``prt render`` renders."""
+    scene = with_material_edits(scene, list(sets)) if sets else scene
+    for move in moves:
+        scene = with_light_move(scene, move)
+    if camera is not None:
+        scene = with_camera_text(scene, camera)
+    if env_file is not None:
+        scene = with_environment_file(scene, env_file)
+    if env_rotate is not None:
+        scene = with_environment_rotation(scene, env_rotate)
+    return scene

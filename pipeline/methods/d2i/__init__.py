@@ -69,6 +69,9 @@ METHOD = Method(
     lights=("point", "spot", "directional", "quad"),
     features=("emitters",),
     check_scene="pipeline.methods.d2i.hooks:check_scene",
+    # run time: lights and the BRDFs (prt view drags them in light- and BRDF-edit mode)
+    edits=("light", "gamma", "specular", "albedo"),
+    edit_modes={"light": "light", "gamma": "gamma", "specular": "gamma", "albedo": "gamma"},
     limits=(
         Limit("coefficients-per-pixel", "below 50 coefficients of D per pixel "
               "(truncate.d_coefficients) the pixel blocks show and sharp indirect shadows "

@@ -19,5 +19,6 @@ METHOD = Method(
     evaluate_reference_spp=1024,
     lights=("point", "spot", "directional", "quad"),
     features=("emitters",),
+    edits=("light",),
     default=True,
 )

@@ -76,6 +76,7 @@ METHOD = Method(
     evaluate_reference_spp=1024,
     lights=("environment",),
     check_scene="pipeline.methods.sg.hooks:check_scene",
+    edits=("environment", "camera"),  # run time; the lobes are fitted for the BRDFs
     limits=(
         Limit("small-sources", "a map holding three quarters of its light or more in "
               "sources smaller than one cell of the diffuse term's SH (4π/n² sr at "

@@ -77,6 +77,10 @@ METHOD = Method(
     lights=("environment",),
     features=("blends", "bumps"),
     check_scene="pipeline.methods.triple.hooks:check_scene",
+    # run time: the map's turn, the camera (traced anew), the BRDFs; while prt view
+    # drags, 80 coefficients (decision 0043), the default budget on release
+    edits=("environment", "camera", "gamma", "specular", "albedo"),
+    drag_options=(("budget", 80),),
     limits=(
         Limit("texels-per-pixel", "an object seen with fewer than 1.5 texels of its atlas "
               "per pixel (a camera closer, or an image larger, than baked for; a texture "
