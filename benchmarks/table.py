@@ -191,7 +191,7 @@ def write_tables(results: Path) -> list[Path]:
             written.append(DOCS / "view.md")
     others = sorted(p for p in results.rglob("*.json")
                     if p.parent.name in ("engine", *METHODS)
-                    and p.name not in ("accuracy.json", "suite.json"))
+                    and p.name not in ("accuracy.json", "suite.json") and p != view)
     if others:
         out += ["## Other results", ""]
         out += [f"- `{p.relative_to(results)}`" for p in others]
