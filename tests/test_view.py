@@ -380,3 +380,33 @@ def test_tone_map_is_the_previews():
                               np.round(srgb_encode(rgb, 2 ** ev) * 255).astype(np.uint8))
     assert np.array_equal(np.frombuffer(encode(rgb, "f16"), np.float16).reshape(rgb.shape),
                           rgb.astype(np.float16))
+
+
+def test_a_request_arriving_while_the_last_frame_is_sent_is_rendered():
+    """The viewer's queue loses nothing: a request submitted while the previous frame is
+    still being encoded and sent (the drain loop's last await) is rendered, not left
+    waiting with no render to take it (no browser: a stand-in page and renderer)."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from pipeline.view.server import Stats, Viewer
+
+    class Probe(Viewer):
+        async def render(self, request):
+            rendered.append(request["id"])
+            return None, None, {}, 0.0
+
+        async def send(self, request, *rest):
+            if request["id"] == 1:
+                self.submit({"id": 2})  # the user moves on while frame 1 goes out
+            await asyncio.sleep(0)
+
+    async def run() -> None:
+        viewer = Probe(SimpleNamespace(stats=Stats()), SimpleNamespace(closed=False))
+        viewer.submit({"id": 1})
+        while viewer.busy or viewer.pending is not None:
+            await asyncio.sleep(0.001)
+
+    rendered: list[int] = []
+    asyncio.run(asyncio.wait_for(run(), timeout=10))
+    assert rendered == [1, 2]

@@ -213,7 +213,13 @@ class Viewer:
         the frames sent in the order rendered."""
         sending: asyncio.Task | None = None
         try:
-            while self.pending is not None and not self.ws.closed:
+            while not self.ws.closed:
+                if self.pending is None:
+                    if sending is None:
+                        break  # no await from here to ``busy = False``: nothing is lost
+                    await sending  # a request may arrive meanwhile: the loop takes it
+                    sending = None
+                    continue
                 request, self.pending = self.pending, None
                 rendered = await self.render(request)
                 if sending is not None:
