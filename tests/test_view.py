@@ -387,6 +387,7 @@ def test_a_request_arriving_while_the_last_frame_is_sent_is_rendered():
     still being encoded and sent (the drain loop's last await) is rendered, not left
     waiting with no render to take it (no browser: a stand-in page and renderer)."""
     import asyncio
+    from concurrent.futures import ThreadPoolExecutor
     from types import SimpleNamespace
 
     from pipeline.view.server import Stats, Viewer
@@ -408,5 +409,8 @@ def test_a_request_arriving_while_the_last_frame_is_sent_is_rendered():
             await asyncio.sleep(0.001)
 
     rendered: list[int] = []
-    asyncio.run(asyncio.wait_for(run(), timeout=10))
+    # on a thread of its own: Playwright's sync API (the browser fixture) keeps an event
+    # loop running on this one
+    with ThreadPoolExecutor(1) as pool:
+        pool.submit(lambda: asyncio.run(asyncio.wait_for(run(), timeout=10))).result()
     assert rendered == [1, 2]
