@@ -8,14 +8,12 @@ it, the page captured by headless Chromium (the system's, through Playwright).
 from __future__ import annotations
 
 import argparse
-import tempfile
 from pathlib import Path
 
 from benchmarks.engine.view import (
     DEFAULT_SCENES,
     chromium,
-    start_viewer,
-    stop_viewer,
+    viewer_page,
     workdir_of,
 )
 from benchmarks.fixtures import ROOT
@@ -29,32 +27,23 @@ EDITS = {"d2i": {"drag": 0, "moves": {}},           # a light dragged across the
 def shoot(method: str, size: int, out: Path, browser) -> Path:
     scene_file = DEFAULT_SCENES[method]
     _, work = workdir_of(scene_file, size)
-    with tempfile.TemporaryDirectory() as save:
-        proc, url = start_viewer(scene_file, size, work.root, Path(save))
-        try:
-            page = browser.new_page(viewport={"width": 1000, "height": 760})
-            page.goto(url)
-            page.wait_for_function("window.prtView && window.prtView.lastPainted > 0",
-                                   timeout=600_000)
-            last = 0
-            for control, value in EDITS[method]["moves"].items():
-                last = page.evaluate(f"window.prtView.set({control!r}, {value})")
-            if EDITS[method]["drag"] is not None:
-                box = page.locator("#frame").bounding_box()
-                x, y = box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.45
-                page.mouse.move(x, y)
-                page.mouse.down()
-                for i in range(30):
-                    page.mouse.move(x + 3 * i, y)
-                page.mouse.up()
-                last = page.evaluate("window.prtView.request(false)")
-            page.wait_for_function(f"window.prtView.lastPainted >= {last} && "
-                                   "!window.prtView.last.dragging", timeout=600_000)
-            target = out / f"view_{method}.png"
-            page.screenshot(path=str(target))
-            page.close()
-        finally:
-            stop_viewer(proc)
+    with viewer_page(scene_file, size, work.root, browser, (1000, 760)) as page:
+        last = 0
+        for control, value in EDITS[method]["moves"].items():
+            last = page.evaluate(f"window.prtView.set({control!r}, {value})")
+        if EDITS[method]["drag"] is not None:
+            box = page.locator("#frame").bounding_box()
+            x, y = box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.45
+            page.mouse.move(x, y)
+            page.mouse.down()
+            for i in range(30):
+                page.mouse.move(x + 3 * i, y)
+            page.mouse.up()
+            last = page.evaluate("window.prtView.request(false)")
+        page.wait_for_function(f"window.prtView.lastPainted >= {last} && "
+                               "!window.prtView.last.dragging", timeout=600_000)
+        target = out / f"view_{method}.png"
+        page.screenshot(path=str(target))
     return target
 
 

@@ -27,6 +27,7 @@ d2i,triple,sg --sizes 256,512 --seconds 6]. Needs Playwright and the system Chro
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import signal
@@ -34,6 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +105,25 @@ def stop_viewer(proc) -> None:
         proc.kill()
 
 
+@contextlib.contextmanager
+def viewer_page(scene_file: Path, size: int, workdir: Path, browser: Any,
+                viewport: tuple[int, int]) -> Iterator[Any]:
+    """A browser page (``viewport`` width, height in CSS pixels) of ``prt view`` on the
+    scene at ``size``² baked in ``workdir``, once its first frame is painted; the page
+    closed and the viewer stopped (Ctrl-C) after."""
+    with tempfile.TemporaryDirectory() as save:
+        proc, url = start_viewer(scene_file, size, workdir, Path(save))
+        try:
+            page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+            page.goto(url)
+            page.wait_for_function("window.prtView && window.prtView.lastPainted > 0",
+                                   timeout=600_000)
+            yield page
+            page.close()
+        finally:
+            stop_viewer(proc)
+
+
 def controls_of(spec: dict[str, Any], wanted: list[str]) -> dict[str, tuple[str, float, float]]:
     """control name -> (element id, low, high) of the page's sliders, for ``wanted``."""
     found: dict[str, tuple[str, float, float]] = {}
@@ -165,23 +186,14 @@ def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats
     t0 = time.perf_counter()
     scene, work = workdir_of(scene_file, size)
     bake_s = time.perf_counter() - t0
-    with tempfile.TemporaryDirectory() as save:
-        proc, url = start_viewer(scene_file, size, work.root, Path(save))
-        try:
-            page = browser.new_page(viewport={"width": 1400, "height": 1000})
-            page.goto(url)
-            page.wait_for_function("window.prtView && window.prtView.lastPainted > 0",
-                                   timeout=600_000)
-            spec = page.evaluate("fetch('/api/spec').then(r => r.json())")
-            runs = {}
-            for name, control in controls_of(spec, wanted).items():
-                for fmt in formats if name == next(iter(controls_of(spec, wanted))) \
-                        else formats[:1]:
-                    runs[f"{name}/{fmt}"] = drag(page, control, seconds, fmt)
-            stats = page.evaluate("fetch('/api/stats').then(r => r.json())")
-            page.close()
-        finally:
-            stop_viewer(proc)
+    with viewer_page(scene_file, size, work.root, browser, (1400, 1000)) as page:
+        spec = page.evaluate("fetch('/api/spec').then(r => r.json())")
+        runs = {}
+        for name, control in controls_of(spec, wanted).items():
+            for fmt in formats if name == next(iter(controls_of(spec, wanted))) \
+                    else formats[:1]:
+                runs[f"{name}/{fmt}"] = drag(page, control, seconds, fmt)
+        stats = page.evaluate("fetch('/api/stats').then(r => r.json())")
     return {"method": method, "scene": scene.name, "size": size, "bake_s": round(bake_s, 1),
             "runs": runs, "server": stats}
 
