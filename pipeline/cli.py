@@ -435,7 +435,9 @@ def methods_cmd(as_json) -> None:
     methods = registry()
     if as_json:
         click.echo(json.dumps({name: {
-            "description": m.description, "reads": list(m.reads), "reference": m.reference,
+            "description": m.description, "reads": list(m.reads_for()),
+            "option_reads": [[o, v, list(st)] for o, v, st in m.option_reads],
+            "reference": m.reference,
             "options": {o.name: {"type": o.type.__name__, "default": o.default,
                                  "help": o.help} for o in m.options},
             "sequence_forms": list(m.sequence_forms),
@@ -446,7 +448,9 @@ def methods_cmd(as_json) -> None:
         return
     for name, m in methods.items():
         click.echo(f"{name}: {m.description}")
-        click.echo(f"  reads: {', '.join(m.reads)}; reference transport: {m.reference}")
+        click.echo(f"  reads: {', '.join(m.reads_for())}; reference transport: {m.reference}")
+        for option, value, stages in m.option_reads:
+            click.echo(f"  reads with --option {option}={value}: {', '.join(stages)}")
         click.echo(f"  renders lights: {', '.join(m.lights) or 'none'}; materials: "
                    f"{', '.join(m.materials) or 'none'}; features: "
                    f"{', '.join(m.features) or 'none'}")
@@ -583,7 +587,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
     if sequence or bake_scene is not sc:  # a bad spec fails before any frame
         check_method_scene(m, sc)
         baked = job.bake(bake_scene, wd, jobs=cores.workers, quiet=quiet, methods=[m],
-                         threads=cores.threads)
+                         threads=cores.threads, options=values)
         if sequence:
             plan = job.plan_sequence(sc, wd, m.name, sequence, out, values)
     renderer_of = job.shared_renderer(sc, wd, m.name, values)  # the frame's and the sequence's

@@ -66,18 +66,22 @@ def stages(stagefile: str | Path | None = None) -> StageFile:
     return load_stagefile(None, stagefile_fragments())
 
 
-def baked_stages(scene: Scene, methods: list[Method] | None = None) -> set[str]:
-    """The stages whose artifacts the frames of ``methods`` (default: the scene's) read."""
+def baked_stages(scene: Scene, methods: list[Method] | None = None,
+                 options: dict[str, Any] | None = None) -> set[str]:
+    """The stages whose artifacts the frames of ``methods`` (default: the scene's) read
+    with run-time ``options`` (parsed values; default: each option's default)."""
     methods = scene_methods(scene) if methods is None else methods
-    return {name for m in methods for name in m.reads}
+    return {name for m in methods for name in m.reads_for(options)}
 
 
 def bake(scene: Scene, workdir: Workdir, until: str | tuple[str, ...] | None = None,
          force: tuple[str, ...] = (), jobs: int | None = None, quiet: bool = False,
          stagefile: str | Path | None = None,
          methods: list[Method] | None = None, threads: int | None = None,
-         scheduler: str | None = None) -> list[StageRun]:
-    """Run every stale stage that the scene's methods (or ``methods``) need, or those
+         scheduler: str | None = None, options: dict[str, Any] | None = None
+         ) -> list[StageRun]:
+    """Run every stale stage that the scene's methods (or ``methods``) need for frames
+    with run-time ``options`` (default: the defaults), or those
     ``until`` needs; a custom ``stagefile`` runs all of its stages. Chunks run on
     ``jobs`` worker processes (1: in this process) with ``threads`` threads each; either
     None: pipeline/engine/executors/local.py ``Cores.resolve`` (``$PRT_JOBS``,
@@ -86,7 +90,7 @@ def bake(scene: Scene, workdir: Workdir, until: str | tuple[str, ...] | None = N
     address or ``local:N``), on a dask cluster's workers (pipeline/engine/executors/dask.py).
     The artifacts do not depend on any of these."""
     graph = stages(stagefile)
-    targets = None if until or stagefile else baked_stages(scene, methods)
+    targets = None if until or stagefile else baked_stages(scene, methods, options)
     with make_executor(jobs, threads, scheduler, quiet) as executor:
         return run(scene, graph, workdir, until=until, force=force, executor=executor,
                    progress=not quiet, targets=targets)
@@ -150,11 +154,20 @@ def chunk_progress(workdir: Workdir, stage: str) -> tuple[int, int] | None:
     return done, len(record.get("chunks", []))
 
 
-def method_artifacts(method: Method, workdir: Workdir) -> dict[str, Artifact]:
-    """The opened artifacts a method's frames read, by stage name."""
+def method_artifacts(method: Method, workdir: Workdir,
+                     options: dict[str, Any] | None = None) -> dict[str, Artifact]:
+    """The opened artifacts a method's frames with run-time ``options`` read, by stage
+    name; PrtError naming the stage and the command that bakes it where one is not
+    baked (an option that reads more than the bake's)."""
     graph = stages()
+    wanted = method.reads_for(options)
+    for name in wanted:
+        if read_record(workdir.artifact(name)) is None:
+            raise PrtError(workdir.artifact(name), f"not baked: method {method.name}'s "
+                           f"frames with these options read stage {name} (prt render with "
+                           "the same --option bakes it)")
     return {name: open_artifact(workdir.artifact(name), graph.stages[name].output)
-            for name in method.reads}
+            for name in wanted}
 
 
 def frame_key(scene: Scene, workdir: Workdir, method: Method,
@@ -163,7 +176,7 @@ def frame_key(scene: Scene, workdir: Workdir, method: Method,
     kernels), the output digests of exactly the artifacts it reads, the camera, lights
     and materials, and the run-time options."""
     digests = {name: (read_record(workdir.artifact(name)) or {}).get("digest")
-               for name in method.reads}
+               for name in method.reads_for(options)}
     return digest({"method": method.name, "code": code_version([method.renderer_module()]),
                    "artifacts": digests, "options": options,
                    "scene": {s: scene.section(s) for s in ("camera", "lights", "materials")}})
@@ -208,10 +221,11 @@ def render(scene: Scene, workdir: Workdir, method: str, out: Path, jobs: int | N
     options = m.option_values({}) | (options or {})
     check_device()
     if baked is None:
-        baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads)
+        baked = bake(scene, workdir, jobs=jobs, quiet=quiet, methods=[m], threads=threads,
+                     options=options)
     png, meta = out.with_suffix(".png"), out.with_suffix(".json")
     key = frame_key(scene, workdir, m, options)
-    warnings = limit_warnings(m, scene, method_artifacts(m, workdir))
+    warnings = limit_warnings(m, scene, method_artifacts(m, workdir, options))
     if reuse and output_state(meta, key, exposure)[0] == "present":
         return RenderResult(out, png, None, baked, warnings)
     renderer = (renderer_of or shared_renderer(scene, workdir, method, options))()
@@ -288,7 +302,8 @@ def frame_renderer(scene: Scene, workdir: Workdir, method: str,
     ``workdir``, loaded once; ``options`` are the method's run-time options. PrtError
     if what the method's factory gives is not a :class:`Renderer`."""
     m = get_method(method)
-    renderer = resolve(m.renderer)(scene, method_artifacts(m, workdir), **(options or {}))
+    options = m.option_values({}) | (options or {})
+    renderer = resolve(m.renderer)(scene, method_artifacts(m, workdir, options), **options)
     if not isinstance(renderer, Renderer):
         raise PrtError(m.renderer, f"method {m.name}'s renderer has no frame(scene) and "
                        "edit_mode(kind, scene) (pipeline/render/__init__.py Renderer)")
@@ -354,7 +369,8 @@ def plan_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out: P
     if m.sequences is None:
         raise PrtError(None, f"--frames: method {method} has no edit sequences")
     options = m.option_values({}) | (options or {})
-    kind, scenes, edits, *rest = resolve(m.sequences)(scene, method_artifacts(m, workdir),
+    kind, scenes, edits, *rest = resolve(m.sequences)(scene,
+                                                      method_artifacts(m, workdir, options),
                                                       spec)
     exr = [out.with_name(f"{out.stem}_{kind}_{i:04d}.exr") for i in range(len(scenes))]
     key = digest({"frame": frame_key(scene, workdir, m, options), "spec": spec,
@@ -381,7 +397,7 @@ def render_sequence(scene: Scene, workdir: Workdir, method: str, spec: str, out:
     m = get_method(method)
     options = m.option_values({}) | (options or {})
     plan = plan or plan_sequence(scene, workdir, method, spec, out, options)
-    artifacts = method_artifacts(m, workdir)
+    artifacts = method_artifacts(m, workdir, options)
     warnings = list(dict.fromkeys(w for edited in plan.scenes
                                   for w in limit_warnings(m, edited, artifacts)))
     if reuse and output_state(plan.record, plan.key, exposure)[0] == "present":
@@ -477,7 +493,7 @@ def frame_states(scene: Scene, workdir: Workdir, frames: Path,
     method = scene_methods(scene)[0]
     out = main_frame_path(scene, method, frames)
     waiting = sorted(p.spec.name for p in plans
-                     if p.state != "fresh" and p.spec.name in method.reads)
+                     if p.state != "fresh" and p.spec.name in method.reads_for())
     names = ["frame", *(f"sequence {spec}" for spec in method.main_sequences)]
     if waiting:
         # without the artifacts there is no key to compare with

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -126,7 +126,10 @@ class Method:
     scene)``), loaded once from ``artifacts`` (the opened artifacts of ``reads``, by
     stage name), that renders edited scenes.
     ``reads``: the stages whose artifacts a frame reads (what ``prt run`` bakes, with
-    their upstream; the frame's storage; its cache key).
+    their upstream; the frame's storage; its cache key), whatever its options;
+    ``option_reads``: (OPTION, VALUE, stages) — more stages a frame reads when a run-time
+    option has that value (sg: its fitted lobes only where ``normal`` uses them), so
+    that a bake models no more than the frame asked for needs (:meth:`reads_for`).
     ``reference``: the reference transport its frames are measured against;
     ``headline``: the error its charts lead with (``rel_rmse``, or
     ``rel_rmse_surfaces`` over the pixels not seeing an emitter).
@@ -197,6 +200,20 @@ class Method:
     edits: tuple[str, ...] = ()
     edit_modes: dict[str, str] = field(default_factory=dict)
     drag_options: tuple[tuple[str, Any], ...] = ()
+    option_reads: tuple[tuple[str, Any, tuple[str, ...]], ...] = ()
+
+    def reads_for(self, options: Mapping[str, Any] | None = None) -> tuple[str, ...]:
+        """The stages a frame with run-time ``options`` (parsed values; an option not
+        given: its default) reads: ``reads`` and the ``option_reads`` that apply."""
+        values = {o.name: o.default for o in self.options} | dict(options or {})
+        extra = [stage for name, value, stages in self.option_reads
+                 if values.get(name) == value for stage in stages]
+        return tuple(dict.fromkeys([*self.reads, *extra]))
+
+    def every_read(self) -> tuple[str, ...]:
+        """Every stage a frame of some options reads (``reads`` and all ``option_reads``)."""
+        return tuple(dict.fromkeys([*self.reads, *(s for *_, stages in self.option_reads
+                                                   for s in stages)]))
 
     def option_values(self, given: dict[str, str]) -> dict[str, Any]:
         """Defaults overridden by ``given`` (NAME -> text), parsed; unknown names fail."""

@@ -71,6 +71,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -271,8 +272,11 @@ def corrected(up: np.ndarray, f: np.ndarray, u: np.ndarray, bary: np.ndarray,
     return fs + v * (up - us)
 
 
-def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
-          images: bool, quick: bool = False, state: str = "") -> dict:
+def setup(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int
+          ) -> SimpleNamespace:
+    """The scene baked up to sg.diffuse and sg.env_prefilter, the exact truth and the
+    chosen glossy pixels (their faces' corners, barycentrics, points, blended normals
+    and views, the views' 3 stored neighbours): what every row of the study reads."""
     t_start = time.perf_counter()
     path = Path(name) if name.endswith(".yaml") else ROOT / "scenes" / f"{name}.yaml"
     name = path.stem
@@ -344,6 +348,21 @@ def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
     print(f"{name}: {P} pixels of {len(candidates)} on the glossy object, "
           f"{len(np.unique(corner))} vertices", flush=True)
 
+    return SimpleNamespace(name=name, t_start=t_start, scene=scene, vscene=vscene, brdf=brdf,
+                           env=env, transfer=transfer, order=order, stack=stack, levels=levels,
+                           truth=truth, corner=corner, bary=bary, wo=wo, x=x, nrm=nrm, vidx=vidx,
+                           vw=vw, views92=views92, P=P, candidates=candidates, chosen=chosen,
+                           glossy_material=glossy_material)
+
+
+def study(name: str, size: int, pixels: int, fine: tuple[int, int], seed: int,
+          images: bool, quick: bool = False, state: str = "") -> dict:
+    c = setup(name, size, pixels, fine, seed)
+    (name, t_start, vscene, brdf, env, transfer, order, stack, levels, truth, corner, bary, wo,
+     x, nrm, vidx, vw, views92, P, candidates, chosen) = (
+        c.name, c.t_start, c.vscene, c.brdf, c.env, c.transfer, c.order, c.stack, c.levels,
+        c.truth, c.corner, c.bary, c.wo, c.x, c.nrm, c.vidx, c.vw, c.views92, c.P, c.candidates,
+        c.chosen)
     # ---- E0 at the pixels
     e0 = np.zeros((P, 3))
     e0_direct = np.zeros((P, 3))

@@ -38,6 +38,7 @@ UNINITIALIZED = {"OCLGRIND_UNINITIALIZED": "1"}
 SEGFAULT = "Oclgrind's uninitialised-value check segfaults"
 UNCHECKABLE = {  # file:kernel -> why Oclgrind cannot check it for uninitialised reads
     **dict.fromkeys(["sg_render.cl:sg_shade", "sg_render.cl:sg_view_lookup",
+                     "sg_render.cl:sg_shade_visibility",
                      "triple.cl:triple_shade", "triple.cl:triple_shade_dense",
                      "d2i.cl:bounce_step", "d2i.cl:combine", "direct.cl:direct_lighting",
                      "direct.cl:gather_direct", "shadow_rays.cl:light_visibility",

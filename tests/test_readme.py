@@ -53,14 +53,14 @@ def _readers(method: str, key: str) -> set[str]:
 @pytest.mark.parametrize(("method", "key", "stages"), [
     ("d2i", "gamma", set()), ("d2i", "specular", set()), ("d2i", "albedo", set()),
     ("d2i", "gamma_range", {"brdf_basis"}),
-    ("triple", "gamma", {"triple.brdf_tables"}), ("sg", "gamma", {"sg.fit"})])
+    ("triple", "gamma", {"triple.brdf_tables"}), ("sg", "gamma", set())])
 def test_what_a_material_edit_re_bakes_is_what_the_readme_says(method, key, stages):
     """"editing one material's γ range re-bakes that material's PCA basis ... its γ, ρs
-    and albedo re-bake nothing of d2i ... its γ re-bakes its BRDF table (triple) or its
-    objects' vertex fits (sg)": a stage re-bakes on an edit of a scene key exactly when
-    it declares it (its key holds the declared sections: tests/test_incremental.py)."""
+    and albedo re-bake nothing of d2i ... its γ re-bakes its BRDF table (triple) and
+    nothing of sg's default": a stage re-bakes on an edit of a scene key exactly when it
+    declares it (its key holds the declared sections: tests/test_incremental.py)."""
     text = _flat(README)
     assert "material's γ range re-bakes that material's PCA basis" in text
     assert "its γ, ρs and albedo re-bake nothing of d2i" in text
-    assert "its γ re-bakes its BRDF table (triple) or its objects' vertex fits (sg)" in text
+    assert "its γ re-bakes its BRDF table (triple) and nothing of sg's default" in text
     assert _readers(method, key) == stages

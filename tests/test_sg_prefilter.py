@@ -118,8 +118,10 @@ def test_scene_without_one_environment_light_is_refused_before_baking(tmp_path):
 
 def test_render_bakes_every_sg_stage_and_writes_a_frame(tmp_path):
     """``prt render --method sg`` (a subprocess: the CLI's bake) bakes sg.env_prefilter,
-    sg.diffuse and sg.fit and writes a finite, non-negative frame whose surfaces are
-    lit (the method's accuracy against the reference: tests/test_sg_end_to_end.py)."""
+    sg.diffuse and sg.visibility — not sg.fit, which the default does not read (decision
+    0046) — and writes a finite, non-negative frame whose surfaces are lit; with
+    ``--option normal=vertex`` it bakes sg.fit and renders the lobes (the method's
+    accuracy against the reference: tests/test_sg_accuracy.py)."""
     from pipeline.images import read_exr
 
     map_path = write_map(tmp_path / "env.exr", spiky_map(9, 18, 5))
@@ -129,14 +131,18 @@ def test_render_bakes_every_sg_stage_and_writes_a_frame(tmp_path):
                        "sg.diffuse_samples": 64}
     scene = write_scene(tmp_path, doc)
     out = tmp_path / "frame.exr"
-    done = subprocess.run([sys.executable, "-m", "pipeline", "render", str(scene), "--method",
-                           "sg", "--out", str(out), "--workdir", str(tmp_path / "work"),
-                           "--quiet"], capture_output=True, text=True, cwd=PROJECT,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr
-    frame = read_exr(out)
-    assert np.isfinite(frame).all() and frame.min() >= 0.0 and frame.max() > 0.0
     work = Workdir(tmp_path / "work")
+    for option in ([], ["--option", "normal=vertex"]):
+        done = subprocess.run([sys.executable, "-m", "pipeline", "render", str(scene),
+                               "--method", "sg", "--out", str(out), "--workdir",
+                               str(tmp_path / "work"), "--quiet", *option],
+                              capture_output=True, text=True, cwd=PROJECT, timeout=600)
+        assert done.returncode == 0, done.stderr
+        frame = read_exr(out)
+        assert np.isfinite(frame).all() and frame.min() >= 0.0 and frame.max() > 0.0
+        if not option:
+            assert open_artifact(work.artifact("sg.visibility")).attrs["resolution"] == 32
+            assert not work.artifact("sg.fit").exists()
     assert open_artifact(work.artifact("sg.env_prefilter")).attrs["levels"] == \
         sg.prefilter_levels(9, 18).count
     assert open_artifact(work.artifact("sg.fit")).attrs["max_lobes"] == 3

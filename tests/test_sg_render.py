@@ -157,7 +157,8 @@ def random_pixels(tables: render.SgTables, n: int, seed: int) -> tuple[np.ndarra
 
 def with_lobe_tables(tables: render.SgTables) -> render.SgTables:
     """``tables`` with the BRDF lobes of two Blinn–Phong materials (γ 60 and 15):
-    vertices 0–24 the first, 25–44 the second, the rest none (decision 0042)."""
+    vertices 0–24 the first, 25–44 the second, the rest none (decision 0042); their
+    node tables too (decision 0046)."""
     from dataclasses import replace
 
     from pipeline.math.brdf import BrdfParams
@@ -166,7 +167,25 @@ def with_lobe_tables(tables: render.SgTables) -> render.SgTables:
              BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (0.1, 0.1, 0.1), 15.0), None]
     vertices = len(tables.count)
     material = np.where(np.arange(vertices) < 25, 0, np.where(np.arange(vertices) < 45, 1, 2))
-    return replace(tables, **render.vertex_lobe_tables(brdfs, material))
+    return replace(tables, **render.vertex_lobe_tables(brdfs, material, nodes=True))
+
+
+def with_visibility(tables: render.SgTables, seed: int, resolution: int = 8
+                    ) -> render.SgTables:
+    """``tables`` with random visibility pyramids (escape fractions uniform per texel of
+    an R = 8 map, their mips) and occluder transfer (a DC term and smaller others)
+    (decision 0046)."""
+    from dataclasses import replace
+
+    from pipeline.methods.sg import visibility
+
+    rng = np.random.default_rng(seed)
+    vertices = len(tables.count)
+    maps = visibility.pyramid(rng.random((vertices, resolution, resolution)))
+    occluder = 0.02 * rng.normal(size=tables.transfer.shape)
+    occluder[..., 0] = rng.uniform(0.1, 0.3, (vertices, 3))
+    return replace(tables, visibility=maps, visibility_resolution=resolution,
+                   occluder=occluder.astype(np.float32))
 
 
 @pytest.mark.parametrize("normal", render.NORMALS)
@@ -182,22 +201,27 @@ def test_shade_kernel_matches_numpy(small_map, blend, normal):
     rad, k ≤ 1e6 only where two mirror directions are nearly opposite, random normals:
     rarely), the float32 ratio of two lookups (2e-4 where its denominator is 1e-4 of its
     numerator: random normals, rarely); measured 5e-7 (and 0.85 with the rotation's sign
-    flipped)."""
+    flipped). ``visibility``: random pyramids, 7 lookups of the map and 21 of the
+    pyramids a pixel (float32 node directions ~1e-7 rad move a bilinear weight by
+    ~1e-7 × R per texel step of ≤ 1, the level's float32 log2 ~1e-6 of a step)."""
     tables = random_tables(50, small_map, seed=3, normals=True)
-    if normal == "ratio":
+    if normal in ("ratio", "visibility"):
         tables = with_lobe_tables(tables)
+    if normal == "visibility":
+        tables = with_visibility(tables, seed=5)
     corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
-    if normal == "ratio":  # a third of the pixels on faces of one material
+    if normal in ("ratio", "visibility"):  # a third of the pixels on faces of one material
         corner[:1000] = corner[:1000] % 25
         corner[1000:2000] = 25 + corner[1000:2000] % 20
     light = sh.rotate_y(sh.project_latlong(small_map), 37.0)
     turn = rotation_about((0.3, 1.0, -0.2), 37.0)  # the map turned about a tilted axis
     expected = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn, 1.7,
                                   blend, None if normal == "vertex" else wo,
-                                  ratio=normal == "ratio")
+                                  ratio=normal == "ratio", visible=normal == "visibility")
     device = render.SgDevice(tables, blend, normal)
     assert device.turning == (normal == "pixel")
     assert device.ratio == (normal == "ratio")
+    assert device.visible == (normal == "visibility")
     out = render.shade_arrays(device, corner, bary, view, view_weight, light, turn, 1.7, wo)
     rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
     assert rel.max() < 1e-4, rel.max()
@@ -542,24 +566,28 @@ def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, Fak
 
 def test_renderer_reads_the_contracts_artifacts_and_refuses_mismatched_ones(sg_scene,
                                                                            small_map):
-    """sg_renderer on artifacts in the contract's layout renders what SgRenderer renders
-    from the same tables; a transfer of the wrong vertex count and a sharpness ≤ 0 are
-    refused with one line naming the artifact."""
+    """sg_renderer with the fitted lobes (``normal="vertex"``) on artifacts in the
+    contract's layout renders what SgRenderer renders from the same tables; a transfer
+    of the wrong vertex count and a sharpness ≤ 0 are refused with one line naming the
+    artifact; without sg.relax the lobes' options are refused."""
     scene, geometry, _ = sg_scene
     tables = random_tables(len(geometry["vertices"]), small_map, seed=6,
                            normals=geometry["normals"])
     artifacts = contract_artifacts(geometry, tables)
-    frame = render.sg_renderer(scene, artifacts).frame(scene)
+    frame = render.sg_renderer(scene, artifacts, normal="vertex").frame(scene)
     np.testing.assert_array_equal(frame.rgb, frame_of(scene, geometry, tables, small_map).rgb)
+    with pytest.raises(PrtError, match="sg.relax: normal=pixel renders the fitted lobes"):
+        render.sg_renderer(scene, {k: v for k, v in artifacts.items() if k != "sg.relax"},
+                           normal="pixel")
     artifacts["sg.diffuse"] = FakeArtifact({"transfer": tables.transfer[:-1]})
     with pytest.raises(PrtError, match="sg.diffuse: transfer: shape"):
-        render.sg_renderer(scene, artifacts)
+        render.sg_renderer(scene, artifacts, normal="vertex")
     bad = tables.lobes.copy()
     bad[-1, 0, 6] = 0.0
     artifacts = contract_artifacts(geometry, tables)
     artifacts["sg.relax"].arrays["lobes"] = bad
     with pytest.raises(PrtError, match="sharpness"):
-        render.sg_renderer(scene, artifacts)
+        render.sg_renderer(scene, artifacts, normal="vertex")
 
 
 def test_sequences_are_an_environment_rotation_and_a_camera_orbit(sg_scene):

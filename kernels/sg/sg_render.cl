@@ -280,6 +280,154 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
     vstore3(scale * (radiance + diffuse), i, out);
 }
 
+/* sg_shade_visibility (decision 0046; pipeline/methods/sg/visibility.py, twin
+ * visibility.glossy): no lobes. The BRDF x cosine at the pixel's normal n_p is held by
+ * 7 Gaussians of sharpness SG_SPLIT lam about the mean mu of the material's one-Gaussian
+ * lobe (sg_brdf_lobe): mu and a ring at SG_RING / sqrt(lam), the first towards n_p,
+ * weights w_k from the material's node table (SG_LOBE_TABLE rows of 7, linear in
+ * c = n_p.w_o). Per node the light L_k = w_k rho_s integral(G_k L) (the stack) and per
+ * corner the visibility V_ak from the corner's octahedral pyramid (sg_visibility);
+ * glossy = sum_a f_a [sum_k V_ak L_k + (1 - sum_k s_k V_ak) rho_s sum_k w_k
+ * integral(G_k) O_a], s_k = w_k / sum w, O_a the corner's occluder radiance
+ * (vertex_light: per vertex the diffuse radiance D (3) then O (3), per frame on the
+ * host). No glossy light where the corners' table rows differ or are -1, or
+ * n_p.w_o <= 0. */
+#define SG_NODES 7
+#define SG_RING 1.18f
+#define SG_SPLIT 2.0f
+#define SG_FILTER 1.0f
+
+/* t, s completing unit n to a right-handed frame (Duff et al. 2017; visibility.py's
+ * orthonormal_basis). */
+PRT_INLINE void sg_basis(float3 n, float3* t, float3* s) {
+    float sign = n.z >= 0.0f ? 1.0f : -1.0f;
+    float a = -1.0f / (sign + n.z);
+    float b = n.x * n.y * a;
+    *t = (float3)(1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    *s = (float3)(b, sign + n.y * n.y * a, -n.y);
+}
+
+/* Bilinear escape fraction of one pyramid level (size x size texels at offset) at
+ * octahedral coordinates (u, v), texel indices clamped to the level. */
+PRT_INLINE float sg_visibility_level(__global const uchar* map, int offset, int size,
+                                     float u, float v) {
+    float x = (u + 1.0f) * 0.5f * (float)size - 0.5f;
+    float y = (v + 1.0f) * 0.5f * (float)size - 0.5f;
+    float x0 = floor(x), y0 = floor(y);
+    float fx = x - x0, fy = y - y0;
+    int xi0 = clamp((int)x0, 0, size - 1), xi1 = clamp((int)x0 + 1, 0, size - 1);
+    int yi0 = clamp((int)y0, 0, size - 1), yi1 = clamp((int)y0 + 1, 0, size - 1);
+    __global const uchar* m = map + offset;
+    float a = (1.0f - fx) * (float)m[yi0 * size + xi0] + fx * (float)m[yi0 * size + xi1];
+    float b = (1.0f - fx) * (float)m[yi1 * size + xi0] + fx * (float)m[yi1 * size + xi1];
+    return ((1.0f - fy) * a + fy * b) * (1.0f / 255.0f);
+}
+
+/* Visibility of one vertex's packed pyramid (resolution R, levels R .. 1) towards unit
+ * d (world), filtered over sigma rad (visibility.py's lookup). */
+PRT_INLINE float sg_visibility(__global const uchar* map, int resolution, int count,
+                               float3 d, float sigma) {
+    float level = log2(fmax(SG_FILTER * sigma * (float)resolution * 0.28209479f, 1e-30f));
+    level = clamp(level, 0.0f, (float)(count - 1));
+    int lo = min((int)floor(level), max(count - 2, 0));
+    int hi = min(lo + 1, count - 1);
+    float t = level - (float)lo;
+    float3 p = d / (fabs(d.x) + fabs(d.y) + fabs(d.z));
+    float u = p.x, v = p.y;
+    if (p.z < 0.0f) {
+        u = (1.0f - fabs(p.y)) * (p.x >= 0.0f ? 1.0f : -1.0f);
+        v = (1.0f - fabs(p.x)) * (p.y >= 0.0f ? 1.0f : -1.0f);
+    }
+    int offset = 0, size = resolution;
+    float value = 0.0f;
+    for (int l = 0; l <= hi; ++l) {
+        if (l == lo) value += (1.0f - t) * sg_visibility_level(map, offset, size, u, v);
+        if (l == hi) value += t * sg_visibility_level(map, offset, size, u, v);
+        offset += size * size;
+        size = max(size / 2, 1);
+    }
+    return value;
+}
+
+__kernel void sg_shade_visibility(__global const uchar* maps, const int resolution,
+                                  const int map_texels, const int map_levels,
+                                  __global const float* vertex_light,
+                                  __global const int* corner, __global const float* bary,
+                                  __global const float* normal, __global const float* wo,
+                                  __global const float* lobe_table,
+                                  __global const float* node_table,
+                                  __global const float* lobe_specular,
+                                  __global const int* vertex_lobe,
+                                  __global const float* stack, __global const int* level_info,
+                                  const int levels, const float log_sigma0,
+                                  const float inv_log_ratio, __global const float* map_turn,
+                                  const float scale, const int n, __global float* out)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    int v[3] = {corner[3 * i], corner[3 * i + 1], corner[3 * i + 2]};
+    float fb[3] = {bary[3 * i], bary[3 * i + 1], bary[3 * i + 2]};
+    float3 radiance = (float3)(0.0f);
+    int m = vertex_lobe[v[0]];
+    float3 np = fb[0] * vload3(v[0], normal) + fb[1] * vload3(v[1], normal)
+              + fb[2] * vload3(v[2], normal);
+    float len_np = length(np);
+    float3 d = vload3(i, wo);
+    if (m >= 0 && vertex_lobe[v[1]] == m && vertex_lobe[v[2]] == m && len_np > 0.0f
+        && dot(np, d) > 0.0f) {
+        float3 np_unit = np / len_np;
+        float3 mu;
+        float lam;
+        sg_brdf_lobe(lobe_table + 3 * SG_LOBE_TABLE * m, np_unit, d, &mu, &lam);
+        float x = clamp(dot(np_unit, d), 0.0f, 1.0f) * (float)(SG_LOBE_TABLE - 1);
+        int row = min((int)floor(x), SG_LOBE_TABLE - 2);
+        float t_row = x - (float)row;
+        __global const float* w0 = node_table + SG_NODES * (SG_LOBE_TABLE * m + row);
+        float total = 0.0f;
+        for (int k = 0; k < SG_NODES; ++k)
+            total += (1.0f - t_row) * w0[k] + t_row * w0[k + SG_NODES];
+        if (total > 0.0f) {
+            float3 e1 = np_unit - dot(np_unit, mu) * mu;
+            float len_e1 = length(e1);
+            float3 e2 = (float3)(0.0f);
+            if (len_e1 > 1e-6f) {
+                e1 /= len_e1;
+            } else {
+                sg_basis(mu, &e1, &e2);
+            }
+            e2 = cross(mu, e1);
+            float angle = SG_RING * rsqrt(lam);
+            float lam_n = SG_SPLIT * lam;
+            float sigma = rsqrt(lam_n);
+            float3 specular = vload3(m, lobe_specular);
+            float3 whole = specular * (total * sg_integral(lam_n));
+            float seen[3] = {0.0f, 0.0f, 0.0f};
+            for (int k = 0; k < SG_NODES; ++k) {
+                float3 node = mu;
+                if (k > 0) {
+                    float phi = (float)(k - 1) * (SG_TWO_PI / 6.0f);
+                    node = cos(angle) * mu + sin(angle) * (cos(phi) * e1 + sin(phi) * e2);
+                }
+                float w_k = (1.0f - t_row) * w0[k] + t_row * w0[k + SG_NODES];
+                float3 light = sg_env_integral(stack, level_info, levels, log_sigma0,
+                                               inv_log_ratio, envmap_into_map(node, map_turn),
+                                               lam_n, w_k * specular);
+                for (int c = 0; c < 3; ++c) {
+                    float vis = sg_visibility(maps + (size_t)v[c] * map_texels, resolution,
+                                              map_levels, node, sigma);
+                    radiance += (fb[c] * vis) * light;
+                    seen[c] += (w_k / total) * vis;
+                }
+            }
+            for (int c = 0; c < 3; ++c)
+                radiance += (fb[c] * (1.0f - seen[c])) * whole * vload3(2 * v[c] + 1, vertex_light);
+        }
+    }
+    float3 diffuse = fb[0] * vload3(2 * v[0], vertex_light) + fb[1] * vload3(2 * v[1], vertex_light)
+                   + fb[2] * vload3(2 * v[2], vertex_light);
+    vstore3(scale * (radiance + diffuse), i, out);
+}
+
 /* Pixels that miss: the environment map itself, rotated, times the light's scale. */
 __kernel void sg_background(__global const float* rgb, const int width, const int height,
                             __global const float* direction,

@@ -145,7 +145,7 @@ def sweep_names(scene: Scene, method: Method) -> dict[str, Any]:
 
     graph = job.stages()
     params = stage_params(graph, scene)
-    used = sorted({p for s in with_upstream(graph, list(method.reads))
+    used = sorted({p for s in with_upstream(graph, list(method.every_read()))
                    for p in graph.stages[s].params})
     return {"size": scene.camera.width,
             **{f"{RENDER_PREFIX}{o.name}": o.default for o in method.options},
@@ -323,10 +323,11 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
     # one work directory for all budgets: a budget re-bakes only the stages whose keys
     # it changes (a truncate.tolerance sweep re-runs truncate, not transfer)
     wd = Workdir(workdir.root / "sweep" / method.name)
-    report = job.bake(sc, wd, quiet=quiet, methods=[method])
-    bake_stages = _bake_stages(wd, with_upstream(job.stages(), list(method.reads)),
+    report = job.bake(sc, wd, quiet=quiet, methods=[method], options=options)
+    reads = list(method.reads_for(options))
+    bake_stages = _bake_stages(wd, with_upstream(job.stages(), reads),
                                {r.name for r in report if r.action == "ran"})
-    storage = sum(_bytes_on_disk(wd.artifact(name)) for name in method.reads)
+    storage = sum(_bytes_on_disk(wd.artifact(name)) for name in reads)
     render = job.frame_renderer(sc, wd, method.name, options)  # loads the artifacts once
     render.frame(sc)  # warm-up: kernel builds, first use of the device buffers
     frames = [render.frame(sc) for _ in range(settings.repeats)]
@@ -394,7 +395,7 @@ def _evaluate_budget(scene: Scene, workdir: Workdir, method: Method, budget: dic
                                  settings.pathtrace_max_spp),
         **_mitsuba_equal_error(sc, geometry, transport, errors["rel_rmse"], ref.mean),
         "heatmap_max": HEATMAP_MAX,
-        "warnings": limit_warnings(method, sc, job.method_artifacts(method, wd)),
+        "warnings": limit_warnings(method, sc, job.method_artifacts(method, wd, options)),
     }
 
 

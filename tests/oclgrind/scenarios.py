@@ -3,7 +3,8 @@
 
 Each method's tiny scene (tests/tiny_scenes.py) baked and rendered: direct; d2i in both
 product layouts with its shadows traced by the device's BVH kernel, a light edit and a
-BRDF edit; sg (its lobes as fitted, and turned to the pixel's normal); triple's sparse
+BRDF edit; sg (its visibility maps, its lobes as fitted, turned to the pixel's normal and
+as a ratio); triple's sparse
 and dense paths; the BVH's occlusion and closest-hit rays and the bandwidth probe; then the
 kernel-vs-NumPy tests of the kernels only tests launch (:data:`TESTS_OF_TEST_KERNELS`).
 Sizes are cut so that Oclgrind, which interprets every work-item, gets through a launch
@@ -64,13 +65,12 @@ def run_all(folder: Path, work: Path) -> None:
             sc = tiny_scene(work, name)
             wd = job.workdir_for(sc, work / name / "w")
             job.bake(sc, wd, quiet=True)
-            job.render_frame(sc, wd, name)
-        job.render_frame(tiny_scene(work, "sg"), job.workdir_for(tiny_scene(work, "sg"),
-                                                                 work / "sg" / "w"),
-                         "sg", {"normal": "pixel"})  # sg_shade's PIXEL_NORMAL = 1
-        job.render_frame(tiny_scene(work, "sg"), job.workdir_for(tiny_scene(work, "sg"),
-                                                                 work / "sg" / "w"),
-                         "sg", {"normal": "ratio"})  # sg_shade's BRDF_RATIO = 1
+            job.render_frame(sc, wd, name)  # sg: sg_shade_visibility (the default)
+        sg_scene = tiny_scene(work, "sg")
+        sg_work = job.workdir_for(sg_scene, work / "sg" / "w")
+        job.bake(sg_scene, sg_work, quiet=True, options={"normal": "vertex"})  # the lobes
+        for normal in ("vertex", "pixel", "ratio"):  # sg_shade: plain, PIXEL_NORMAL = 1,
+            job.render_frame(sg_scene, sg_work, "sg", {"normal": normal})  # BRDF_RATIO = 1
         job.render_frame(sc, wd, "triple", {"budget": 16})
         job.render_frame(sc, wd, "triple", {"budget": 0})  # the stored rows: sparse path
         code = pytest.main(["-q", "-p", "no:cacheprovider",

@@ -7,9 +7,13 @@ with normalised SGs of increasing σ, pipeline/methods/sg/stages/env_prefilter.p
 vertex and each of 92 views, the glossy transport fitted by Gaussians,
 pipeline/methods/sg/stages/fit.py: direct + indirect glossy computed in the chunk and fitted
 there, never stored; flips relaxed within its vertex batches), ``sg.relax`` (the
-relaxation over every mesh edge, pipeline/methods/sg/stages/relax.py: the lobes a frame reads)
-and ``sg.diffuse`` (the diffuse transfer in SH with shadows and
-interreflection, pipeline/methods/sg/stages/diffuse.py); shared: ``geometry``. Renderer:
+relaxation over every mesh edge, pipeline/methods/sg/stages/relax.py: the lobes the
+``normal`` options vertex, pixel and ratio read), ``sg.visibility`` (per vertex, its
+visibility as an octahedral mip pyramid and its occluders' diffuse transfer: what the
+default ``normal=visibility`` reads, pipeline/methods/sg/visibility.py) and
+``sg.diffuse`` (the diffuse transfer in SH with shadows and interreflection,
+pipeline/methods/sg/stages/diffuse.py); shared: ``geometry``. A bake runs the stages the
+frame's options read (``option_reads``): the default fits no lobes. Renderer:
 pipeline/methods/sg/render.py + kernels/sg/sg_render.cl.
 
 Run-time options: ``lambda_blend`` (str, ``log``): how a lobe's sharpness λ is blended
@@ -17,12 +21,15 @@ over the 3 views × 3 vertices, ``log`` (linear in log σ) or ``linear``; ``comp
 (str, ``all``): ``glossy`` or ``diffuse`` render the light reflected by the lobes or by
 the SH term alone, without the background (``prt evaluate`` measures each against
 ``prt reference --transport first-glossy --lobe glossy|diffuse``); ``normal`` (str,
-``vertex``): the lobes as fitted at the vertices (paper 003), or ``pixel``: each
+``visibility``): ``vertex``, the lobes as fitted at the vertices (paper 003), or ``pixel``: each
 vertex's lobes about its mirror direction turned to the pixel's (its blended normal's)
 so that the highlight follows the pixel's normal (decision 0039: no gain on bunny_sg
 and dragon_sg, 8x the shading kernel's time; 23.5 -> 17.2 % on a coarse ball), or
 ``ratio``: the BRDF's lobe at the pixel's normal, the vertices' lobes kept as a
-visibility ratio to the unshadowed light (decision 0042; pipeline/methods/sg/brdf_lobe.py).
+visibility ratio to the unshadowed light (decision 0042; pipeline/methods/sg/brdf_lobe.py),
+or ``visibility`` (the default, decision 0046): no lobes, the BRDF's lobe at the pixel's
+normal split into 7 Gaussians, each's light from the prefiltered map times the corners'
+visibility looked up in their maps, plus the occluders' diffuse light.
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -46,16 +53,21 @@ METHOD = Method(
     description="paper 003: glossy transport per vertex and view as spherical Gaussians, "
                 "a Gaussian-prefiltered environment",
     renderer="pipeline.methods.sg.render:sg_renderer",
-    reads=("geometry", "sg.relax", "sg.diffuse", "sg.env_prefilter"),
+    reads=("geometry", "sg.diffuse", "sg.env_prefilter"),
+    # the fitted lobes (sg.fit, minutes to an hour) only where normal uses them; the
+    # default reads the vertices' visibility instead (seconds; decision 0046)
+    option_reads=(*(("normal", n, ("sg.relax",)) for n in ("vertex", "pixel", "ratio")),
+                  ("normal", "visibility", ("sg.visibility",))),
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views",
                     choices=("log", "linear")),
-             Option("normal", str, "vertex",
-                    "vertex, pixel or ratio: the lobes as fitted at the vertex (paper "
-                    "003), turned towards the pixel's blended normal (decision 0039), or "
-                    "the BRDF at the pixel's normal by a ratio of unshadowed radiances "
-                    "(decision 0042)",
-                    choices=("vertex", "pixel", "ratio")),
+             Option("normal", str, "visibility",
+                    "vertex, pixel, ratio or visibility: the lobes as fitted at the "
+                    "vertex (paper 003), turned towards the pixel's blended normal "
+                    "(decision 0039), the BRDF at the pixel's normal by a ratio of "
+                    "unshadowed radiances (decision 0042), or the BRDF at the pixel's "
+                    "normal against each vertex's visibility map, no lobes (decision 0046)",
+                    choices=("vertex", "pixel", "ratio", "visibility")),
              Option("component", str, "all",
                     "all, glossy or diffuse: the whole frame, or the light reflected by "
                     "the lobes or by the SH term alone (no background)",
@@ -71,7 +83,7 @@ METHOD = Method(
     headline="rel_rmse_surfaces",
     components={part: Component(transport="first-glossy", options=(("component", part),),
                                 lobe=part) for part in ("glossy", "diffuse")},
-    evaluate_sweep={"sg.fit_max_lobes": [1, 3]},
+    evaluate_sweep={"sg.visibility_resolution": [16, 32]},
     evaluate_size=64,
     evaluate_reference_spp=1024,
     lights=("environment",),

@@ -60,6 +60,7 @@ from pipeline.math import sg, sh
 from pipeline.math.brdf import BrdfParams, scene_brdfs
 from pipeline.math.camera import image_rays
 from pipeline.math.geodesic import icosahedron
+from pipeline.methods.sg import visibility
 from pipeline.methods.sg.brdf_lobe import TABLE, brdf_lobe, lobe_table
 from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
@@ -80,8 +81,10 @@ LAMBDA_BLENDS = ("log", "linear")
 # 003, the default); the lobes turned towards the pixel's blended normal (decision 0039:
 # no gain on bunny_sg and dragon_sg, 8x the shading kernel's time; a gain on coarse
 # unoccluded meshes); or the BRDF at the pixel's normal, the vertices' lobes keeping
-# visibility and indirect light as a ratio to unshadowed radiances (decision 0042)
-NORMALS = ("vertex", "pixel", "ratio")
+# visibility and indirect light as a ratio to unshadowed radiances (decision 0042); or
+# the BRDF at the pixel's normal against each vertex's visibility map, no lobes
+# (decision 0046, pipeline/methods/sg/visibility.py)
+NORMALS = ("vertex", "pixel", "ratio", "visibility")
 # what a frame shows: everything, or the reflected light of the lobes or of the SH term
 COMPONENTS = ("all", "glossy", "diffuse")
 
@@ -184,7 +187,12 @@ class SgTables:
     normals the lobes were fitted at (geometry's), None: the lobes are not turned to the
     pixel's normal (``normal="vertex"``); ``lobe_table`` (M, brdf_lobe.TABLE, 3) float32
     the glossy materials' BRDF lobes (brdf_lobe.lobe_table) and ``vertex_lobe`` (V,)
-    int32 each vertex's material row (−1: none), None: no ratio (decision 0042)."""
+    int32 each vertex's material row (−1: none), None: no ratio (decision 0042),
+    ``lobe_specular`` (M, 3) float32 their ρs and ``node_table`` (M, TABLE, 7) float32
+    their node weights (visibility.node_table; None: not made); ``visibility`` (V, texels) uint8 the
+    vertices' packed octahedral pyramids of ``visibility_resolution``² texels and
+    ``occluder`` (V, 3, n²) float32 their occluder transfer (sg.visibility; None: not
+    loaded, decision 0046)."""
 
     lobes: np.ndarray
     first: np.ndarray
@@ -195,6 +203,11 @@ class SgTables:
     normals: np.ndarray | None = None
     lobe_table: np.ndarray | None = None
     vertex_lobe: np.ndarray | None = None
+    lobe_specular: np.ndarray | None = None
+    node_table: np.ndarray | None = None
+    visibility: np.ndarray | None = None
+    visibility_resolution: int = 0
+    occluder: np.ndarray | None = None
 
     @classmethod
     def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
@@ -215,23 +228,33 @@ class SgTables:
         return self.lobes.nbytes + self.first.nbytes + self.count.nbytes \
             + self.transfer.nbytes + sum(level.nbytes for level in self.stack) \
             + sum(0 if a is None else a.nbytes
-                  for a in (self.normals, self.lobe_table, self.vertex_lobe))
+                  for a in (self.normals, self.lobe_table, self.vertex_lobe,
+                            self.lobe_specular, self.node_table, self.visibility,
+                            self.occluder))
 
 
 def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
-    """The tables from the artifacts of ``sg.relax``, ``sg.diffuse`` and
-    ``sg.env_prefilter`` (and the vertex normals of ``geometry`` where given),
+    """The tables from the artifacts of ``sg.relax`` (no lobes where not given),
+    ``sg.diffuse`` and ``sg.env_prefilter`` (and the vertex normals of ``geometry``
+    where given),
     checked against each other and the geometry's ``vertex_count`` (one-line
     PrtErrors naming the artifact)."""
-    fit, diffuse = artifacts["sg.relax"], artifacts["sg.diffuse"]
-    views = fit.read("views")
-    if views.shape != view_directions().shape or \
-            not np.allclose(views, view_directions(), atol=1e-9):
-        raise PrtError("sg.relax", "views: not sg_transport.view_directions() in order; "
-                       "re-bake sg.fit")
-    lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
-    first = np.asarray(fit.read("first"), np.int64)
-    count = np.ascontiguousarray(fit.read("count"), np.uint8)
+    diffuse = artifacts["sg.diffuse"]
+    views = view_directions()
+    if "sg.relax" in artifacts:
+        fit = artifacts["sg.relax"]
+        views = fit.read("views")
+        if views.shape != view_directions().shape or \
+                not np.allclose(views, view_directions(), atol=1e-9):
+            raise PrtError("sg.relax", "views: not sg_transport.view_directions() in order; "
+                           "re-bake sg.fit")
+        lobes = np.ascontiguousarray(fit.read("lobes"), np.float32)
+        first = np.asarray(fit.read("first"), np.int64)
+        count = np.ascontiguousarray(fit.read("count"), np.uint8)
+    else:  # normal=visibility reads no lobes (decision 0046)
+        lobes = np.zeros((0, len(views), FIELDS), np.float32)
+        first = np.zeros(vertex_count, np.int64)
+        count = np.zeros(vertex_count, np.uint8)
     transfer = np.ascontiguousarray(diffuse.read("transfer"), np.float32)
     order = int(diffuse.attrs.get("order", sh.ORDER))
     expected = {"sg.relax lobes": (lobes.shape[1:], (len(views), FIELDS)),
@@ -260,21 +283,47 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
                     stack, levels, normals)
 
 
-def vertex_lobe_tables(brdfs: list[BrdfParams | None], vertex_material: np.ndarray
-                       ) -> dict[str, np.ndarray]:
+def vertex_lobe_tables(brdfs: list[BrdfParams | None], vertex_material: np.ndarray,
+                       nodes: bool = False) -> dict[str, np.ndarray]:
     """``lobe_table`` (M, TABLE, 3) float32 of the glossy materials among ``brdfs`` (None:
-    no glossy part) and ``vertex_lobe`` (V,) int32, each vertex's row in it (−1: none),
-    from ``vertex_material`` (V,) indices into ``brdfs`` (decision 0042)."""
-    rows, tables = np.full(len(brdfs), -1, np.int32), []
+    no glossy part), ``lobe_specular`` (M, 3) their ρs and ``vertex_lobe`` (V,) int32,
+    each vertex's row in it (−1: none), from ``vertex_material`` (V,) indices into
+    ``brdfs`` (decision 0042); with ``nodes`` also ``node_table`` (M, TABLE, 7)
+    (decision 0046)."""
+    rows, glossy_brdfs = np.full(len(brdfs), -1, np.int32), []
     for m, brdf in enumerate(brdfs):
         if brdf is not None:
-            rows[m] = len(tables)
-            tables.append(lobe_table(brdf))
-    table = np.asarray(tables, np.float32).reshape(-1, TABLE, 3)
-    return {"lobe_table": table, "vertex_lobe": rows[np.asarray(vertex_material, np.int64)]}
+            rows[m] = len(glossy_brdfs)
+            glossy_brdfs.append(brdf)
+    out = {"lobe_table": np.asarray([lobe_table(b) for b in glossy_brdfs],
+                                    np.float32).reshape(-1, TABLE, 3),
+           "vertex_lobe": rows[np.asarray(vertex_material, np.int64)],
+           "lobe_specular": np.asarray([b.specular for b in glossy_brdfs],
+                                       np.float32).reshape(-1, 3)}
+    if nodes:
+        out["node_table"] = np.asarray([visibility.node_table(b) for b in glossy_brdfs],
+                                       np.float32).reshape(-1, TABLE, visibility.NODES)
+    return out
 
 
-def scene_lobe_tables(scene: Scene, geometry: Artifact) -> dict[str, np.ndarray]:
+def load_visibility(artifact: Artifact, vertex_count: int, order: int
+                    ) -> dict[str, np.ndarray | int]:
+    """``visibility``, ``visibility_resolution`` and ``occluder`` of :class:`SgTables` from
+    an sg.visibility artifact, checked against the geometry's ``vertex_count`` and
+    sg.diffuse's SH ``order``."""
+    resolution = int(artifact.attrs["resolution"])
+    maps = np.ascontiguousarray(artifact.read("maps"), np.uint8)
+    occluder = np.ascontiguousarray(artifact.read("occluder"), np.float32)
+    expected = {"maps": (maps.shape, (vertex_count, visibility.level_offsets(resolution)[-1])),
+                "occluder": (occluder.shape, (vertex_count, 3, order ** 2))}
+    for what, (shape, want) in expected.items():
+        if tuple(shape) != want:
+            raise PrtError("sg.visibility", f"{what}: shape {tuple(shape)}, expected {want}")
+    return {"visibility": maps, "visibility_resolution": resolution, "occluder": occluder}
+
+
+def scene_lobe_tables(scene: Scene, geometry: Artifact, nodes: bool = False
+                      ) -> dict[str, np.ndarray]:
     """:func:`vertex_lobe_tables` of the scene's materials on ``geometry``'s vertices
     (its ``material_names``, ``object_ranges``, ``object_material``)."""
     names = list(geometry.attrs["material_names"])
@@ -287,7 +336,7 @@ def scene_lobe_tables(scene: Scene, geometry: Artifact) -> dict[str, np.ndarray]
                                    np.asarray(geometry.read("object_material")),
                                    strict=True):
         material[start:end] = m
-    return vertex_lobe_tables([*brdfs, None], material)
+    return vertex_lobe_tables([*brdfs, None], material, nodes)
 
 
 # ------------------------------------------------------------------------- shading
@@ -333,7 +382,7 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
                 view_weight: np.ndarray, light_sh: np.ndarray,
                 to_world: np.ndarray | None = None, scale: float = 1.0,
                 lambda_blend: str = "log", wo: np.ndarray | None = None,
-                ratio: bool = False) -> np.ndarray:
+                ratio: bool = False, visible: bool = False) -> np.ndarray:
     """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
     vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
     ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
@@ -345,8 +394,16 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     kernel's PIXEL_NORMAL = 1); without, they are not (PIXEL_NORMAL = 0). ``ratio``
     (with ``wo``, ``tables.normals`` and its lobe tables): the lobes are not turned but
     blended per corner, and the BRDF is applied at the pixel's normal
-    (:func:`ratio_glossy`, the kernel's BRDF_RATIO = 1)."""
+    (:func:`ratio_glossy`, the kernel's BRDF_RATIO = 1). ``visible`` (with ``wo``,
+    ``tables.normals``, its lobe tables and visibility): no lobes, the BRDF at the
+    pixel's normal against the corners' visibility (:func:`visibility_glossy`, the kernel
+    ``sg_shade_visibility``)."""
     corner = np.asarray(corner, np.int64)
+    if visible:
+        turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
+        diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh)[corner]
+        return scale * (visibility_glossy(tables, corner, bary, wo, turn, light_sh)
+                        + np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse))
     if ratio:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
         diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh)[corner]
@@ -452,6 +509,37 @@ def ratio_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: n
     return out
 
 
+def visibility_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray,
+                      wo: np.ndarray, turn: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
+    """The glossy radiance (P, 3) of decision 0046 (visibility.glossy) of pixels whose
+    corners share one table row ≥ 0 and whose blended normal n_p faces ``wo`` (0
+    elsewhere); the occluders' radiance from ``light_sh`` (n², 3)."""
+    corner = np.asarray(corner, np.int64)
+    bary = np.asarray(bary, np.float64)
+    m = tables.vertex_lobe[corner]
+    n = np.asarray(tables.normals, np.float64)[corner]
+    wo = np.asarray(wo, np.float64)
+    npix = np.einsum("pa,pac->pc", bary, n)
+    length = np.linalg.norm(npix, axis=1)
+    use = (m[:, 0] >= 0) & (m[:, 1] == m[:, 0]) & (m[:, 2] == m[:, 0]) & (length > 0) \
+        & (np.sum(npix * wo, axis=1) > 0)
+    unit = npix / np.maximum(length, 1e-300)[:, None]
+    mu, lam = np.tile([0.0, 0.0, 1.0], (len(corner), 1)), np.ones(len(corner))
+    weights, specular = np.zeros((len(corner), visibility.NODES)), np.zeros((len(corner), 3))
+    table = np.asarray(tables.lobe_table, np.float64)
+    for k in np.unique(m[use, 0]):
+        sel = np.flatnonzero(use & (m[:, 0] == k))
+        mu[sel], lam[sel], _ = brdf_lobe(table[k], unit[sel], wo[sel])
+        weights[sel] = visibility.node_weights(np.asarray(tables.node_table[k], np.float64),
+                                               np.sum(unit[sel] * wo[sel], axis=1))
+        specular[sel] = np.asarray(tables.lobe_specular, np.float64)[k]
+    occluder = vertex_diffuse(tables.occluder.astype(np.float64), light_sh)
+    stack = [np.asarray(level, np.float64) for level in tables.stack]
+    return visibility.glossy(tables.visibility, tables.visibility_resolution, occluder,
+                             corner, bary, unit, mu, lam, weights, specular, stack,
+                             tables.levels, turn)
+
+
 def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
     """The vertices' diffuse radiance D (V, 3) = max(0, Σ_k transfer[v, c, k]
     light_sh[k, c]) (without the light's scale). A truncated SH product can ring below
@@ -476,7 +564,10 @@ class SgDevice:
     vertex's lobes turned towards the pixel's normal (PIXEL_NORMAL = 1; needs
     ``tables.normals``, else as ``vertex``; decision 0039), ``ratio`` the BRDF at the
     pixel's normal by the ratio of unshadowed radiances (BRDF_RATIO = 1; needs
-    ``tables.normals`` and its lobe tables, else as ``vertex``; decision 0042)."""
+    ``tables.normals`` and its lobe tables, else as ``vertex``; decision 0042),
+    ``visibility`` no lobes, the BRDF at the pixel's normal against the vertices'
+    visibility (kernel ``sg_shade_visibility``; needs the tables' visibility, else as
+    ``vertex``; decision 0046)."""
 
     tables: SgTables
     lambda_blend: str = "log"
@@ -493,10 +584,29 @@ class SgDevice:
         self.turning = self.normal == "pixel" and t.normals is not None
         self.ratio = self.normal == "ratio" and t.normals is not None \
             and t.lobe_table is not None and t.vertex_lobe is not None
-        normals = t.normals if self.turning or self.ratio else np.zeros((1, 3), np.float32)
-        table = t.lobe_table if self.ratio and t.lobe_table.size \
+        self.visible = self.normal == "visibility" and t.normals is not None \
+            and t.lobe_table is not None and t.vertex_lobe is not None \
+            and t.visibility is not None and t.occluder is not None \
+            and t.node_table is not None
+        lobed = self.ratio or self.visible
+        normals = t.normals if self.turning or lobed else np.zeros((1, 3), np.float32)
+        table = t.lobe_table if lobed and t.lobe_table.size \
             else np.zeros((1, TABLE, 3), np.float32)  # no glossy material: a dummy row
-        vertex_lobe = t.vertex_lobe if self.ratio else np.full(1, -1, np.int32)
+        vertex_lobe = t.vertex_lobe if lobed else np.full(1, -1, np.int32)
+        if self.visible:
+            self.buffers = {name: cl.read_only_buffer(np.ascontiguousarray(array)) for
+                            name, array in (
+                ("maps", t.visibility), ("stack", flat), ("info", info),
+                ("normals", normals), ("lobe_table", np.asarray(table, np.float32)),
+                ("node_table", np.asarray(t.node_table, np.float32) if t.node_table.size
+                 else np.zeros((1, TABLE, visibility.NODES), np.float32)),
+                ("lobe_specular", np.asarray(t.lobe_specular, np.float32).reshape(-1, 3)
+                 if t.lobe_specular is not None and t.lobe_specular.size
+                 else np.zeros((1, 3), np.float32)),
+                ("vertex_lobe", np.asarray(vertex_lobe, np.int32)))}
+            self.kernel = cl.kernel("sg_render.cl", "sg_shade_visibility",
+                                    {"SG_LOBE_TABLE": TABLE})
+            return
         self.buffers = {name: cl.read_only_buffer(array) for name, array in (
             ("lobes", lobes), ("first", t.first), ("count", t.count), ("stack", flat),
             ("info", info), ("normals", normals),
@@ -507,9 +617,16 @@ class SgDevice:
                                  "PIXEL_NORMAL": int(self.turning),
                                  "BRDF_RATIO": int(self.ratio), "SG_LOBE_TABLE": TABLE})
 
-    def vertex_diffuse(self, light_sh: np.ndarray) -> Any:
-        """A device buffer of :func:`vertex_diffuse` (V, 3) float32."""
+    def vertex_diffuse(self, light_sh: np.ndarray, occluder_sh: np.ndarray | None = None
+                       ) -> Any:
+        """A device buffer of :func:`vertex_diffuse` (V, 3) float32; with ``visibility``
+        (V, 6): then the occluders' radiance under ``occluder_sh`` (default
+        ``light_sh``)."""
         d = vertex_diffuse(self.tables.transfer, light_sh.astype(np.float32))
+        if self.visible:
+            sh_o = light_sh if occluder_sh is None else occluder_sh
+            d = np.concatenate([d, vertex_diffuse(self.tables.occluder,
+                                                  sh_o.astype(np.float32))], axis=1)
         return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
 
     def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any,
@@ -523,6 +640,20 @@ class SgDevice:
         returned in its place."""
         b, levels = self.buffers, self.tables.levels
         out = None if out_buffer is not None else np.empty((n, 3), np.float32)
+        if self.visible:
+            resolution = self.tables.visibility_resolution
+            ms = cl.run(self.kernel, n, b["maps"], np.int32(resolution),
+                        np.int32(self.tables.visibility.shape[1]),
+                        np.int32(len(visibility.level_offsets(resolution)) - 1),
+                        vertex_diffuse, pixels["corner"], pixels["bary"], b["normals"],
+                        pixels["wo"], b["lobe_table"], b["node_table"], b["lobe_specular"],
+                        b["vertex_lobe"],
+                        b["stack"], b["info"], np.int32(levels.count),
+                        np.float32(np.log(levels.sigma0)),
+                        np.float32(1.0 / np.log(levels.ratio)), map_turn(to_world),
+                        np.float32(scale), np.int32(n), out=out,
+                        writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
+            return out, ms
         ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
                     np.int32(self.tables.lobes.shape[1]), pixels["corner"], pixels["bary"],
                     pixels["view"], pixels["view_weight"], b["normals"], pixels["wo"],
@@ -541,7 +672,7 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
     """The kernel on host arrays (as :func:`shade_numpy`'s arguments; ``wo`` (P, 3) is
     needed where the device turns lobes), float32 (P, 3)."""
     if wo is None:
-        if device.turning or device.ratio:
+        if device.turning or device.ratio or device.visible:
             raise ValueError(f"shade_arrays: normal={device.normal!r} needs the directions wo")
         wo = np.zeros((1, 3))
     pixels = {"corner": cl.read_only_buffer(np.asarray(corner, np.int32)),
@@ -554,14 +685,20 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
 
 
 def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
-                 ratio: bool = False) -> int:
+                 ratio: bool = False, visible: bool = False) -> int:
     """Bytes ``sg_shade`` loads and stores for these pixels, every gathered load counted
     (cache hits included): per pixel 4 × 12 B of indices and weights, 3 counts, per
     active slot 9 lobes × 28 B and 2 levels × 4 texels × 12 B (``ratio``: 3 × the
     texels, one lookup per corner), 3 vertices' diffuse radiance × 12 B, 12 B out;
     ``turning`` (PIXEL_NORMAL): per pixel with a slot ω_o and 3 normals, 4 × 12 B;
     ``ratio`` (BRDF_RATIO): per pixel with a slot also 3 × 4 B of table rows, 4 BRDF
-    lobes × 2 table rows × 12 B and 4 lookups × 2 levels × 4 texels × 12 B."""
+    lobes × 2 table rows × 12 B and 4 lookups × 2 levels × 4 texels × 12 B;
+    ``visible`` (sg_shade_visibility): per pixel 3 × (4 + 24) B of table rows, normals
+    and vertex light, 2 table rows × 12 B, 7 lookups × 2 levels × 4 texels × 12 B and
+    3 × 7 visibility lookups × 2 levels × 4 texels × 1 B, 36 B in and 12 B out."""
+    if visible:
+        per = 3 * 28 + 24 + 7 * 2 * 4 * 12 + 21 * 2 * 4 + 36 + 12
+        return int(len(corner) * per)
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
     per_pixel = 48 + 3 + 3 * 12 + 12
     active = int(np.count_nonzero(slots))
@@ -647,7 +784,7 @@ class SgRenderer:
 
     def __init__(self, tables: SgTables, vertices: np.ndarray, faces: np.ndarray,
                  env_map: np.ndarray, lambda_blend: str = "log", component: str = "all",
-                 face_object: np.ndarray | None = None, normal: str = "vertex") -> None:
+                 face_object: np.ndarray | None = None, normal: str = "visibility") -> None:
         if normal not in NORMALS:
             raise PrtError("--option", f"normal={normal!r}: expected one of "
                            f"{', '.join(NORMALS)}")
@@ -657,8 +794,10 @@ class SgRenderer:
         if component not in COMPONENTS:
             raise PrtError("--option", f"component={component!r}: expected one of "
                            f"{', '.join(COMPONENTS)}")
-        if component == "diffuse":  # no lobe slot runs
-            tables = replace(tables, count=np.zeros_like(tables.count))
+        if component == "diffuse":  # no lobe slot runs, no glossy material
+            tables = replace(tables, count=np.zeros_like(tables.count),
+                             vertex_lobe=None if tables.vertex_lobe is None
+                             else np.full_like(tables.vertex_lobe, -1))
         self.tables, self.vertices, self.faces = tables, vertices, faces
         self.component, self.face_object = component, face_object
         self.tracer = RayTracer(vertices, faces)
@@ -666,6 +805,7 @@ class SgRenderer:
         self.env_map = np.ascontiguousarray(env_map, np.float32)
         order = int(round(np.sqrt(tables.transfer.shape[2])))  # sg.diffuse_order
         self.map_sh = sh.project_latlong(self.env_map, order=order)  # (order², 3), unrotated
+        self.occluder_sh = self.map_sh  # the occluders' light (normal=visibility)
         if component == "glossy":
             self.map_sh = np.zeros_like(self.map_sh)
         self.static: dict[str, Any] = {}
@@ -693,7 +833,11 @@ class SgRenderer:
         about_y = env.turn_about_y
         light_sh = sh.rotate_y(self.map_sh, about_y) if about_y is not None \
             else sh.rotate(self.map_sh, to_world)
-        vertex_diffuse = self.device.vertex_diffuse(light_sh)
+        occluder_sh = None
+        if self.device.visible and self.component == "glossy":
+            occluder_sh = sh.rotate_y(self.occluder_sh, about_y) if about_y is not None \
+                else sh.rotate(self.occluder_sh, to_world)
+        vertex_diffuse = self.device.vertex_diffuse(light_sh, occluder_sh)
         t2 = time.perf_counter()
         # shading, background and their scatter stay on the device (render.DeviceImage)
         image = DeviceImage.of_size(self.images, cam.width * cam.height)
@@ -733,19 +877,25 @@ class SgRenderer:
             "sg", gbuffer.back, self.face_object[gbuffer.face], list(scene.objects))
         return Frame("sg", rgb.reshape(cam.height, cam.width, 3), timings, notes,
                      kernel_bytes=kernel_bytes(self.tables, gbuffer.corner,
-                                                 self.device.turning, self.device.ratio))
+                                                 self.device.turning, self.device.ratio,
+                                                 self.device.visible))
 
 
 def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: str = "log",
-                component: str = "all", normal: str = "vertex") -> SgRenderer:
+                component: str = "all", normal: str = "visibility") -> SgRenderer:
     """The method's renderer factory (pipeline/method.py): tables loaded once from the
     artifacts of ``geometry``, ``sg.relax``, ``sg.diffuse``, ``sg.env_prefilter``; the
     map for the background and the SH lighting from the scene's environment file."""
+    if normal in NORMALS and normal != "visibility" and "sg.relax" not in artifacts:
+        raise PrtError("sg.relax", f"normal={normal} renders the fitted lobes: not given")
     geo = artifacts["geometry"]
     vertices, faces = geo.read("vertices"), np.asarray(geo.read("faces"), np.int64)
     tables = load_tables(artifacts, len(vertices))
-    if normal == "ratio":  # the glossy materials' BRDF lobes (decision 0042)
-        tables = replace(tables, **scene_lobe_tables(scene, geo))
+    if normal in ("ratio", "visibility"):  # the glossy materials' BRDF lobes (0042)
+        tables = replace(tables, **scene_lobe_tables(scene, geo, normal == "visibility"))
+    if normal == "visibility":  # the vertices' visibility (decision 0046)
+        tables = replace(tables, **load_visibility(artifacts["sg.visibility"], len(vertices),
+                                                   int(round(np.sqrt(tables.transfer.shape[2])))))
     env_map = read_environment(scene.environment.file)
     return SgRenderer(tables, vertices, faces, env_map, lambda_blend, component,
                      np.asarray(geo.read("face_object")), normal)

@@ -50,7 +50,8 @@ def vertex_scene(ctx: AssembleContext) -> VertexScene:
     return VertexScene.from_arrays(arrays, materials)
 
 
-def _count(ctx: AssembleContext, name: str, low: int) -> int:
+def integer_param(ctx: AssembleContext, name: str, low: int) -> int:
+    """Stage parameter ``name``, an integer ≥ ``low`` (PrtError naming it otherwise)."""
     value = ctx.params[name]
     if not isinstance(value, int) or isinstance(value, bool) or value < low:
         raise PrtError(name, f"{value!r}: expected an integer ≥ {low}")
@@ -59,9 +60,9 @@ def _count(ctx: AssembleContext, name: str, low: int) -> int:
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     """``transfer`` (V, 3, order²) float32 of every vertex."""
-    samples = _count(ctx, "sg.diffuse_samples", 1)
-    bounces = _count(ctx, "sg.diffuse_bounces", 0)
-    order = _count(ctx, "sg.diffuse_order", 1)
+    samples = integer_param(ctx, "sg.diffuse_samples", 1)
+    bounces = integer_param(ctx, "sg.diffuse_bounces", 0)
+    order = integer_param(ctx, "sg.diffuse_order", 1)
     transfer = sg_diffuse.transfer(vertex_scene(ctx), samples, bounces, ctx.rng, BATCH, order)
     return {"transfer": transfer.astype(np.float32)}
 
