@@ -313,6 +313,42 @@ def test_scene_that_does_not_bake_is_one_error_line(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("error: ") and "gamma_range" in lines[0]
 
 
+@pytest.mark.timeout(900)
+@pytest.mark.parametrize("method", ["triple", "sg"])
+def test_size_renders_from_the_files_bake(method, tmp_path):
+    """A method that traces the camera at run time renders ``--size`` from the bake of
+    the file's camera (decision 0045): ``prt render`` and ``prt view`` at 16² on the 8²
+    bake re-bake nothing; where the bake depends on the camera (triple's atlas) a note
+    says so, in the console and the page."""
+    import urllib.request
+
+    scene = tiny_scene(tmp_path, method, size=8).path
+    work = tmp_path / "w"
+    done = prt("render", scene, "--method", method, "--workdir", work, "--out",
+               tmp_path / "a.exr", "-q", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    before = snapshot(work)
+    done = prt("render", scene, "--method", method, "--size", "16x16", "--workdir", work,
+               "--out", tmp_path / "b.exr", "-q", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert read_exr(tmp_path / "b.exr").shape == (16, 16, 3)
+    assert snapshot(work) == before and not (work / "views").exists()
+    note = "renders 16x16 from the triple.atlas, triple.visibility baked for the scene " \
+        "file's 8x8 camera"
+    assert (note in done.stderr) == (method == "triple"), done.stderr
+    viewer = Viewer(scene, work, tmp_path / "saved", "--method", method, "--size", "16x16")
+    try:
+        with urllib.request.urlopen(viewer.url + "api/spec", timeout=30) as r:
+            spec = json.loads(r.read())
+    finally:
+        code, output = viewer.stop()
+    assert code == 0, output
+    assert (spec["width"], spec["height"]) == (16, 16)
+    assert any(note in n for n in spec["notices"]) == (method == "triple"), spec["notices"]
+    assert (note in output) == (method == "triple")
+    assert snapshot(work) == before and not (work / "views").exists()
+
+
 def test_every_method_declares_known_edits():
     """The descriptors' run-time edits come from the core's vocabulary, and a drag's
     edit modes and options name the method's own edits and options."""

@@ -168,23 +168,29 @@ def drag(page, control: tuple[str, float, float], seconds: float, fmt: str
             "release": summary(release[-1:], 0.0) if release else None}
 
 
-def workdir_of(scene_file: Path, size: int) -> tuple[Any, Any]:
-    """The scene at ``size``² baked in the benchmark cache's folder of the file's own
-    size (benchmarks/fixtures.py ``baked``): another size keeps only its camera-dependent
-    artifacts apart (``views/WxH``), as ``prt view --size`` does, sharing the rest."""
+def workdir_of(method: str, scene_file: Path, size: int) -> tuple[Any, Any]:
+    """The scene at ``size``² and the work directory ``prt view --size`` renders it from,
+    baked there (the benchmark cache's folder of the file's own size,
+    benchmarks/fixtures.py ``baked``): for a method that traces the camera at run time
+    (triple, sg) the file's bake itself (pipeline/job.py ``bake_scene``, decision 0045),
+    for another its camera-dependent artifacts apart (``views/WxH``), the rest shared."""
     from pipeline import job
     from pipeline.engine.keys import digest
+    from pipeline.registry import get_method
 
-    cam = job.open_scene(scene_file).camera
-    folder = CACHE / f"{job.open_scene(scene_file).name}_{cam.width}x{cam.height}_" \
-        f"{digest({})[:8]}"
-    return baked(scene_file, size, workdir=folder)
+    opened = job.open_scene(scene_file)
+    cam = opened.camera
+    folder = CACHE / f"{opened.name}_{cam.width}x{cam.height}_{digest({})[:8]}"
+    scene = opened.with_image_size(size, size)
+    bake_scene = job.bake_scene(get_method(method), scene, opened)
+    _, work = baked(bake_scene, workdir=folder)
+    return scene, work
 
 
 def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats: list[str],
             seconds: float, browser) -> dict[str, Any]:
     t0 = time.perf_counter()
-    scene, work = workdir_of(scene_file, size)
+    scene, work = workdir_of(method, scene_file, size)
     bake_s = time.perf_counter() - t0
     with viewer_page(scene_file, size, work.root, browser, (1400, 1000)) as page:
         spec = page.evaluate("fetch('/api/spec').then(r => r.json())")

@@ -71,6 +71,7 @@ class Engine:
         self.mode: tuple[str, Any] | None = None  # (key, frame function) of an edit mode
         self.stats = Stats()
         self.exposure = 0.0  # the page's exposure at start (EV)
+        self.notices: list[str] = []  # prt view's note: and warning: lines, for the page
         self.references = self._cached_references()
         self.lock = threading.Lock()
 
@@ -315,6 +316,7 @@ def make_app(engine: Engine, save_dir: Path) -> web.Application:
         body = engine.view.spec() | {"formats": list(FORMATS), "format": DEFAULT_FORMAT,
                                      "reference_transport": engine.view.method.reference,
                                      "exposure": engine.exposure,
+                                     "notices": engine.notices,
                                      "save_dir": str(save_dir)}
         return web.json_response(body)
 

@@ -74,6 +74,7 @@ function build() {
   $("title").textContent = `${spec.scene} · method ${spec.method}: ${spec.description}` +
     ` · ${spec.width}×${spec.height}`;
   format = spec.format;
+  $("notices").textContent = (spec.notices || []).join("\n");  // once, as the console
   const vc = $("view-controls");
   const fsel = el("select", {id: "format"}, spec.formats.map(
     (f) => el("option", {value: f, textContent: f, selected: f === format})));
