@@ -547,6 +547,9 @@ def devices_text(info: dict) -> list[str]:
 @click.option("--env-rotate", "env_rotate", type=float, default=None, metavar="DEG",
               help="Turn the environment map to DEG degrees about its axis (the scene's "
                    "axis, +y unless it says; instead of the scene's rotation).")
+@click.option("--env-scale", "env_scale", type=float, default=None, metavar="S",
+              help="Scale the environment map's radiance by S (>= 0; instead of the "
+                   "scene's scale; no re-bake for triple and sg).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON line with timings (ms) and the image size.")
 @WORKDIR
@@ -554,7 +557,8 @@ def devices_text(info: dict) -> list[str]:
 @THREADS
 @QUIET
 def render_cmd(scene, method, out, sequence, options, size, exposure, edits, moves, camera,
-               env_file, env_rotate, as_json, workdir, jobs, threads, quiet) -> None:
+               env_file, env_rotate, env_scale, as_json, workdir, jobs, threads,
+               quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
@@ -571,7 +575,8 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
     check_exposure(exposure)
     file_scene = job.open_scene(scene)
     opened = file_scene.with_image_size(*parse_size(size)) if size else file_scene
-    sc = with_run_time_edits(opened, list(edits), list(moves), camera, env_file, env_rotate)
+    sc = with_run_time_edits(opened, list(edits), list(moves), camera, env_file, env_rotate,
+                             env_scale)
     m = get_method(method) if method else scene_methods(sc)[0]
     # a method that follows the camera at run time renders a moved or resized camera
     # from the bake of the file's (as its orbit sequence does); another bakes for it

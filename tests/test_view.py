@@ -54,7 +54,7 @@ needs_browser = pytest.mark.skipif(browser_missing() is not None,
 # per method: the controls moved in the page (id -> value)
 MOVES = {"d2i": {"light-0-x": 0.31, "mat-shiny-gamma": 700},
          "triple": {"environment": 90, "camera-azimuth": 25, "mat-shiny-gamma": 600},
-         "sg": {"environment": 45, "camera-elevation": 10}}
+         "sg": {"environment": 45, "camera-elevation": 10, "environment-scale": 1.5}}
 
 
 def prt(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
@@ -156,6 +156,8 @@ def test_page_frame_and_save_equal_prt_render(method, browser, tmp_path):
         header = wait_frame(page, last - 1)
         assert header["format"] == "png" and header["mode"] == "frame"
         assert header["args"], "the moved controls are edits"
+        if "environment-scale" in MOVES[method]:  # the map's scale: stops on the slider
+            assert "--env-scale" in header["args"], header["args"]
         shown = canvas_rgb(page)
         page.click("#save")
         page.wait_for_function("window.prtView.saved", timeout=120_000)
@@ -370,22 +372,27 @@ def test_resolve_gives_prt_render_arguments(tmp_path):
     scene = tiny_scene(tmp_path, "triple", size=8)
     view = ViewScene(scene, get_method("triple"), "scene.yaml", None, 4.0)
     r = view.resolve({"environment": 30, "camera": [10, 5], "options": {"budget": 80},
+                      "environment_scale": 2.5,
                       "materials": {"shiny": {"gamma": 50, "specular": 0.05}}})
     camera = r.args[r.args.index("--camera") + 1]
     assert r.args == ("--set", "shiny.gamma=50.0", "--set", "shiny.specular=0.05",
-                      "--camera", camera, "--env-rotate", "30.0", "--option", "budget=80")
+                      "--camera", camera, "--env-rotate", "30.0", "--env-scale", "2.5",
+                      "--option", "budget=80")
     again = with_run_time_edits(scene, ["shiny.gamma=50.0", "shiny.specular=0.05"], [],
-                                camera, None, 30.0)
+                                camera, None, 30.0, 2.5)
+    assert r.scene.environment.scale == 2.5
     assert again.document == r.scene.document and r.options["budget"] == 80
     assert np.isclose(np.linalg.norm(np.subtract(again.camera.position,
                                                  again.camera.look_at)), view.radius)
-    assert view.resolve({"camera": [0, 0], "environment": 0}).args == ()
+    assert view.resolve({"camera": [0, 0], "environment": 0,
+                         "environment_scale": scene.environment.scale}).args == ()
     assert "view.exr" in view.command(r.args)
     for bad, words in (({"materials": {"shiny": {"gamma": 301}}}, "outside the baked"),
                        ({"lights": {"0": [1, 0, 0]}}, "does not move lights"),
                        ({"camera": [0, 90]}, "beyond"),
                        ({"options": {"budget": -1}}, ">= 0"),
-                       ({"environment": "x"}, "expected a number")):
+                       ({"environment": "x"}, "expected a number"),
+                       ({"environment_scale": -1}, "outside")):
         with pytest.raises(PrtError, match=words):
             view.resolve(bad)
 
@@ -398,7 +405,9 @@ def test_prt_render_move_light_and_camera_errors(tmp_path):
     for args, words in ((("--move-light", "0=1,2"), "expected 3 finite numbers"),
                         (("--move-light", "7=0,0,0"), "no light 7"),
                         (("--move-light", "x"), "expected INDEX=DX,DY,DZ"),
-                        (("--camera", "0,0.3,0"), "look_at")):
+                        (("--camera", "0,0.3,0"), "look_at"),
+                        (("--env-scale", "-1"), "expected a finite number >= 0"),
+                        (("--env-scale", "2"), "no environment light to scale")):
         done = prt("render", scene, "--out", tmp_path / "x.exr", *args, cwd=tmp_path,
                    timeout=120)
         assert done.returncode == 2, done.stderr
