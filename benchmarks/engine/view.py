@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -192,6 +193,7 @@ def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats
     t0 = time.perf_counter()
     scene, work = workdir_of(method, scene_file, size)
     bake_s = time.perf_counter() - t0
+    load_before = load()
     with viewer_page(scene_file, size, work.root, browser, (1400, 1000)) as page:
         spec = page.evaluate("fetch('/api/spec').then(r => r.json())")
         runs = {}
@@ -201,7 +203,7 @@ def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats
                 runs[f"{name}/{fmt}"] = drag(page, control, seconds, fmt)
         stats = page.evaluate("fetch('/api/stats').then(r => r.json())")
     return {"method": method, "scene": scene.name, "size": size, "bake_s": round(bake_s, 1),
-            "runs": runs, "server": stats}
+            "runs": runs, "server": stats, "load_before": load_before, "load_after": load()}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -213,6 +215,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--controls", default="environment,gamma,light")
     parser.add_argument("--formats", default="jpeg,webp,png,f16",
                         help="every format at the largest size; the first at the others")
+    parser.add_argument("--merge", type=Path, default=None, metavar="JSON",
+                        help="an earlier result whose rows this run's (method, size) do "
+                             "not replace are kept (merged_from lists the runs)")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     scenes = DEFAULT_SCENES | {k: Path(v) for k, v in (s.split("=", 1) for s in args.scenes)}
@@ -246,4 +251,26 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                           f"{d.get('transfer_ms')}, paint {d.get('paint_ms')})", flush=True)
         browser.close()
     result["load_after"] = load()
+    if args.merge is not None:
+        result = merged(json.loads(args.merge.read_text()), result,
+                        f"engine.view -- --methods {args.methods} --sizes {args.sizes} "
+                        f"--controls {args.controls} --formats {args.formats} "
+                        f"--seconds {args.seconds:g}")
     return write_result("engine.view", result, args.out)
+
+
+def merged(old: dict[str, Any], new: dict[str, Any], run: str) -> dict[str, Any]:
+    """``new``'s rows and ``old``'s rows of other (method, size), in ``old``'s order
+    then the new ones; each row keeps its own load averages (an old row without them
+    gets its run's)."""
+    mine = {(r["method"], r["size"]): r for r in new["results"]}
+    rows = []
+    for row in old["results"]:
+        key = (row["method"], row["size"])
+        if key in mine:
+            rows.append(mine.pop(key))
+        else:
+            rows.append({"load_before": old.get("load_before"),
+                         "load_after": old.get("load_after"), **row})
+    runs = old.get("merged_from") or ["earlier run"]
+    return {**new, "results": rows + list(mine.values()), "merged_from": [*runs, run]}
