@@ -71,12 +71,14 @@ def snapshot(root: Path) -> dict[str, tuple[int, int]]:
 class Viewer:
     """A ``prt view`` process on a free port."""
 
-    def __init__(self, scene: Path, workdir: Path, save: Path, *extra: str) -> None:
+    def __init__(self, scene: Path, workdir: Path, save: Path, *extra: str,
+                 env: dict[str, str] | None = None) -> None:
         self.workdir = workdir
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "pipeline", "view", str(scene), "--workdir", str(workdir),
              "--port", "0", "--save-dir", str(save), "-q", *extra],
-            cwd=scene.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            cwd=scene.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env=None if env is None else {**os.environ, **env})
         deadline = time.time() + 300
         self.url = None
         while time.time() < deadline:
@@ -283,6 +285,34 @@ def test_cached_state_is_instant_and_reference_view(d2i_viewer, browser, tmp_pat
                            timeout=120_000)
     assert "prt reference" in page.inner_text("#error")
     page.close()
+
+
+@pytest.mark.timeout(600)
+def test_open_opens_the_served_address(tmp_path):
+    """``--open`` opens the printed address in the user's browser (Python's webbrowser,
+    which runs ``$BROWSER`` with the address: here a script that records it), and the
+    page is served there."""
+    import urllib.request
+
+    record = tmp_path / "opened.txt"
+    browser = tmp_path / "browser.sh"
+    browser.write_text(f'#!/bin/sh\nprintf "%s\\n" "$@" >> {shlex.quote(str(record))}\n')
+    browser.chmod(0o755)
+    scene = tiny_scene(tmp_path, "sg", size=8).path
+    viewer = Viewer(scene, tmp_path / "w", tmp_path / "saved", "--open",
+                    env={"BROWSER": str(browser)})
+    try:
+        deadline = time.time() + 60
+        while not record.is_file() and time.time() < deadline:
+            time.sleep(0.1)
+        opened = record.read_text().split()
+        with urllib.request.urlopen(opened[0], timeout=30) as r:
+            page = r.read().decode()
+    finally:
+        code, output = viewer.stop()
+    assert code == 0, output
+    assert opened == [viewer.url] and viewer.url.startswith("http://127.0.0.1:")
+    assert "<title>prt view</title>" in page
 
 
 def test_port_in_use_is_one_error_line(tmp_path):
