@@ -457,6 +457,28 @@ def test_tone_map_is_the_previews():
                           rgb.astype(np.float16))
 
 
+def test_tone_map_table_is_the_curve_bit_for_bit():
+    """The viewer's tone map by table (pipeline/view/encode.py ``tone_table``) gives the
+    float64 curve's bytes: on each side of every step the table found, on every 4099th
+    float32 bit pattern of every sign, and at zeros, infinities, denormals and the
+    largest floats, at several exposures. (Every positive float32 below saturation was
+    compared once, at three exposures: decision 0043's addendum.)"""
+    from pipeline.view.encode import tone_map, tone_map_reference, tone_table
+
+    special = np.array([0.0, -0.0, np.inf, -np.inf, 1e-45, -1e-45, 1.2e-38, 3.4e38,
+                        -3.4e38, 0.0031308, 1.0, 0.5 / 255], np.float32)
+    every = np.arange(0, 2**32, 4099, dtype=np.uint64).astype(np.uint32).view(np.float32)
+    every = every[~np.isnan(every)]
+    for ev in (0.0, 1.3, -2.0, 7.25):
+        low, step = tone_table(ev)
+        steps = step[step != 0xFFFFFFFF]
+        assert 250 <= len(steps) <= 255  # one per 8-bit step that a positive float reaches
+        near = np.concatenate([steps - 1, steps, steps + 1]).view(np.float32)
+        for x in (special, near, every):
+            with np.errstate(over="ignore", invalid="ignore"):
+                assert np.array_equal(tone_map(x, ev), tone_map_reference(x, ev)), ev
+
+
 def test_a_request_arriving_while_the_last_frame_is_sent_is_rendered():
     """The viewer's queue loses nothing: a request submitted while the previous frame is
     still being encoded and sent (the drain loop's last await) is rendered, not left
