@@ -260,9 +260,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 def merged(old: dict[str, Any], new: dict[str, Any], run: str) -> dict[str, Any]:
-    """``new``'s rows and ``old``'s rows of other (method, size), in ``old``'s order
-    then the new ones; each row keeps its own load averages (an old row without them
-    gets its run's)."""
+    """``new``'s rows and ``old``'s rows of other (method, size), by method (in the
+    order they first appear) and size; each row keeps its own load averages (an old row
+    without them gets its run's)."""
     mine = {(r["method"], r["size"]): r for r in new["results"]}
     rows = []
     for row in old["results"]:
@@ -272,5 +272,8 @@ def merged(old: dict[str, Any], new: dict[str, Any], run: str) -> dict[str, Any]
         else:
             rows.append({"load_before": old.get("load_before"),
                          "load_after": old.get("load_after"), **row})
+    rows += list(mine.values())
+    order = list(dict.fromkeys(r["method"] for r in rows))  # each method's rows together
+    rows.sort(key=lambda r: (order.index(r["method"]), r["size"]))
     runs = old.get("merged_from") or ["earlier run"]
-    return {**new, "results": rows + list(mine.values()), "merged_from": [*runs, run]}
+    return {**new, "results": rows, "merged_from": [*runs, run]}
