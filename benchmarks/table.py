@@ -133,12 +133,21 @@ def view_table(result: dict[str, Any]) -> list[str]:
                 f"{_ms(d.get('transfer_ms'))} | {_ms(d.get('paint_ms'))} | {d.get('kib')} | "
                 f"{_ms(r.get('latency_ms'))} ({_ms(r.get('render_ms'))}) |")
     m = result["machine"]
+    before = [r.get("load_before") or result["load_before"] for r in result["results"]]
+    after = [r.get("load_after") or result.get("load_after", [0]) for r in result["results"]]
+    if len(result.get("merged_from") or []) > 1:  # runs merged: each row's own loads
+        lo, hi = min(x[0] for x in before), max(x[0] for x in before)
+        load = (f"{len(result['merged_from'])} runs merged, load average {lo:.2f}–{hi:.2f} "
+                f"before a row ({max(x[0] for x in after):.2f} at most after; per row in "
+                "the result's JSON)")
+    else:
+        load = (f"load average {result['load_before'][0]:.2f} before, "
+                f"{result.get('load_after', [0])[0]:.2f} after")
     lines += ["", f"Milliseconds, medians over the frames painted while a slider moved once "
               f"per animation frame for {result['seconds']:g} s (headless Chromium, "
               f"`python -m benchmarks run engine.view`); wait: the request's time queued "
               f"behind the render in flight. {m['cpu']}, OpenCL {m.get('opencl_device', '?')}, "
-              f"load average {result['load_before'][0]:.2f} before, "
-              f"{result.get('load_after', [0])[0]:.2f} after, {result['finished'][:10]}."]
+              f"{load}, {result['finished'][:10]}."]
     return lines
 
 

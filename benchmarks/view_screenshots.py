@@ -26,7 +26,7 @@ EDITS = {"d2i": {"drag": 0, "moves": {}},           # a light dragged across the
 
 def shoot(method: str, size: int, out: Path, browser) -> Path:
     scene_file = DEFAULT_SCENES[method]
-    _, work = workdir_of(scene_file, size)
+    _, work = workdir_of(method, scene_file, size)
     with viewer_page(scene_file, size, work.root, browser, (1000, 760)) as page:
         last = 0
         for control, value in EDITS[method]["moves"].items():

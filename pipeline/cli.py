@@ -26,6 +26,13 @@ SIZE = click.option("--size", metavar="WxH",
                     help="Image size [default: the scene camera's]. The bake at another "
                          "size than the file's keeps its camera-dependent artifacts apart "
                          "(<workdir>/views/WxH), so it never replaces the file's bake.")
+RENDER_SIZE = click.option(
+    "--size", metavar="WxH",
+    help="Image size [default: the scene camera's]. A method that traces the camera at "
+         "run time (triple, sg) renders it from the bake of the file's camera, re-baking "
+         "nothing (its limits warn where that bake is too coarse); another bakes its "
+         "camera-dependent artifacts for the size apart (<workdir>/views/WxH), never "
+         "over the file's bake.")
 EXPOSURE = click.option("--exposure", metavar="EV", type=float, default=0.0,
                         show_default=True,
                         help="Exposure of the PNG previews in stops (× 2^EV); the EXR "
@@ -526,7 +533,7 @@ def devices_text(info: dict) -> list[str]:
 @click.option("--option", "options", metavar="NAME=VALUE", multiple=True,
               help="A run-time option of the method (repeatable; `prt methods` lists "
                    "them, e.g. d2i's max_bounces=4).")
-@SIZE
+@RENDER_SIZE
 @EXPOSURE
 @click.option("--set", "edits", metavar="NAME.KEY=VALUE", multiple=True,
               help="Run-time material edit (repeatable): NAME a material or object, KEY "
@@ -544,6 +551,9 @@ def devices_text(info: dict) -> list[str]:
 @click.option("--env-rotate", "env_rotate", type=float, default=None, metavar="DEG",
               help="Turn the environment map to DEG degrees about its axis (the scene's "
                    "axis, +y unless it says; instead of the scene's rotation).")
+@click.option("--env-scale", "env_scale", type=float, default=None, metavar="S",
+              help="Scale the environment map's radiance by S (>= 0; instead of the "
+                   "scene's scale; no re-bake for triple and sg).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON line with timings (ms) and the image size.")
 @WORKDIR
@@ -551,7 +561,8 @@ def devices_text(info: dict) -> list[str]:
 @THREADS
 @QUIET
 def render_cmd(scene, method, out, sequence, options, size, exposure, edits, moves, camera,
-               env_file, env_rotate, as_json, workdir, jobs, threads, quiet) -> None:
+               env_file, env_rotate, env_scale, as_json, workdir, jobs, threads,
+               quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
@@ -566,21 +577,24 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
 
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
-    opened = job.open_scene(scene, parse_size(size))
-    sc = with_run_time_edits(opened, list(edits), list(moves), camera, env_file, env_rotate)
+    file_scene = job.open_scene(scene)
+    opened = file_scene.with_image_size(*parse_size(size)) if size else file_scene
+    sc = with_run_time_edits(opened, list(edits), list(moves), camera, env_file, env_rotate,
+                             env_scale)
     m = get_method(method) if method else scene_methods(sc)[0]
-    # a method that follows the camera at run time renders a moved camera from the bake
-    # of the file's (as its orbit sequence does); another bakes for the moved one
-    bake_scene = with_run_time_edits(opened, list(edits), list(moves), None, env_file,
-                                     env_rotate) if camera and "camera" in m.edits else sc
+    # a method that follows the camera at run time renders a moved or resized camera
+    # from the bake of the file's (as its orbit sequence does); another bakes for it
+    bake_scene = job.bake_scene(m, sc, file_scene)
     values = m.option_values(parse_options(options))
     if sequence and m.sequences is None:
         raise PrtError("--frames", f"method {m.name} has no edit sequences")
     notes = scene_notes(sc, [m])
+    resized = job.resize_note(m, sc, bake_scene)
+    notes += [resized] if resized else []
     show_notes(notes, as_json)
     job.check_device()  # no working device: its one error line, not warnings first
     limits = show_warnings(limit_warnings(m, sc), as_json)
-    wd = job.workdir_for(sc, workdir)
+    wd = job.workdir_for(bake_scene, workdir)
     if out.suffix.lower() != ".exr":
         raise PrtError(out, "output must be an .exr file")
     baked = None
@@ -625,7 +639,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
 @SCENE
 @click.option("--method", default=None, metavar="NAME",
               help="Rendering method [default: the scene's first method].")
-@SIZE
+@RENDER_SIZE
 @click.option("--port", type=click.IntRange(0, 65535), default=8043, show_default=True,
               help="Port on localhost (0: any free port).")
 @click.option("--open", "open_browser", is_flag=True, help="Open the page in a browser.")
@@ -659,24 +673,35 @@ def view_cmd(scene, method, size, port, open_browser, exposure, save_dir, workdi
     cores = cores_option(jobs, threads)
     if exposure is not None:
         check_exposure(exposure)
-    sc = job.open_scene(scene, parse_size(size))
+    file_scene = job.open_scene(scene)
+    sc = file_scene.with_image_size(*parse_size(size)) if size else file_scene
     m = get_method(method) if method else scene_methods(sc)[0]
     check_method_scene(m, sc)
     if not m.renders:
         raise PrtError(None, f"method {m.name} has no renderer yet; nothing to view")
+    # as prt render: a method that follows the camera at run time renders --size from
+    # the bake of the file's camera (decision 0045)
+    bake_scene = job.bake_scene(m, sc, file_scene)
     sock = bind(port)  # a port in use fails before the bake
     try:
-        show_notes(scene_notes(sc, [m]), False)
+        resized = job.resize_note(m, sc, bake_scene)
+        notes = scene_notes(sc, [m]) + ([resized] if resized else [])
+        show_notes(notes, False)
         job.check_device()
-        show_warnings(limit_warnings(m, sc), False)
-        wd = job.workdir_for(sc, workdir)
-        baked = job.bake(sc, wd, jobs=cores.workers, quiet=quiet, methods=[m],
+        warnings = show_warnings(limit_warnings(m, sc), False)
+        wd = job.workdir_for(bake_scene, workdir)
+        baked = job.bake(bake_scene, wd, jobs=cores.workers, quiet=quiet, methods=[m],
                          threads=cores.threads)
-        show_warnings(job.tolerance_warnings(baked), False)
+        warnings += show_warnings(job.tolerance_warnings(baked), False)
+        # the limits on the frame as rendered, with the artifacts (a size larger than
+        # baked: triple's texels per pixel), each once, in the console and the page
+        warnings += show_warnings([w for w in limit_warnings(m, sc, job.method_artifacts(
+            m, wd)) if w not in warnings], False)
         view = ViewScene(sc, m, None if scene is None else str(scene), size,
                          scene_diagonal(wd.artifact("geometry"), sc),
                          None if workdir is None else str(workdir))
         engine = Engine(view, wd)
+        engine.notices = [f"note: {n}" for n in notes] + [f"warning: {w}" for w in warnings]
         from pipeline.images import readable_exposure
         from pipeline.view.encode import encode
 

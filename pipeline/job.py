@@ -58,6 +58,40 @@ def workdir_for(scene: Scene, workdir: str | Path | None,
     return Workdir(root, [(name, dependent_on(graph, section)) for name, section in views])
 
 
+def bake_scene(method: Method, scene: Scene, file_scene: Scene) -> Scene:
+    """The scene whose bake ``method`` renders ``scene``'s frames from (``file_scene``:
+    the scene file as opened, before ``--size`` and the run-time edits). A method that
+    follows the camera at run time (``camera`` among its edits: triple, sg) traces each
+    frame's camera itself, so it renders any camera, moved (``--camera``) or resized
+    (``--size``), from the bake of the file's camera: nothing is re-baked, and where
+    that bake is too coarse for the frame its limits say so (decision 0045). Any other
+    method bakes for the camera it renders (``scene`` itself)."""
+    camera = file_scene.document["camera"]
+    if "camera" not in method.edits or (scene.document["camera"] == camera
+                                        and scene.resized_from is None):
+        return scene
+    return scene.edited("camera", camera, resized_from=None)
+
+
+def resize_note(method: Method, scene: Scene, baked_for: Scene) -> str | None:
+    """A note when ``method`` renders ``scene`` at another image size than the bake it
+    reads was made for (:func:`bake_scene`) and some of what it reads depends on the
+    camera (triple's atlas; sg reads nothing of it), else None."""
+    from pipeline.engine.graph import dependent_on
+
+    cam, base = scene.camera, baked_for.camera
+    if (cam.width, cam.height) == (base.width, base.height):
+        return None
+    graph = stages()
+    reads = sorted(set(method.reads) & dependent_on(graph, "camera"))
+    if not reads:
+        return None
+    return (f"method {method.name} renders {cam.width}x{cam.height} from the "
+            f"{', '.join(reads)} baked for the scene file's {base.width}x{base.height} "
+            "camera (it traces the camera at run time; --size re-bakes nothing, "
+            "decision 0045)")
+
+
 def stages(stagefile: str | Path | None = None) -> StageFile:
     """The stage graph: ``stagefile`` alone (a custom graph), or the project's
     stages.yaml merged with the plug-ins' own stage files."""

@@ -55,6 +55,26 @@ def test_brdf_edit_mode_gives_the_full_render(baked):
         _close(frame(edited).rgb, renderer.frame(edited).rgb)
 
 
+@pytest.mark.parametrize("shadows", ["embree", "device"])
+def test_brdf_edit_mode_reshades_only_what_changed_bit_for_bit(baked, shadows):
+    """The BRDF-edit mode re-shades the direct term of the edited material's pixels only
+    (kernels/direct.cl ``direct_lighting_pixels``, ``_ShadedDirect``); its frames are the
+    full renders' bytes, edit after edit (a material changed, changed back, another, an
+    albedo), with the shadows traced by Embree or on the device."""
+    scene, workdir, _ = baked
+    mode = D2iRenderer(scene, d2i_artifacts(workdir), shadows=shadows)
+    full = D2iRenderer(scene, d2i_artifacts(workdir), shadows=shadows)
+    frame = mode.brdf_edits(scene)
+    floor = np.flatnonzero(mode.direct.material_id ==
+                           mode.material_names.index("glossy_floor"))
+    assert 0 < len(floor) < len(mode.direct.material_id)
+    for edits in (["glossy_floor.gamma=80"], ["glossy_floor.gamma=5"], [],
+                  ["glossy_floor.specular=0.05", "glossy_floor.gamma=80"],
+                  ["white.albedo=0.5,0.5,0.5"], ["glossy_floor.gamma=80"]):
+        edited = with_material_edits(scene, edits)
+        assert np.array_equal(frame(edited).rgb, full.frame(edited).rgb), edits
+
+
 def test_light_edit_mode_gives_the_full_render(baked):
     scene, _, renderer = baked
     frame = renderer.light_edits(scene)

@@ -41,6 +41,7 @@ UNCHECKABLE = {  # file:kernel -> why Oclgrind cannot check it for uninitialised
                      "sg_render.cl:sg_shade_visibility",
                      "triple.cl:triple_shade", "triple.cl:triple_shade_dense",
                      "d2i.cl:bounce_step", "d2i.cl:combine", "direct.cl:direct_lighting",
+                     "direct.cl:direct_lighting_pixels",
                      "direct.cl:gather_direct", "shadow_rays.cl:light_visibility",
                      "wavelet_select.cl:select_threshold", "transfer.cl:transfer_pairs"],
                     SEGFAULT),

@@ -54,7 +54,7 @@ needs_browser = pytest.mark.skipif(browser_missing() is not None,
 # per method: the controls moved in the page (id -> value)
 MOVES = {"d2i": {"light-0-x": 0.31, "mat-shiny-gamma": 700},
          "triple": {"environment": 90, "camera-azimuth": 25, "mat-shiny-gamma": 600},
-         "sg": {"environment": 45, "camera-elevation": 10}}
+         "sg": {"environment": 45, "camera-elevation": 10, "environment-scale": 1.5}}
 
 
 def prt(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
@@ -71,12 +71,14 @@ def snapshot(root: Path) -> dict[str, tuple[int, int]]:
 class Viewer:
     """A ``prt view`` process on a free port."""
 
-    def __init__(self, scene: Path, workdir: Path, save: Path, *extra: str) -> None:
+    def __init__(self, scene: Path, workdir: Path, save: Path, *extra: str,
+                 env: dict[str, str] | None = None) -> None:
         self.workdir = workdir
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "pipeline", "view", str(scene), "--workdir", str(workdir),
              "--port", "0", "--save-dir", str(save), "-q", *extra],
-            cwd=scene.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            cwd=scene.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env=None if env is None else {**os.environ, **env})
         deadline = time.time() + 300
         self.url = None
         while time.time() < deadline:
@@ -156,6 +158,8 @@ def test_page_frame_and_save_equal_prt_render(method, browser, tmp_path):
         header = wait_frame(page, last - 1)
         assert header["format"] == "png" and header["mode"] == "frame"
         assert header["args"], "the moved controls are edits"
+        if "environment-scale" in MOVES[method]:  # the map's scale: stops on the slider
+            assert "--env-scale" in header["args"], header["args"]
         shown = canvas_rgb(page)
         page.click("#save")
         page.wait_for_function("window.prtView.saved", timeout=120_000)
@@ -283,6 +287,34 @@ def test_cached_state_is_instant_and_reference_view(d2i_viewer, browser, tmp_pat
     page.close()
 
 
+@pytest.mark.timeout(600)
+def test_open_opens_the_served_address(tmp_path):
+    """``--open`` opens the printed address in the user's browser (Python's webbrowser,
+    which runs ``$BROWSER`` with the address: here a script that records it), and the
+    page is served there."""
+    import urllib.request
+
+    record = tmp_path / "opened.txt"
+    browser = tmp_path / "browser.sh"
+    browser.write_text(f'#!/bin/sh\nprintf "%s\\n" "$@" >> {shlex.quote(str(record))}\n')
+    browser.chmod(0o755)
+    scene = tiny_scene(tmp_path, "sg", size=8).path
+    viewer = Viewer(scene, tmp_path / "w", tmp_path / "saved", "--open",
+                    env={"BROWSER": str(browser)})
+    try:
+        deadline = time.time() + 60
+        while not record.is_file() and time.time() < deadline:
+            time.sleep(0.1)
+        opened = record.read_text().split()
+        with urllib.request.urlopen(opened[0], timeout=30) as r:
+            page = r.read().decode()
+    finally:
+        code, output = viewer.stop()
+    assert code == 0, output
+    assert opened == [viewer.url] and viewer.url.startswith("http://127.0.0.1:")
+    assert "<title>prt view</title>" in page
+
+
 def test_port_in_use_is_one_error_line(tmp_path):
     """A port in use: one ``error:`` line before anything is baked."""
     taken = socket.socket()
@@ -313,6 +345,42 @@ def test_scene_that_does_not_bake_is_one_error_line(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("error: ") and "gamma_range" in lines[0]
 
 
+@pytest.mark.timeout(900)
+@pytest.mark.parametrize("method", ["triple", "sg"])
+def test_size_renders_from_the_files_bake(method, tmp_path):
+    """A method that traces the camera at run time renders ``--size`` from the bake of
+    the file's camera (decision 0045): ``prt render`` and ``prt view`` at 16² on the 8²
+    bake re-bake nothing; where the bake depends on the camera (triple's atlas) a note
+    says so, in the console and the page."""
+    import urllib.request
+
+    scene = tiny_scene(tmp_path, method, size=8).path
+    work = tmp_path / "w"
+    done = prt("render", scene, "--method", method, "--workdir", work, "--out",
+               tmp_path / "a.exr", "-q", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    before = snapshot(work)
+    done = prt("render", scene, "--method", method, "--size", "16x16", "--workdir", work,
+               "--out", tmp_path / "b.exr", "-q", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert read_exr(tmp_path / "b.exr").shape == (16, 16, 3)
+    assert snapshot(work) == before and not (work / "views").exists()
+    note = "renders 16x16 from the triple.atlas, triple.visibility baked for the scene " \
+        "file's 8x8 camera"
+    assert (note in done.stderr) == (method == "triple"), done.stderr
+    viewer = Viewer(scene, work, tmp_path / "saved", "--method", method, "--size", "16x16")
+    try:
+        with urllib.request.urlopen(viewer.url + "api/spec", timeout=30) as r:
+            spec = json.loads(r.read())
+    finally:
+        code, output = viewer.stop()
+    assert code == 0, output
+    assert (spec["width"], spec["height"]) == (16, 16)
+    assert any(note in n for n in spec["notices"]) == (method == "triple"), spec["notices"]
+    assert (note in output) == (method == "triple")
+    assert snapshot(work) == before and not (work / "views").exists()
+
+
 def test_every_method_declares_known_edits():
     """The descriptors' run-time edits come from the core's vocabulary, and a drag's
     edit modes and options name the method's own edits and options."""
@@ -334,22 +402,27 @@ def test_resolve_gives_prt_render_arguments(tmp_path):
     scene = tiny_scene(tmp_path, "triple", size=8)
     view = ViewScene(scene, get_method("triple"), "scene.yaml", None, 4.0)
     r = view.resolve({"environment": 30, "camera": [10, 5], "options": {"budget": 80},
+                      "environment_scale": 2.5,
                       "materials": {"shiny": {"gamma": 50, "specular": 0.05}}})
     camera = r.args[r.args.index("--camera") + 1]
     assert r.args == ("--set", "shiny.gamma=50.0", "--set", "shiny.specular=0.05",
-                      "--camera", camera, "--env-rotate", "30.0", "--option", "budget=80")
+                      "--camera", camera, "--env-rotate", "30.0", "--env-scale", "2.5",
+                      "--option", "budget=80")
     again = with_run_time_edits(scene, ["shiny.gamma=50.0", "shiny.specular=0.05"], [],
-                                camera, None, 30.0)
+                                camera, None, 30.0, 2.5)
+    assert r.scene.environment.scale == 2.5
     assert again.document == r.scene.document and r.options["budget"] == 80
     assert np.isclose(np.linalg.norm(np.subtract(again.camera.position,
                                                  again.camera.look_at)), view.radius)
-    assert view.resolve({"camera": [0, 0], "environment": 0}).args == ()
+    assert view.resolve({"camera": [0, 0], "environment": 0,
+                         "environment_scale": scene.environment.scale}).args == ()
     assert "view.exr" in view.command(r.args)
     for bad, words in (({"materials": {"shiny": {"gamma": 301}}}, "outside the baked"),
                        ({"lights": {"0": [1, 0, 0]}}, "does not move lights"),
                        ({"camera": [0, 90]}, "beyond"),
                        ({"options": {"budget": -1}}, ">= 0"),
-                       ({"environment": "x"}, "expected a number")):
+                       ({"environment": "x"}, "expected a number"),
+                       ({"environment_scale": -1}, "outside")):
         with pytest.raises(PrtError, match=words):
             view.resolve(bad)
 
@@ -362,7 +435,9 @@ def test_prt_render_move_light_and_camera_errors(tmp_path):
     for args, words in ((("--move-light", "0=1,2"), "expected 3 finite numbers"),
                         (("--move-light", "7=0,0,0"), "no light 7"),
                         (("--move-light", "x"), "expected INDEX=DX,DY,DZ"),
-                        (("--camera", "0,0.3,0"), "look_at")):
+                        (("--camera", "0,0.3,0"), "look_at"),
+                        (("--env-scale", "-1"), "expected a finite number >= 0"),
+                        (("--env-scale", "2"), "no environment light to scale")):
         done = prt("render", scene, "--out", tmp_path / "x.exr", *args, cwd=tmp_path,
                    timeout=120)
         assert done.returncode == 2, done.stderr
@@ -380,6 +455,28 @@ def test_tone_map_is_the_previews():
                               np.round(srgb_encode(rgb, 2 ** ev) * 255).astype(np.uint8))
     assert np.array_equal(np.frombuffer(encode(rgb, "f16"), np.float16).reshape(rgb.shape),
                           rgb.astype(np.float16))
+
+
+def test_tone_map_table_is_the_curve_bit_for_bit():
+    """The viewer's tone map by table (pipeline/view/encode.py ``tone_table``) gives the
+    float64 curve's bytes: on each side of every step the table found, on every 4099th
+    float32 bit pattern of every sign, and at zeros, infinities, denormals and the
+    largest floats, at several exposures. (Every positive float32 below saturation was
+    compared once, at three exposures: decision 0043's addendum.)"""
+    from pipeline.view.encode import tone_map, tone_map_reference, tone_table
+
+    special = np.array([0.0, -0.0, np.inf, -np.inf, 1e-45, -1e-45, 1.2e-38, 3.4e38,
+                        -3.4e38, 0.0031308, 1.0, 0.5 / 255], np.float32)
+    every = np.arange(0, 2**32, 4099, dtype=np.uint64).astype(np.uint32).view(np.float32)
+    every = every[~np.isnan(every)]
+    for ev in (0.0, 1.3, -2.0, 7.25):
+        low, step = tone_table(ev)
+        steps = step[step != 0xFFFFFFFF]
+        assert 250 <= len(steps) <= 255  # one per 8-bit step that a positive float reaches
+        near = np.concatenate([steps - 1, steps, steps + 1]).view(np.float32)
+        for x in (special, near, every):
+            with np.errstate(over="ignore", invalid="ignore"):
+                assert np.array_equal(tone_map(x, ev), tone_map_reference(x, ev)), ev
 
 
 def test_a_request_arriving_while_the_last_frame_is_sent_is_rendered():

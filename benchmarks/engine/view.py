@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -168,24 +169,31 @@ def drag(page, control: tuple[str, float, float], seconds: float, fmt: str
             "release": summary(release[-1:], 0.0) if release else None}
 
 
-def workdir_of(scene_file: Path, size: int) -> tuple[Any, Any]:
-    """The scene at ``size``² baked in the benchmark cache's folder of the file's own
-    size (benchmarks/fixtures.py ``baked``): another size keeps only its camera-dependent
-    artifacts apart (``views/WxH``), as ``prt view --size`` does, sharing the rest."""
+def workdir_of(method: str, scene_file: Path, size: int) -> tuple[Any, Any]:
+    """The scene at ``size``² and the work directory ``prt view --size`` renders it from,
+    baked there (the benchmark cache's folder of the file's own size,
+    benchmarks/fixtures.py ``baked``): for a method that traces the camera at run time
+    (triple, sg) the file's bake itself (pipeline/job.py ``bake_scene``, decision 0045),
+    for another its camera-dependent artifacts apart (``views/WxH``), the rest shared."""
     from pipeline import job
     from pipeline.engine.keys import digest
+    from pipeline.registry import get_method
 
-    cam = job.open_scene(scene_file).camera
-    folder = CACHE / f"{job.open_scene(scene_file).name}_{cam.width}x{cam.height}_" \
-        f"{digest({})[:8]}"
-    return baked(scene_file, size, workdir=folder)
+    opened = job.open_scene(scene_file)
+    cam = opened.camera
+    folder = CACHE / f"{opened.name}_{cam.width}x{cam.height}_{digest({})[:8]}"
+    scene = opened.with_image_size(size, size)
+    bake_scene = job.bake_scene(get_method(method), scene, opened)
+    _, work = baked(bake_scene, workdir=folder)
+    return scene, work
 
 
 def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats: list[str],
             seconds: float, browser) -> dict[str, Any]:
     t0 = time.perf_counter()
-    scene, work = workdir_of(scene_file, size)
+    scene, work = workdir_of(method, scene_file, size)
     bake_s = time.perf_counter() - t0
+    load_before = load()
     with viewer_page(scene_file, size, work.root, browser, (1400, 1000)) as page:
         spec = page.evaluate("fetch('/api/spec').then(r => r.json())")
         runs = {}
@@ -195,7 +203,7 @@ def measure(method: str, scene_file: Path, size: int, wanted: list[str], formats
                 runs[f"{name}/{fmt}"] = drag(page, control, seconds, fmt)
         stats = page.evaluate("fetch('/api/stats').then(r => r.json())")
     return {"method": method, "scene": scene.name, "size": size, "bake_s": round(bake_s, 1),
-            "runs": runs, "server": stats}
+            "runs": runs, "server": stats, "load_before": load_before, "load_after": load()}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -207,6 +215,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--controls", default="environment,gamma,light")
     parser.add_argument("--formats", default="jpeg,webp,png,f16",
                         help="every format at the largest size; the first at the others")
+    parser.add_argument("--merge", type=Path, default=None, metavar="JSON",
+                        help="an earlier result whose rows this run's (method, size) do "
+                             "not replace are kept (merged_from lists the runs)")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     scenes = DEFAULT_SCENES | {k: Path(v) for k, v in (s.split("=", 1) for s in args.scenes)}
@@ -240,4 +251,29 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                           f"{d.get('transfer_ms')}, paint {d.get('paint_ms')})", flush=True)
         browser.close()
     result["load_after"] = load()
+    if args.merge is not None:
+        result = merged(json.loads(args.merge.read_text()), result,
+                        f"engine.view -- --methods {args.methods} --sizes {args.sizes} "
+                        f"--controls {args.controls} --formats {args.formats} "
+                        f"--seconds {args.seconds:g}")
     return write_result("engine.view", result, args.out)
+
+
+def merged(old: dict[str, Any], new: dict[str, Any], run: str) -> dict[str, Any]:
+    """``new``'s rows and ``old``'s rows of other (method, size), by method (in the
+    order they first appear) and size; each row keeps its own load averages (an old row
+    without them gets its run's)."""
+    mine = {(r["method"], r["size"]): r for r in new["results"]}
+    rows = []
+    for row in old["results"]:
+        key = (row["method"], row["size"])
+        if key in mine:
+            rows.append(mine.pop(key))
+        else:
+            rows.append({"load_before": old.get("load_before"),
+                         "load_after": old.get("load_after"), **row})
+    rows += list(mine.values())
+    order = list(dict.fromkeys(r["method"] for r in rows))  # each method's rows together
+    rows.sort(key=lambda r: (order.index(r["method"]), r["size"]))
+    runs = old.get("merged_from") or ["earlier run"]
+    return {**new, "results": rows, "merged_from": [*runs, run]}

@@ -105,6 +105,44 @@ class DirectShader:
         self.visibility_buffer = cl.read_only_buffer(visibility)
         return 0.0
 
+    def pixel_rows(self, pixels: np.ndarray) -> dict[str, Any]:
+        """The G-buffer rows and traced visibility rows of ``pixels`` (ids into the
+        image) on the device, with the lights they were traced for: what
+        :meth:`shade_pixels` reads (kept by the caller while the lights stay; a new
+        :meth:`trace` needs new rows)."""
+        import pyopencl as pcl
+
+        n = len(self.position)
+        visibility = np.empty((n, self.visibility_stride), np.uint8)
+        pcl.enqueue_copy(cl.queue(), visibility, self.visibility_buffer)
+        pixels = np.asarray(pixels, np.int64)
+        return {"count": len(pixels), "lights": self.lights,
+                "stride": self.visibility_stride,
+                "pixel": cl.read_only_buffer(pixels.astype(np.uint32)),
+                "gbuffer": [cl.read_only_buffer(a[pixels]) for a in (
+                    self.position, self.normal, self.tangent, self.object_id,
+                    self.material_id)],
+                "visibility": cl.read_only_buffer(visibility[pixels])}
+
+    def shade_pixels(self, materials: np.ndarray, camera: np.ndarray,
+                     rows: dict[str, Any]) -> tuple[np.ndarray, float]:
+        """Radiance (pixels, 3) float32 of the pixels of ``rows`` (:meth:`pixel_rows`)
+        only, each the value :meth:`shade` gives it, bit for bit (kernels/direct.cl: the
+        same function per pixel), and the kernel milliseconds."""
+        n = rows["count"]
+        out = np.empty((n, 3), np.float32)
+        if n == 0:
+            return out, 0.0
+        lights = rows["lights"] if len(rows["lights"]) else np.zeros((1, LIGHT_FLOATS),
+                                                                     np.float32)
+        kernel = cl.kernel("direct.cl", "direct_lighting_pixels", light_defines())
+        ms = cl.run(kernel, n, *rows["gbuffer"], cl.read_only_buffer(materials),
+                    cl.read_only_buffer(lights), np.int32(len(rows["lights"])),
+                    rows["visibility"], np.int32(rows["stride"]),
+                    np.array([*camera, 0.0], np.float32), rows["pixel"], np.int32(n),
+                    out=out, writes=12 * n)
+        return out, ms
+
     def shade(self, materials: np.ndarray, camera: np.ndarray, out_buffer: Any = None
               ) -> tuple[np.ndarray | None, float, int]:
         """Radiance (P, 3) float32 (left in device buffer ``out_buffer`` when given, and

@@ -1,11 +1,11 @@
 """Run-time edits of a loaded scene: material γ, ρs and albedo, light moves, the
-environment map's file and rotation, the camera's position.
+environment map's file, rotation and scale, the camera's position.
 
 Each returns a new Scene whose document (its canonical dictionary, pipeline/scene/model.py)
 holds the edit, and reports a bad edit as a PrtError naming the scene file.
 Which of them re-bakes what follows from the stage keys: none for d2i's light moves and
 BRDF edits, the lighting grid of method triple for a new map file, nothing for a map
-rotation (a lookup shift there).
+rotation (a lookup shift there) or scale (a factor on the result).
 """
 
 from __future__ import annotations
@@ -92,6 +92,20 @@ def with_environment_rotation(scene: Scene, degrees: float) -> Scene:
     return scene.edited("lights", raw)
 
 
+def with_environment_scale(scene: Scene, scale: float) -> Scene:
+    """The scene with every environment light's radiance × ``scale`` (the scene file's
+    ``scale``, replaced; ≥ 0). The methods that bake the map (triple, sg) bake it
+    unscaled and multiply at run time: no re-bake."""
+    if not math.isfinite(scale) or scale < 0:
+        raise PrtError(scene.path, f"environment scale {scale!r}: expected a finite number "
+                       ">= 0")
+    if not any(light.type == "environment" for light in scene.lights):
+        raise PrtError(scene.path, "the scene has no environment light to scale")
+    raw = [{**r, "scale": float(scale)} if r["type"] == "environment" else r
+           for r in scene.document["lights"]]
+    return scene.edited("lights", raw)
+
+
 def with_camera_position(scene: Scene, position: tuple[float, float, float]) -> Scene:
     """The scene seen from ``position`` (scene units), still looking at its look_at."""
     moved = [float(v) for v in position]
@@ -148,11 +162,13 @@ def with_camera_text(scene: Scene, position: str) -> Scene:
 
 def with_run_time_edits(scene: Scene, sets: list[str] = (), moves: list[str] = (),
                         camera: str | None = None, env_file: str | Path | None = None,
-                        env_rotate: float | None = None) -> Scene:
+                        env_rotate: float | None = None,
+                        env_scale: float | None = None) -> Scene:
     """Every run-time edit of ``prt render`` applied, in its order: material edits
     (``--set``), light moves (``--move-light``), the camera (``--camera``), the map's file
-    (``--env``) and turn (``--env-rotate``). ``prt view`` applies its edits through this
-    one function, so that a frame it saves is the frame ``prt render`` renders."""
+    (``--env``), turn (``--env-rotate``) and scale (``--env-scale``). ``prt view``
+    applies its edits through this one function, so that a frame it saves is the frame
+    ``prt render`` renders."""
     scene = with_material_edits(scene, list(sets)) if sets else scene
     for move in moves:
         scene = with_light_move(scene, move)
@@ -162,4 +178,6 @@ def with_run_time_edits(scene: Scene, sets: list[str] = (), moves: list[str] = (
         scene = with_environment_file(scene, env_file)
     if env_rotate is not None:
         scene = with_environment_rotation(scene, env_rotate)
+    if env_scale is not None:
+        scene = with_environment_scale(scene, env_scale)
     return scene

@@ -37,9 +37,10 @@ from pipeline.view.state import Resolved, ViewScene, number
 
 FRAME_CACHE = 48  # frames kept (a 512² frame: 3 MB)
 RENDERERS = 2  # renderers kept, by options (the release's and a drag's budget)
-# the ``prt render`` argument of each edit group (an edit mode's base leaves its own out)
-GROUP_FLAGS = {"light": "--move-light", "gamma": "--set", "specular": "--set",
-               "albedo": "--set", "camera": "--camera", "environment": "--env-rotate"}
+# the ``prt render`` arguments of each edit group (an edit mode's base leaves its own out)
+GROUP_FLAGS = {"light": ("--move-light",), "gamma": ("--set",), "specular": ("--set",),
+               "albedo": ("--set",), "camera": ("--camera",),
+               "environment": ("--env-rotate", "--env-scale")}
 
 
 @dataclass
@@ -71,6 +72,7 @@ class Engine:
         self.mode: tuple[str, Any] | None = None  # (key, frame function) of an edit mode
         self.stats = Stats()
         self.exposure = 0.0  # the page's exposure at start (EV)
+        self.notices: list[str] = []  # prt view's note: and warning: lines, for the page
         self.references = self._cached_references()
         self.lock = threading.Lock()
 
@@ -127,7 +129,8 @@ class Engine:
     def _mode_frame(self, renderer: Renderer, kind: str, resolved: Resolved) -> Frame:
         """A frame in the renderer's ``kind`` edit mode, entered at the first frame of a
         drag whose other edits are these (a new base enters it again)."""
-        flags = {GROUP_FLAGS[g] for g, k in self.view.method.edit_modes.items() if k == kind}
+        flags = {f for g, k in self.view.method.edit_modes.items() if k == kind
+                 for f in GROUP_FLAGS[g]}
         args, base = list(resolved.args), []
         for i in range(0, len(args), 2):
             if args[i] not in flags:
@@ -315,6 +318,7 @@ def make_app(engine: Engine, save_dir: Path) -> web.Application:
         body = engine.view.spec() | {"formats": list(FORMATS), "format": DEFAULT_FORMAT,
                                      "reference_transport": engine.view.method.reference,
                                      "exposure": engine.exposure,
+                                     "notices": engine.notices,
                                      "save_dir": str(save_dir)}
         return web.json_response(body)
 

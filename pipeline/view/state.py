@@ -1,6 +1,7 @@
 """The viewer's state: the edits a page sends, checked against the method's declared
 run-time edits (``Method.edits``) and turned into the arguments of ``prt render``
-(``--set``, ``--move-light``, ``--camera``, ``--env-rotate``, ``--option``), which are
+(``--set``, ``--move-light``, ``--camera``, ``--env-rotate``, ``--env-scale``,
+``--option``), which are
 then applied by the function ``prt render`` applies them with
 (pipeline/scene/edits.py ``with_run_time_edits``). The viewer never edits a scene any
 other way: a frame it shows or saves is the frame of the command it prints.
@@ -9,6 +10,7 @@ A page's edits (JSON)::
 
     {"lights": {"0": [dx, dy, dz]},          # scene units, world frame
      "environment": 90.0,                    # the map's rotation in degrees
+     "environment_scale": 2.0,               # the map's radiance scale
      "camera": [azimuth, elevation],         # degrees about the look_at point, from the file's
      "materials": {"floor": {"gamma": 40, "specular": 0.3, "albedo": [r, g, b]}},
      "options": {"budget": 320}}
@@ -36,6 +38,7 @@ MOVABLE = {"point": "position", "spot": "position", "quad": "corner"}
 MATERIAL_KEYS = ("gamma", "specular", "albedo")
 ELEVATION_LIMIT = 85.0  # degrees: the camera never reaches its up direction
 LIGHT_REACH = 0.5  # a light moves at most this × the scene's diagonal along each axis
+SCALE_MOST = 1e6  # the environment's scale in the viewer: within [0, this]
 
 
 def number(value: Any, where: str) -> float:
@@ -114,12 +117,15 @@ class ViewScene:
                 row["albedo"] = _rgb(p.get("albedo", 0.0))
             materials.append(row)
         env = sc.environment
+        # the ``environment`` edit: the map's turn and its scale (a factor on the frame
+        # for every method that turns the map at run time; its stages never read it)
+        environment = None if env is None or "environment" not in edits else \
+            {"rotation": env.rotation, "scale": env.scale}
         return {
             "scene": sc.name, "method": m.name, "description": m.description,
             "width": cam.width, "height": cam.height, "edits": [e for e in m.edits],
             "lights": lights, "materials": materials,
-            "environment": None if env is None or "environment" not in edits else
-            {"rotation": env.rotation},
+            "environment": environment,
             "camera": {"orbit": "camera" in edits, "elevation": self.elevation0,
                        "limit": ELEVATION_LIMIT, "right": right.tolist(),
                        "up": up.tolist()},
@@ -145,12 +151,13 @@ class ViewScene:
         if not isinstance(edits, dict):
             raise PrtError("edits", "expected an object of edits")
         allowed = set(self.method.edits)
-        unknown = set(edits) - {"lights", "environment", "camera", "materials", "options"}
+        unknown = set(edits) - {"lights", "environment", "environment_scale", "camera",
+                                "materials", "options"}
         if unknown:
             raise PrtError("edits", f"unknown edit {sorted(unknown)[0]!r}")
         sets: list[str] = []
         moves: list[str] = []
-        camera = env_rotate = None
+        camera = env_rotate = env_scale = None
         groups: set[str] = set()
         for name, values in sorted((edits.get("materials") or {}).items()):
             if name not in self.scene.materials:
@@ -195,17 +202,30 @@ class ViewScene:
             if env is not None and deg != env.rotation:
                 env_rotate = text(deg)
                 groups.add("environment")
+        if edits.get("environment_scale") is not None:
+            if "environment" not in allowed:
+                raise PrtError("environment_scale", f"method {self.method.name} does not "
+                               "scale the environment at run time")
+            scale = number(edits["environment_scale"], "environment_scale")
+            if not 0 <= scale <= SCALE_MOST:
+                raise PrtError("environment_scale", f"{scale!r} is outside [0, {SCALE_MOST:g}]")
+            env = self.scene.environment
+            if env is not None and scale != env.scale:
+                env_scale = text(scale)
+                groups.add("environment")
         given = {k: str(v) for k, v in sorted((edits.get("options") or {}).items())}
         given |= {k: str(v) for k, v in (extra_options or {}).items()}
         options = self.method.option_values(given)
         defaults = self.method.option_values({})
         option_args = [f"{k}={v}" for k, v in options.items() if v != defaults[k]]
         scene = with_run_time_edits(self.scene, sets, moves, camera, None,
-                                    None if env_rotate is None else float(env_rotate))
+                                    None if env_rotate is None else float(env_rotate),
+                                    None if env_scale is None else float(env_scale))
         args = [*(a for s in sets for a in ("--set", s)),
                 *(a for mv in moves for a in ("--move-light", mv)),
                 *(("--camera", camera) if camera else ()),
                 *(("--env-rotate", env_rotate) if env_rotate else ()),
+                *(("--env-scale", env_scale) if env_scale else ()),
                 *(a for o in option_args for a in ("--option", o))]
         return Resolved(scene, options, tuple(args), json.dumps(args), frozenset(groups))
 

@@ -55,6 +55,8 @@ def run_all(folder: Path, work: Path) -> None:
             render.frame(sc)
             render.frame(with_light_offset(sc, 0, (0.1, 0.0, 0.0)))
             render.frame(with_material_edits(sc, ["shiny.gamma=50"]))
+            # the BRDF-edit mode re-shades the edited material's pixels alone
+            render.edit_mode("gamma", sc)(with_material_edits(sc, ["shiny.gamma=50"]))
         geometry, _ = job.load_geometry(sc, wd)
         rays = np.random.default_rng(0).normal(size=(64, 3))
         bvh.occluded(bvh.Bvh.build(geometry["vertices"], geometry["faces"]),

@@ -53,13 +53,16 @@ def texels_per_pixel(scene: Scene, params: Mapping[str, Any],
         baked = attrs["screen_pixels"][obj]
         if pixels > CLOSER * baked:
             cause = (f"it covers {pixels / max(baked, 1):.1f}× the pixels it covered for the "
-                     "camera the atlas was baked for: bake for this camera")
+                     "camera the atlas was baked for (the scene file's: prt render and "
+                     "prt view render other cameras and sizes from its bake, decision "
+                     "0045): give the file this camera to bake for it")
         elif max(attrs["texture_sizes"][obj]) >= CAPPED * attrs["texture_max"]:
             cause = (f"its texture is capped at triple.texture_max "
                      f"{attrs['texture_max']}: raise it")
         else:
             cause = f"raise triple.texels_per_pixel ({attrs['texels_per_pixel']:g})"
-        found.append(f"objects.{obj}: {density:.2f} texels per pixel (below "
+        shown = np.floor(density * 100) / 100  # 1.4975 reads 1.49, not 1.50 "below 1.5"
+        found.append(f"objects.{obj}: {shown:.2f} texels per pixel (below "
                      f"{LEAST_TEXELS_PER_PIXEL}: texel blocks and aliased contact shadows); "
                      f"{cause}")
     return "; ".join(found) or None

@@ -13,7 +13,8 @@ let lastInput = performance.now();
 const sent = new Map();           // id -> {t: sent, input: input event time}
 const painted = [];               // per frame painted: the measurements
 const paintTimes = [];            // for fps
-const edits = {lights: {}, environment: null, camera: null, materials: {}, options: {}};
+const edits = {lights: {}, environment: null, environment_scale: null, camera: null,
+               materials: {}, options: {}};
 let exposure = 0;
 let format = "jpeg";
 let view = "frame";
@@ -74,6 +75,7 @@ function build() {
   $("title").textContent = `${spec.scene} · method ${spec.method}: ${spec.description}` +
     ` · ${spec.width}×${spec.height}`;
   format = spec.format;
+  $("notices").textContent = (spec.notices || []).join("\n");  // once, as the console
   const vc = $("view-controls");
   const fsel = el("select", {id: "format"}, spec.formats.map(
     (f) => el("option", {value: f, textContent: f, selected: f === format})));
@@ -100,10 +102,19 @@ function build() {
   }
   if (spec.environment) {
     const f = fieldset("environment");
-    edits.environment = spec.environment.rotation;
-    slider(f, "environment", "rotation °", -360, 360, 0.5, spec.environment.rotation,
-           "environment", (v) => { edits.environment = v; });
-    targets.push(["environment", {kind: "environment"}]);
+    if (spec.environment.rotation !== null) {
+      edits.environment = spec.environment.rotation;
+      slider(f, "environment", "rotation °", -360, 360, 0.5, spec.environment.rotation,
+             "environment", (v) => { edits.environment = v; });
+      targets.push(["environment", {kind: "environment"}]);
+    }
+    if (spec.environment.scale !== null) {    // in stops about the file's scale
+      const base = spec.environment.scale || 1;
+      const toScale = (t) => (t === 0 ? spec.environment.scale : base * Math.pow(2, t));
+      edits.environment_scale = spec.environment.scale;
+      slider(f, "environment-scale", "scale ×", -8, 8, 0.05, 0, "environment",
+             (t) => { edits.environment_scale = toScale(t); }, (t) => fmt(toScale(t)));
+    }
   }
   if (spec.camera.orbit) {
     const f = fieldset("camera orbit");
