@@ -333,8 +333,9 @@ def checked_frame(frame: Frame, out: Path) -> Frame:
 def frame_renderer(scene: Scene, workdir: Workdir, method: str,
                    options: dict[str, Any] | None = None) -> Renderer:
     """A renderer of ``method``'s frames from the (already baked) artifacts in
-    ``workdir``, loaded once; ``options`` are the method's run-time options. PrtError
-    if what the method's factory gives is not a :class:`Renderer`."""
+    ``workdir``, loaded once; ``options`` are the method's run-time options, those not
+    given at their declared defaults (what ``prt render`` renders). PrtError if what the
+    method's factory gives is not a :class:`Renderer`."""
     m = get_method(method)
     options = m.option_values({}) | (options or {})
     renderer = resolve(m.renderer)(scene, method_artifacts(m, workdir, options), **options)

@@ -258,7 +258,7 @@ def _sun(out: Path, workdir: Path, size: int, spp: int) -> None:
         shutil.copytree(wd.root, copy)
     wd17 = job.workdir_for(grid, copy)
     job.bake(grid, wd17, quiet=True)
-    image = job.render_frame(grid, wd17, "triple").rgb
+    image = job.render_frame(grid, wd17, "triple", {"budget": 0}).rgb
     rows.append({"rows": "as stored, frame grid 32×17×32", "errors": _errors(image, ref, masks)})
     _pictures(out, "triple_breakdown_sun_grid17", image, ref)
     write_png(out / "triple_breakdown_sun_reference.png", ref.mean)
@@ -285,7 +285,7 @@ def _texels(out: Path, workdir: Path, size: int, spp: int) -> None:
         baked = scene.with_settings({"triple.texels_per_pixel": density})
         load = _load()
         job.bake(baked, wd, quiet=True)
-        image = job.render_frame(baked, wd, "triple").rgb
+        image = job.render_frame(baked, wd, "triple", {"budget": 0}).rgb
         sizes = open_artifact(wd.artifact("triple.atlas"), "triple_atlas").attrs[
             "texture_sizes"]
         rows.append({"texels_per_pixel": density, "texture_sizes": sizes,
@@ -338,7 +338,7 @@ def _seams(out: Path, workdir: Path, size: int, spp: int) -> None:
     interior[px["hit"]] = interior_hit
     seam = px["hit"] & ~interior
     ref = _reference(scene, wd, spp)
-    image = job.render_frame(scene, wd, "triple").rgb
+    image = job.render_frame(scene, wd, "triple", {"budget": 0}).rgb
     masks = {"surfaces": px["hit"], "seam": seam, "interior": interior}
     for name in ("bunny", "wall", "ground"):
         o = px["object"] == names.index(name)
@@ -402,7 +402,7 @@ def _grazing(out: Path, workdir: Path, size: int, spp: int) -> None:
         job.bake(scene, wd, quiet=True)
         px = _pixels(scene, wd)
         ref = _reference(scene, wd, spp)
-        image = job.render_frame(scene, wd, "triple").rgb
+        image = job.render_frame(scene, wd, "triple", {"budget": 0}).rgb
         edges = [0, 60, 70, 75, 80, 84, 87, 90]
         masks = {"floor": px["hit"]}
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):
@@ -448,7 +448,7 @@ def _dragon(out: Path, workdir: Path, size: int, spp: int) -> None:
         shutil.copytree(wd.root, copy)
     wd4 = job.workdir_for(dense, copy)
     job.bake(dense, wd4, quiet=True)
-    image = job.render_frame(dense, wd4, "triple").rgb
+    image = job.render_frame(dense, wd4, "triple", {"budget": 0}).rgb
     rows.append({"rows": "as stored, texels_per_pixel 4", "errors": _errors(image, ref, masks)})
     _pictures(out, "triple_breakdown_dragon_tpp4", image, ref)
     atlases = {tag: {k: open_artifact(w.artifact("triple.atlas"), "triple_atlas").attrs[k]
@@ -473,7 +473,7 @@ def _closeup(out: Path, workdir: Path, size: int, spp: int) -> None:
     names = list(px["names"])
     masks = {"surfaces": px["hit"], "bunny": px["object"] == names.index("bunny")}
     load = _load()
-    run_time = job.render_frame(moved, wd, "triple").rgb
+    run_time = job.render_frame(moved, wd, "triple", {"budget": 0}).rgb
     # the same edit made in the scene file: a copy of the bake, re-baked where stale
     doc = yaml.safe_load(Path(scene.path).read_text())
     doc["camera"]["position"] = [float(v) for v in near]
@@ -486,7 +486,7 @@ def _closeup(out: Path, workdir: Path, size: int, spp: int) -> None:
     shutil.copytree(wd.root, copy)
     wd_near = job.workdir_for(edited, copy)
     report = job.bake(edited, wd_near, quiet=True)
-    rebaked = job.render_frame(edited, wd_near, "triple").rgb
+    rebaked = job.render_frame(edited, wd_near, "triple", {"budget": 0}).rgb
     sizes = {tag: open_artifact(w.artifact("triple.atlas"), "triple_atlas").attrs[
         "texture_sizes"] for tag, w in (("baked camera", wd), ("near camera", wd_near))}
     rows = [{"atlas": "baked camera (run-time edit)", "errors": _errors(run_time, ref, masks)},

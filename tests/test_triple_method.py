@@ -121,7 +121,7 @@ def test_a_rotation_about_any_axis(tmp_path, monkeypatch):
     scene = triple_scene(tmp_path, sky(tmp_path / "sky.exr"))
     workdir = job.workdir_for(scene, tmp_path / "w")
     job.bake(scene, workdir, quiet=True, methods=[get_method("triple")])
-    renderer = job.frame_renderer(scene, workdir, "triple", {})
+    renderer = job.frame_renderer(scene, workdir, "triple", {"budget": 0})  # rows as stored
     tilted = _turned(scene, 60.0, [1.0, 0.0, 0.0])
     frame = renderer.frame(tilted)
     assert error_against_reference(tilted, workdir, frame.rgb) < 0.04
@@ -217,13 +217,14 @@ def test_a_run_time_budget_reports_the_bytes_of_the_rows_it_keeps(tmp_path):
     artifacts = job.method_artifacts(get_method("triple"), workdir)
     stored, atlas = load_tables(artifacts, list(artifacts["geometry"].attrs["material_names"]))
     read = {}
-    for options in ({}, {"budget": 80}, {"budget": 20}, {"budget": 20, "selection": "adaptive"}):
+    for options in ({"budget": 0}, {"budget": 80}, {"budget": 20},
+                    {"budget": 20, "selection": "adaptive"}):
         frame = job.frame_renderer(scene, workdir, "triple", options).frame(scene)
         tables = stored.truncated(options.get("selection", "top-only"), options["budget"]) \
-            if options else stored
+            if options["budget"] else stored  # budget 0: the rows as stored
         assert frame.read_bytes == tables.nbytes + atlas.nbytes
         read[tuple(options.values())] = frame.read_bytes
-    assert read[()] > read[(80,)] > read[(20,)]
+    assert read[(0,)] > read[(80,)] > read[(20,)]
     assert read[(20, "adaptive")] <= read[(80,)]
 
 
