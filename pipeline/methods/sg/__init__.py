@@ -50,8 +50,9 @@ from pipeline.method import Component, Limit, Method, Option
 METHOD = Method(
     name="sg",
     stagefile=Path(__file__).with_name("stages.yaml"),
-    description="paper 003: glossy transport per vertex and view as spherical Gaussians, "
-                "a Gaussian-prefiltered environment",
+    description="paper 003: a Gaussian-prefiltered environment, per-vertex transport; "
+                "by default the BRDF per pixel against per-vertex visibility maps (the "
+                "paper's fitted Gaussian lobes: --option normal=vertex)",
     renderer="pipeline.methods.sg.render:sg_renderer",
     reads=("geometry", "sg.diffuse", "sg.env_prefilter"),
     # the fitted lobes (sg.fit, minutes to an hour) only where normal uses them; the
