@@ -85,11 +85,7 @@ def with_environment_rotation(scene: Scene, degrees: float) -> Scene:
     if not math.isfinite(degrees):
         raise PrtError(scene.path, f"environment rotation {degrees!r}: expected a finite "
                        "number of degrees")
-    if not any(light.type == "environment" for light in scene.lights):
-        raise PrtError(scene.path, "the scene has no environment light to turn")
-    raw = [{**r, "rotation": float(degrees)} if r["type"] == "environment" else r
-           for r in scene.document["lights"]]
-    return scene.edited("lights", raw)
+    return _with_environment_field(scene, "rotation", degrees, "turn")
 
 
 def with_environment_scale(scene: Scene, scale: float) -> Scene:
@@ -99,9 +95,15 @@ def with_environment_scale(scene: Scene, scale: float) -> Scene:
     if not math.isfinite(scale) or scale < 0:
         raise PrtError(scene.path, f"environment scale {scale!r}: expected a finite number "
                        ">= 0")
+    return _with_environment_field(scene, "scale", scale, "scale")
+
+
+def _with_environment_field(scene: Scene, name: str, value: float, verb: str) -> Scene:
+    """The scene with field ``name`` of every environment light set to ``value``;
+    PrtError where it has none to ``verb``."""
     if not any(light.type == "environment" for light in scene.lights):
-        raise PrtError(scene.path, "the scene has no environment light to scale")
-    raw = [{**r, "scale": float(scale)} if r["type"] == "environment" else r
+        raise PrtError(scene.path, f"the scene has no environment light to {verb}")
+    raw = [{**r, name: float(value)} if r["type"] == "environment" else r
            for r in scene.document["lights"]]
     return scene.edited("lights", raw)
 
