@@ -30,7 +30,7 @@ product of node means V_ak L_k replaces the mean of the product within each node
 error is the correlation of light and visibility inside a node (decision 0046).
 
 Nothing here depends on the material: ρs and γ are read at render time, so editing
-them re-bakes nothing (the stage's key holds the geometry and sg.diffuse only).
+them re-bakes nothing (the stage's key holds the geometry, the albedos and sg.diffuse).
 """
 
 from __future__ import annotations
