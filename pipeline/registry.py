@@ -54,12 +54,29 @@ def _registry(modules: tuple[str, ...]) -> dict[str, Method]:
                             (method.kernel_dir, add_kernel_dir)):
             if folder is not None:
                 add(folder)
-        unknown = [e for e in (*method.edits, *method.edit_modes) if e not in EDITS]
-        if unknown:
-            raise PrtError(module.__file__, f"method {method.name!r} declares an unknown "
-                           f"run-time edit {unknown[0]!r} (edits: {', '.join(EDITS)})")
+        check_descriptor(method, module.__file__)
         methods[method.name] = method
     return methods
+
+
+def check_descriptor(method: Method, where: Any) -> None:
+    """PrtError (naming ``where``, the plug-in's file) for a run-time edit outside
+    :data:`EDITS`, or an ``option_reads`` entry naming an option the method does not
+    declare or a value that option does not take (its stages would never be baked)."""
+    unknown = [e for e in (*method.edits, *method.edit_modes) if e not in EDITS]
+    if unknown:
+        raise PrtError(where, f"method {method.name!r} declares an unknown run-time edit "
+                       f"{unknown[0]!r} (edits: {', '.join(EDITS)})")
+    options = {o.name: o for o in method.options}
+    for name, value, _ in method.option_reads:
+        option = options.get(name)
+        if option is None:
+            raise PrtError(where, f"method {method.name!r}: option_reads names option "
+                           f"{name!r}, which it does not declare (options: "
+                           f"{', '.join(options) or 'none'})")
+        if option.choices and value not in option.choices:
+            raise PrtError(where, f"method {method.name!r}: option_reads gives {name}="
+                           f"{value!r}, not one of {', '.join(option.choices)}")
 
 
 def registry() -> dict[str, Method]:

@@ -393,6 +393,26 @@ def test_every_method_declares_known_edits():
     assert set(get_method("sg").edits) == {"environment", "camera"}
 
 
+def test_a_descriptor_s_option_reads_name_its_own_options_and_values():
+    """``option_reads`` entries are checked when a plug-in registers: an option the
+    method does not declare, or a value outside its choices, is one PrtError naming the
+    plug-in's file; the built-in methods pass."""
+    from dataclasses import replace
+
+    from pipeline.registry import check_descriptor
+
+    sg = get_method("sg")
+    for m in registry().values():
+        check_descriptor(m, "plugin.py")
+    with pytest.raises(PrtError, match="plugin.py: method 'sg': option_reads names option "
+                                       "'normals'"):
+        check_descriptor(replace(sg, option_reads=(("normals", "vertex", ("sg.relax",)),)),
+                         "plugin.py")
+    with pytest.raises(PrtError, match="option_reads gives normal='vertx', not one of"):
+        check_descriptor(replace(sg, option_reads=(("normal", "vertx", ("sg.relax",)),)),
+                         "plugin.py")
+
+
 def test_resolve_gives_prt_render_arguments(tmp_path):
     """A page's edits become ``prt render``'s arguments, applied by the command's own
     function; edits outside their range or not followed at run time are refused."""
