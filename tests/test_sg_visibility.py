@@ -154,7 +154,8 @@ def test_a_convex_ball_sees_the_sky_above_its_tangent_plane(tmp_path):
     is blocked (by the ball) where d·n < −0.6. Between, the flat faces around a vertex
     fall away below its tangent plane (an icosphere of 1 subdivision: by up to ≈ 20°,
     rays down to d·n ≈ −0.34 pass above them: measured 0.25 escaping at a texel centred
-    at −0.355) and texels of ≈ 12° straddle the bounds."""
+    at −0.355) and texels of ≈ 12° straddle the bounds. The default bake fits no lobes:
+    asking for them is one PrtError naming the stage."""
     from test_sg_accuracy import ball_scene
 
     scene = ball_scene(tmp_path)
@@ -172,3 +173,11 @@ def test_a_convex_ball_sees_the_sky_above_its_tangent_plane(tmp_path):
     assert fine[cos > 0.35].min() == 1.0
     assert fine[cos < -0.6].max() == 0.0
     assert art.read("occluder").shape == (len(normals), 3, 9)
+    # the default baked no lobes: a frame asking for them names the stage to bake
+    from pipeline.errors import PrtError
+    from pipeline.registry import get_method
+
+    assert not workdir.artifact("sg.relax").exists()
+    with pytest.raises(PrtError, match="not baked: method sg's frames with these options "
+                                       "read stage sg.relax"):
+        job.method_artifacts(get_method("sg"), workdir, {"normal": "vertex"})

@@ -693,12 +693,17 @@ def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
     ``turning`` (PIXEL_NORMAL): per pixel with a slot ω_o and 3 normals, 4 × 12 B;
     ``ratio`` (BRDF_RATIO): per pixel with a slot also 3 × 4 B of table rows, 4 BRDF
     lobes × 2 table rows × 12 B and 4 lookups × 2 levels × 4 texels × 12 B;
-    ``visible`` (sg_shade_visibility): per pixel 3 × (4 + 24) B of table rows, normals
-    and vertex light, 2 table rows × 12 B, 7 lookups × 2 levels × 4 texels × 12 B and
-    3 × 7 visibility lookups × 2 levels × 4 texels × 1 B, 36 B in and 12 B out."""
+    ``visible`` (sg_shade_visibility): per pixel 36 B in (indices, weights, ω_o), 3 ×
+    (4 + 12 + 12) B of table rows, normals and diffuse light, 12 B out; per pixel on a
+    glossy face (its corners' table row ≥ 0) also 2 lobe-table rows × 12 B, 2 node-table
+    rows × 28 B, ρs 12 B, 7 lookups × 2 levels × 4 texels × 12 B, 3 × 7 visibility
+    lookups × 2 levels × 4 texels × 1 B and 3 occluder radiances × 12 B."""
     if visible:
-        per = 3 * 28 + 24 + 7 * 2 * 4 * 12 + 21 * 2 * 4 + 36 + 12
-        return int(len(corner) * per)
+        corner = np.asarray(corner, np.int64)
+        lobed = 0 if tables.vertex_lobe is None else \
+            int(np.count_nonzero(tables.vertex_lobe[corner[:, 0]] >= 0))
+        glossy = 2 * 12 + 2 * 28 + 12 + 7 * 2 * 4 * 12 + 21 * 2 * 4 + 3 * 12
+        return int(len(corner) * (36 + 3 * 28 + 12) + lobed * glossy)
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
     per_pixel = 48 + 3 + 3 * 12 + 12
     active = int(np.count_nonzero(slots))
