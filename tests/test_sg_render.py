@@ -145,6 +145,17 @@ def test_view_lookup_kernel_matches_numpy():
 # --- shading ---------------------------------------------------------------------------
 
 
+def fanned_normals(n_pix: np.ndarray, wo: np.ndarray, tilt_deg: float = 30.0) -> np.ndarray:
+    """Three unit vertex normals (3, 3) tilted ``tilt_deg`` from ``n_pix`` at azimuths
+    90°, 210°, 330° about it (measured from n_pix × ωo): their mean points along n_pix."""
+    side = unit(np.cross(n_pix, wo))
+    up = np.cross(side, n_pix)
+    tilt = np.radians(tilt_deg)
+    return np.stack([unit(np.cos(tilt) * n_pix + np.sin(tilt)
+                          * (np.cos(a) * side + np.sin(a) * up))
+                     for a in np.radians([90.0, 210.0, 330.0])])
+
+
 def random_pixels(tables: render.SgTables, n: int, seed: int) -> tuple[np.ndarray, ...]:
     rng = np.random.default_rng(seed)
     corner = rng.integers(0, len(tables.count), (n, 3))
@@ -303,12 +314,7 @@ def test_a_highlight_follows_the_pixels_normal_between_the_vertices(small_map):
     that (measured: 1e-7 off, and 8 % of it)."""
     wo = unit(np.array([0.2, 0.3, 1.0]))
     n_pix = unit(np.array([0.1, 1.0, 0.3]))
-    side = unit(np.cross(n_pix, wo))
-    up = np.cross(side, n_pix)
-    tilt = np.radians(30.0)
-    normals = np.stack([unit(np.cos(tilt) * n_pix + np.sin(tilt)
-                             * (np.cos(a) * side + np.sin(a) * up))
-                        for a in np.radians([90.0, 210.0, 330.0])])
+    normals = fanned_normals(n_pix, wo)
     bary = np.full((1, 3), 1.0 / 3.0)
     assert np.allclose(unit(bary @ normals)[0], n_pix, atol=1e-12)
     reflect = lambda n: 2 * (wo @ n) * n - wo  # noqa: E731
@@ -355,12 +361,7 @@ def test_the_ratio_takes_the_brdf_at_the_pixels_normal_and_keeps_the_vertices_sh
     wo = views[17]
     n_pix = unit(np.array([0.1, 1.0, 0.3]))
     n_pix = unit(n_pix + (0.4 - n_pix @ wo) * wo)  # n_pix · ωo = 0.4 or so: a side view
-    side = unit(np.cross(n_pix, wo))
-    up = np.cross(side, n_pix)
-    tilt = np.radians(30.0)
-    normals = np.stack([unit(np.cos(tilt) * n_pix + np.sin(tilt)
-                             * (np.cos(a) * side + np.sin(a) * up))
-                        for a in np.radians([90.0, 210.0, 330.0])])
+    normals = fanned_normals(n_pix, wo)
     bary = np.full((1, 3), 1.0 / 3.0)
     brdf = BrdfParams("blinn_phong", (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 200.0)
     lobe_tables = render.vertex_lobe_tables([brdf], np.zeros(3, np.int64))
