@@ -231,3 +231,16 @@ __kernel void triple_background(__global const float* rgb, const int width, cons
     vstore3(scale * envmap_bilinear(rgb, width, height, (int)x0, (int)y0, x - x0, y - y0),
             i, out);
 }
+
+/* The map coordinates (u, v) of the missing rays' unit directions (n · 3) in the
+ * unrotated map, as triple_background reads them, run once per camera: envmap.h's
+ * mapping (envmap_texel_coords before its texel scale; host twin envmap.py
+ * direction_to_uv). */
+__kernel void triple_miss_uv(__global const float* direction, const int n, __global float* uv)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    float3 d = vload3(i, direction);
+    float u = atan2(d.x, -d.z) * (0.5f / ENVMAP_PI);
+    vstore2((float2)(u - floor(u), acos(clamp(d.y, -1.0f, 1.0f)) * (1.0f / ENVMAP_PI)), i, uv);
+}

@@ -37,7 +37,6 @@ import numpy as np
 from pipeline.device import cl
 from pipeline.device.raytrace import Hits, Mesh
 from pipeline.math.brdf import to_local
-from pipeline.math.envmap import direction_to_uv
 from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
 from pipeline.methods.triple.tables import (
     BRDF_ROWS,
@@ -50,6 +49,19 @@ from pipeline.methods.triple.tables import (
     texel_lookups,
 )
 from pipeline.render import WORK_GROUP
+
+
+def aligned(array: np.ndarray, dtype: Any) -> np.ndarray:
+    """``array`` as a C-contiguous array of ``dtype`` starting on a page (cl.PAGE): itself
+    when it is one, else a cl.aligned_empty copy. A CPU device reads such memory in place
+    through cl.shared_read_only_buffer, where Intel's runtime copies anything else at
+    every buffer it makes (a camera's G-buffer: ≈ 10 ms at 1024×768)."""
+    a = np.asarray(array)
+    if a.dtype == np.dtype(dtype) and a.flags.c_contiguous and a.ctypes.data % cl.PAGE == 0:
+        return a
+    out = cl.aligned_empty(a.shape, dtype)
+    out[...] = a
+    return out
 
 
 @dataclass
@@ -115,8 +127,8 @@ class GBuffer:
     def pixel_device(self) -> tuple[Any, Any]:
         """The shaded and the missing pixels' ids (P,), (M,) int32 on the device, for the
         frame's scatter into a DeviceImage (pipeline/render/__init__.py)."""
-        return (cl.shared_read_only_buffer(self.pixel.astype(np.int32)),
-                cl.shared_read_only_buffer(self.miss_pixel.astype(np.int32)))
+        return (cl.shared_read_only_buffer(aligned(self.pixel, np.int32)),
+                cl.shared_read_only_buffer(aligned(self.miss_pixel, np.int32)))
 
     def turned(self, to_world: np.ndarray) -> GBuffer:
         """This G-buffer as the map's own frame sees it, for a map turned by the
@@ -140,12 +152,19 @@ class GBuffer:
 
     @cached_property
     def miss_uv_device(self) -> Any:
-        """The missing rays' map coordinates (M, 2) float32 (u, v) in an unrotated map
-        (envmap.direction_to_uv), on the device: a turn of the map about +y only adds
-        turn/2π to u (kernel ``triple_background``), so the trigonometry runs once per
-        camera."""
-        u, v = direction_to_uv(self.miss.astype(np.float64))
-        return cl.shared_read_only_buffer(np.stack([u, v], axis=-1).astype(np.float32))
+        """The missing rays' map coordinates (M, 2) float32 (u, v) in an unrotated map, on
+        the device (kernel ``triple_miss_uv``; twin envmap.direction_to_uv): a turn of
+        the map about +y only adds turn/2π to u (kernel ``triple_background``), so the
+        trigonometry runs once per camera."""
+        import pyopencl as pcl
+
+        m = len(self.miss)
+        uv = pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, max(m, 1) * 8)
+        if m:
+            kernel = cl.kernel("triple.cl", "triple_miss_uv", {"SW_LEVELS": 1})
+            kernel(cl.queue(), (-(-m // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
+                   cl.shared_read_only_buffer(self.miss), np.int32(m), uv)
+        return uv
 
 
 def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,

@@ -48,7 +48,7 @@ import numpy as np
 
 from pipeline.device import cl
 from pipeline.device.bvh import DeviceRayTracer
-from pipeline.device.raytrace import Mesh, RayTracer, surface_at
+from pipeline.device.raytrace import Hits, Mesh, RayTracer, surface_at
 from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
@@ -65,6 +65,7 @@ from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
 from pipeline.methods.triple.gbuffer import (
     GBuffer,
     LookupTables,
+    aligned,
     device_lookups,
     kernel_arguments,
     surface_attributes,
@@ -196,10 +197,14 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
                                      cam.width, cam.height)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
-    pixel = np.flatnonzero(hit)
+    # page-aligned arrays from here on: a CPU device's kernels read them in place
+    directions = aligned(directions, np.float32)
+    hits = Hits(hits.t, *(aligned(a, a.dtype) for a in (hits.prim, hits.u, hits.v)))
+    pixel = aligned(np.flatnonzero(hit), np.int32)
     s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel, static)
-    material = np.asarray(mesh.object_material, np.int32)[s["object"]]
-    material_b, blend = material.copy(), np.zeros(len(pixel), np.float32)
+    material = aligned(np.asarray(mesh.object_material, np.int32)[s["object"]], np.int32)
+    material_b, blend = aligned(material.copy(), np.int32), aligned(np.zeros(len(pixel)),
+                                                                    np.float32)
     which = np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
     if len(which):  # the host's SceneDetail on the pixels of detailed materials
         at = pixel[which]
@@ -207,10 +212,11 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
                                        normal_dtype=np.float32))
         s["normal"][which], s["tangent"][which] = shading.normal, shading.tangent
         material_b[which], blend[which] = shading.material_b, shading.blend
-    miss = np.flatnonzero(~hit)
+    miss = aligned(np.flatnonzero(~hit), np.int32)
+    miss_direction = aligned(directions[miss], np.float32)
     return GBuffer(cam.width, cam.height, pixel, s["normal"], s["tangent"], s["view"],
                    s["texel_xy"], s["object"], material, material_b, blend,
-                   miss, directions[miss], s["back"].view(bool))
+                   miss, miss_direction, s["back"].view(bool))
 
 
 def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
