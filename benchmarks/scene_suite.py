@@ -17,7 +17,9 @@ beside it; ``python -m benchmarks table`` tabulates it.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,6 +101,25 @@ def frame_ms(scene: Any, workdir: Path, method: str, budget: dict[str, Any],
             "from_bake": f"{baked.camera.width}x{baked.camera.height}"}
 
 
+def kept_rows(target: Path, scenes: tuple[SuiteScene, ...], chosen: tuple[SuiteScene, ...],
+              args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The rows of the result at ``target`` for the suite's ``scenes`` not ``chosen``
+    (a ``--scenes`` run replaces only its own), each stamped with that result's time and
+    load unless it has its own; none if there is no result, or it was measured at another
+    error size or frame sizes (its rows would not compare)."""
+    if not target.exists():
+        return []
+    old = json.loads(target.read_text())
+    sizes = [f"{w}x{h}" for w, h in parse_sizes(args.frame_sizes)]
+    if old.get("size") != [args.size, args.size] or old.get("frame_sizes") != sizes:
+        print(f"{target}: measured at {old.get('size')} / {old.get('frame_sizes')}, not "
+              f"{[args.size, args.size]} / {sizes}: its other scenes are dropped")
+        return []
+    names = {s.name for s in scenes} - {s.name for s in chosen}
+    return [{"finished": old["finished"], "load": old["load"], **row}
+            for row in old["scenes"] if row["scene"] in names]
+
+
 def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]],
                 sweep: dict[str, list[Any]], argv: list[str] | None,
                 bake_per_size: bool = False) -> dict[str, Any]:
@@ -117,7 +138,8 @@ def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]
                         help=f"sizes timed, WxH or W [default: {FRAME_SIZES}]")
     parser.add_argument("--suite", choices=sorted(suites), default="full")
     parser.add_argument("--scenes", default=None,
-                        help="comma-separated suite scene names [default: all: "
+                        help="comma-separated suite scene names, run and replaced in the "
+                             "existing result, whose other scenes are kept [default: all: "
                              f"{', '.join(s.name for s in suites['full'])}]")
     parser.add_argument("--sweep", action="append", default=[], metavar="NAME=V1,V2",
                         help="budgets [default: "
@@ -134,8 +156,9 @@ def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]
     target = result_path(name, args.out)
     folder = target.with_suffix("")
     before = load()
-    rows = []
+    rows = kept_rows(target, scenes, chosen, args) if args.scenes else []
     for suite_scene in chosen:
+        started = load()
         scene = suite_scene.open().with_image_size(args.size, args.size)
         workdir = CACHE / f"suite_{method}_{suite_scene.name}"
         records = evaluate.evaluate(
@@ -149,7 +172,10 @@ def scene_suite(name: str, method: str, suites: dict[str, tuple[SuiteScene, ...]
                 for w, h in sizes}
         rows.append({"scene": suite_scene.name, "file": str(suite_scene.file),
                      "why": suite_scene.why, "edits": suite_scene.edits,
-                     "budgets": records})
+                     "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                     "load": [started, load()], "budgets": records})
+    order = [s.name for s in scenes]
+    rows.sort(key=lambda row: order.index(row["scene"]))
     chart = suite_chart(rows, method, f"{sizes[0][0]}x{sizes[0][1]}",
                         folder / "error_vs_frame_time.png")
     return write_result(name, {"method": method, "size": [args.size, args.size],

@@ -71,10 +71,14 @@ def suite_table(result: dict[str, Any]) -> list[str]:
     (benchmarks/scene_suite.py)."""
     m = result["machine"]
     sizes = result["frame_sizes"]
+    # a --scenes run keeps the other scenes' rows, each with its own time and load
+    loads = [x[0] for row in result["scenes"] for x in row.get("load", result["load"])]
+    times = sorted(row.get("finished", result["finished"]) for row in result["scenes"])
+    when = times[0] if times[0] == times[-1] else f"{times[0]} to {times[-1]}"
     lines = [f"`{result['method']}` on its scene suite, errors at {result['size'][0]}×"
              f"{result['size'][1]} ({m['cpu']}, {m['cores']} cores, OpenCL "
-             f"{m.get('opencl_device', '?')}, load average {result['load'][0][0]:g}–"
-             f"{result['load'][1][0]:g}, {result['finished']}): the *method error* against "
+             f"{m.get('opencl_device', '?')}, load average {min(loads):g}–{max(loads):g}, "
+             f"{when}): the *method error* against "
              "the reference of its transport, the *model error* against full path tracing "
              "(each reference's own noise beside it), frame times at "
              f"{' and '.join(sizes)}; chart: `{Path(result['chart']).name}` beside the "
