@@ -28,6 +28,11 @@ NAME = "engine.bake_device"
 BAKES = {"cornell_box": (SCENES / "cornell_box.yaml", ("d2i.transfer", "d2i.bounce"),
                          {"size": 400, "gather.count": 16384}),
          "bunny_grace": (SCENES / "bunny_grace.yaml", ("triple.visibility",), {}),
+         # smaller stand-ins for a 2-core machine (minutes, not hours)
+         "cornell_box_128": (SCENES / "cornell_box.yaml", ("d2i.transfer", "d2i.bounce"),
+                             {"size": 128, "gather.count": 4096}),
+         "bunny_grace_64": (SCENES / "bunny_grace.yaml", ("triple.visibility",),
+                            {"size": 64}),
          "tiny_d2i": (TINY / "tiny_d2i.yaml", ("d2i.transfer", "d2i.bounce"), {}),
          "tiny_triple": (TINY / "tiny_triple.yaml", ("triple.visibility",), {})}
 PRESETS = {"default": [],
