@@ -30,10 +30,17 @@ STAGEFILE = job.stages()
 
 
 class RecordingTracer:
-    """Embree's ``occluded``, every call's rays and answers kept (``rays``)."""
+    """Embree's ``occluded`` and ``intersect``, every call's rays and answers kept
+    (``rays``; ``hits``: origins, directions and Embree's Hits)."""
 
     def __init__(self, tracer: RayTracer) -> None:
-        self.tracer, self.threads, self.rays = tracer, 1, []
+        self.tracer, self.threads, self.rays, self.hits = tracer, 1, [], []
+
+    def intersect(self, origins, directions):
+        hits = self.tracer.intersect(origins, directions)
+        self.hits.append((np.array(origins, np.float32).reshape(-1, 3),
+                          np.array(directions, np.float32).reshape(-1, 3), hits))
+        return hits
 
     def occluded(self, origins, directions, distances, threads=None):
         answer = self.tracer.occluded(origins, directions, distances, threads=1)
@@ -156,11 +163,12 @@ def test_d2i_visibility_rays_on_the_device_answer_as_embree(tmp_path):
 
 
 def test_d2i_transfer_on_the_device_is_reproducible_and_keyed_apart(tmp_path):
-    """d2i.transfer and d2i.bounce baked twice by the device: the same bytes, one key
-    each, not Embree's."""
+    """d2i.gather, d2i.transfer and d2i.bounce baked twice by the device: the same
+    bytes, one key each, not Embree's."""
     bakes = {name: bake_d2i(tmp_path / name, device) for name, device in
              (("embree", "embree"), ("device", "device"), ("again", "device"))}
-    for stage, names in (("d2i.transfer", ("d_count", "d_index", "d_value")),
+    for stage, names in (("d2i.gather", ("position", "area", "face")),
+                         ("d2i.transfer", ("d_count", "d_index", "d_value")),
                          ("d2i.bounce", ("ms_count", "ms_index", "ms_value"))):
         embree, device, again = (open_artifact(bakes[k].artifact(stage))
                                  for k in ("embree", "device", "again"))
@@ -212,3 +220,54 @@ def test_a_scene_setting_auto_is_resolved_and_a_wrong_one_named(tmp_path):
     path = write_scene(tmp_path, doc, "wrong.yaml")
     with pytest.raises(PrtError, match=r"wrong\.yaml: settings\.bake\.device: 'gpu': expected"):
         stage_params(STAGEFILE, load_scene(path))
+
+
+def test_d2i_gather_hits_on_the_device_are_embree_s(tmp_path):
+    """d2i.gather's photon rays (uniform and glossy, through its _Shooter) and its area
+    samples' visibility rays on the tiny scene: the device's closest hits are on Embree's
+    faces except on rays Embree itself sends to the device's face when nudged by 1e-5 of
+    the scene; on the same face their distances agree to float32 rounding (1e-5 of the
+    scene: the two compute t by different formulas, each rounding a few ulps)."""
+    from pipeline.methods.d2i.stages.gather import _Seen, _Shooter
+    from pipeline.stages.geometry import traced_geometry
+
+    workdir = bake_d2i(tmp_path / "embree", "embree")
+    geometry = open_artifact(workdir.artifact("geometry"))
+    gbuffer = open_artifact(workdir.artifact("gbuffer"))
+    traced = traced_geometry(geometry)
+    recorder = RecordingTracer(traced.tracer)
+    position = gbuffer.read("position").reshape(-1, 3).astype(np.float64)
+    normal = gbuffer.read("normal").reshape(-1, 3).astype(np.float64)
+    seen = np.flatnonzero(gbuffer.read("material_id").reshape(-1) >= 0)
+    eye = np.asarray(load_scene(write_scene(tmp_path, scene_doc())).camera.position)
+    shoot = _Shooter(recorder, traced.mesh, position, normal, eye, traced.epsilon,
+                     np.random.default_rng(5))
+    samples = shoot(seen, 3000, exponent=None)
+    shoot(seen, 1000, exponent=200.0)
+    start = position[samples["source_pixel"]] + traced.epsilon * normal[samples["source_pixel"]]
+    # each sample against another one's view sample, as area samples are tested
+    _Seen(recorder, start, traced.epsilon)(np.random.default_rng(6).permutation(len(start)),
+                                           samples["position"], samples["normal"])
+    assert_same_answers(recorder, traced.mesh.vertices, traced.mesh.faces)
+    o, d, expected = (np.concatenate(part) for part in zip(
+        *[(o, d, h.prim) for o, d, h in recorder.hits], strict=True))
+    t = np.concatenate([h.t for _, _, h in recorder.hits])
+    got = DeviceRayTracer(traced.mesh.vertices, traced.mesh.faces).intersect(o, d)
+    scale = float(np.linalg.norm(traced.mesh.vertices.max(0) - traced.mesh.vertices.min(0)))
+    same = got.prim == expected
+    assert np.all(np.abs(got.t[same & (expected >= 0)] - t[same & (expected >= 0)])
+                  <= 1e-5 * scale)
+    differ = np.flatnonzero(~same)
+    assert len(differ) <= len(o) // 2000, f"{len(differ)} of {len(o)} rays differ"
+    for i in differ:  # Embree's face for the ray nudged: the device's for some nudge
+        nudges = unit_steps() * 1e-5 * scale
+        faces = traced.tracer.intersect(np.repeat(o[i:i + 1], len(nudges), 0) + nudges,
+                                        np.repeat(d[i:i + 1], len(nudges), 0)).prim
+        assert got.prim[i] in faces, (i, got.prim[i], expected[i])
+
+
+def unit_steps() -> np.ndarray:
+    """The 26 unit directions to a cube's faces, edges and corners."""
+    steps = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
+                      if (x, y, z) != (0, 0, 0)], np.float64)
+    return steps / np.linalg.norm(steps, axis=1, keepdims=True)
