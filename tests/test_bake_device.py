@@ -27,6 +27,10 @@ from pipeline.engine.store import Workdir, open_artifact
 from pipeline.scene.file import load_scene
 
 STAGEFILE = job.stages()
+# Unstable rays are ≤ 1 in 2,000 of random ones (tests/test_bvh.py); the stages' rays are
+# not random: sg's visibility maps cast rays along the axes from the floor's corner and
+# edge vertices, exactly along its edges (0.4 % of the tiny scene's map rays)
+RARE = 100
 
 
 class RecordingTracer:
@@ -53,9 +57,10 @@ class RecordingTracer:
 def assert_same_answers(recorder: RecordingTracer, vertices, faces) -> None:
     """The recorded rays (those of positive length: a stage gives the others a negative
     one, no ray) traced by the device: equal to Embree's but on unstable rays. Those
-    are rare (≤ 1 in 2,000) apart from rays that start on a surface, where Embree counts
+    are rare (≤ 1 in RARE) apart from rays that start on a surface, where Embree counts
     a hit at t = 0 and the device does not (the tiny scene's box stands on the floor:
-    its bottom face's texels, offset by ε below it, start on the floor's plane)."""
+    its bottom face's texels and vertices, offset by ε below it, start on the floor's
+    plane; the face is against the floor, never seen)."""
     o, d, t, expected = (np.concatenate(part) for part in zip(*recorder.rays, strict=True))
     cast = t > 0
     o, d, t, expected = o[cast], d[cast], t[cast], expected[cast]
@@ -68,8 +73,41 @@ def assert_same_answers(recorder: RecordingTracer, vertices, faces) -> None:
                   d[differ].astype(np.float64), ends, got[differ], scale)
     assert np.all(ok), f"{int((~ok).sum())} rays differ away from any edge"
     on_surface = recorder.tracer.intersect(o[differ], d[differ]).t == 0.0
-    assert (~on_surface).sum() <= len(t) // 2000, \
+    assert (~on_surface).sum() <= len(t) // RARE, \
         f"{int((~on_surface).sum())} of {len(t)} rays differ"
+
+
+def assert_same_hits(recorder: RecordingTracer, vertices, faces) -> None:
+    """The recorded closest-hit rays traced by the device: on Embree's faces except on
+    rays Embree itself sends to the device's face when nudged by 1e-5 of the scene
+    or to a face at the device's distance (a tie between coincident faces), those ≤ 1 in
+    RARE, and rays that start on a surface (Embree's hit at t = 0); on the same face
+    their distances agree to float32 rounding (1e-5 of the scene: the two
+    compute t by different formulas, each rounding a few ulps)."""
+    o, d, expected = (np.concatenate(part) for part in zip(
+        *[(o, d, h.prim) for o, d, h in recorder.hits], strict=True))
+    t = np.concatenate([h.t for _, _, h in recorder.hits])
+    got = DeviceRayTracer(vertices, faces).intersect(o, d)
+    assert len(o) > 1000 and 0.05 < (expected >= 0).mean() < 0.95  # hits and escapes
+    scale = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    same = got.prim == expected
+    hit = same & (expected >= 0)
+    assert np.all(np.abs(got.t[hit] - t[hit]) <= 1e-5 * scale)
+    # a ray that starts on a surface: Embree's hit at t = 0, none for the device (as
+    # assert_same_answers says); the rest must be rare and unstable
+    differ = np.flatnonzero(~same & ~((t == 0.0) & (got.prim < 0)))
+    assert len(differ) <= len(o) // RARE, f"{len(differ)} of {len(o)} rays differ"
+    for i in differ:  # Embree's answer for the ray nudged: the device's face, or a hit
+        # at the device's distance on another face (a tie between coincident faces: the
+        # box's bottom on the floor), or no hit where the device has none
+        nudges = unit_steps() * 1e-5 * scale
+        hits = recorder.tracer.intersect(np.repeat(o[i:i + 1], len(nudges), 0) + nudges,
+                                         np.repeat(d[i:i + 1], len(nudges), 0))
+        if got.prim[i] < 0:
+            assert (hits.prim < 0).any(), (i, expected[i])
+            continue
+        tie = (hits.prim >= 0) & (np.abs(hits.t - got.t[i]) <= 1e-4 * scale)
+        assert got.prim[i] in hits.prim or tie.any(), (i, got.prim[i], expected[i])
 
 
 def bake_triple(folder, device: str) -> Workdir:
@@ -224,10 +262,8 @@ def test_a_scene_setting_auto_is_resolved_and_a_wrong_one_named(tmp_path):
 
 def test_d2i_gather_hits_on_the_device_are_embree_s(tmp_path):
     """d2i.gather's photon rays (uniform and glossy, through its _Shooter) and its area
-    samples' visibility rays on the tiny scene: the device's closest hits are on Embree's
-    faces except on rays Embree itself sends to the device's face when nudged by 1e-5 of
-    the scene; on the same face their distances agree to float32 rounding (1e-5 of the
-    scene: the two compute t by different formulas, each rounding a few ulps)."""
+    samples' visibility rays on the tiny scene, answered by both (assert_same_hits,
+    assert_same_answers)."""
     from pipeline.methods.d2i.stages.gather import _Seen, _Shooter
     from pipeline.stages.geometry import traced_geometry
 
@@ -249,21 +285,7 @@ def test_d2i_gather_hits_on_the_device_are_embree_s(tmp_path):
     _Seen(recorder, start, traced.epsilon)(np.random.default_rng(6).permutation(len(start)),
                                            samples["position"], samples["normal"])
     assert_same_answers(recorder, traced.mesh.vertices, traced.mesh.faces)
-    o, d, expected = (np.concatenate(part) for part in zip(
-        *[(o, d, h.prim) for o, d, h in recorder.hits], strict=True))
-    t = np.concatenate([h.t for _, _, h in recorder.hits])
-    got = DeviceRayTracer(traced.mesh.vertices, traced.mesh.faces).intersect(o, d)
-    scale = float(np.linalg.norm(traced.mesh.vertices.max(0) - traced.mesh.vertices.min(0)))
-    same = got.prim == expected
-    assert np.all(np.abs(got.t[same & (expected >= 0)] - t[same & (expected >= 0)])
-                  <= 1e-5 * scale)
-    differ = np.flatnonzero(~same)
-    assert len(differ) <= len(o) // 2000, f"{len(differ)} of {len(o)} rays differ"
-    for i in differ:  # Embree's face for the ray nudged: the device's for some nudge
-        nudges = unit_steps() * 1e-5 * scale
-        faces = traced.tracer.intersect(np.repeat(o[i:i + 1], len(nudges), 0) + nudges,
-                                        np.repeat(d[i:i + 1], len(nudges), 0)).prim
-        assert got.prim[i] in faces, (i, got.prim[i], expected[i])
+    assert_same_hits(recorder, traced.mesh.vertices, traced.mesh.faces)
 
 
 def unit_steps() -> np.ndarray:
@@ -271,3 +293,50 @@ def unit_steps() -> np.ndarray:
     steps = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
                       if (x, y, z) != (0, 0, 0)], np.float64)
     return steps / np.linalg.norm(steps, axis=1, keepdims=True)
+
+
+def test_sg_rays_on_the_device_are_embree_s(tmp_path):
+    """The rays of sg.diffuse (its transfer's cosine rays and bounces) and sg.visibility
+    (the maps' rays, the occluders' rays) on the tiny sg scene, through the stages' own
+    VertexScene, answered by both."""
+    from tiny_scenes import tiny_scene
+
+    from pipeline.math.brdf import BrdfParams
+    from pipeline.methods.sg import diffuse, visibility
+    from pipeline.methods.sg.vertex_scene import VertexScene
+
+    scene = tiny_scene(tmp_path, "sg")
+    workdir = Workdir(tmp_path / "work")
+    run(scene, STAGEFILE, workdir, until="geometry", progress=False)
+    geometry = open_artifact(workdir.artifact("geometry"))
+    arrays = {name: geometry.read(name) for name in
+              ("vertices", "normals", "faces", "object_ranges", "object_material")}
+    materials = [BrdfParams("lambert", (0.5, 0.5, 0.5)) for _ in
+                 geometry.attrs["material_names"]]
+    recorder = RecordingTracer(RayTracer(arrays["vertices"], arrays["faces"]))
+    vertex_scene = VertexScene.from_arrays(arrays, materials, recorder)
+    rng = np.random.default_rng(7)
+    transfer = diffuse.transfer(vertex_scene, 16, 1, rng, 256, 3)
+    every = np.arange(len(vertex_scene.positions))
+    visibility.visibility_maps(vertex_scene, every, 4, 1)
+    visibility.occluder_transfer(vertex_scene, every, transfer, 16, rng)
+    assert_same_hits(recorder, vertex_scene.positions, vertex_scene.faces)
+
+
+def test_sg_stages_on_the_device_are_reproducible_and_keyed_apart(tmp_path):
+    """sg.diffuse and sg.visibility baked twice by the device: the same bytes, one key
+    each, not Embree's."""
+    from tiny_scenes import tiny_scene
+
+    arrays = {}
+    for name, device in (("embree", "embree"), ("device", "device"), ("again", "device")):
+        scene = tiny_scene(tmp_path / name, "sg").with_settings({"bake.device": device})
+        workdir = Workdir(tmp_path / name / "work")
+        run(scene, STAGEFILE, workdir, until="sg.visibility", progress=False)
+        arrays[name] = {stage: open_artifact(workdir.artifact(stage))
+                        for stage in ("sg.diffuse", "sg.visibility")}
+    for stage, names in (("sg.diffuse", ("transfer",)), ("sg.visibility", ("maps", "occluder"))):
+        embree, device, again = (arrays[k][stage] for k in ("embree", "device", "again"))
+        for name in names:
+            assert np.array_equal(device.read(name), again.read(name)), (stage, name)
+        assert device.record["key"] == again.record["key"] != embree.record["key"]
