@@ -26,6 +26,13 @@ SIZE = click.option("--size", metavar="WxH",
                     help="Image size [default: the scene camera's]. The bake at another "
                          "size than the file's keeps its camera-dependent artifacts apart "
                          "(<workdir>/views/WxH), so it never replaces the file's bake.")
+BAKE_DEVICE = click.option(
+    "--bake-device", type=click.Choice(["auto", "device", "embree"]), default=None,
+    help="Who traces the bake's visibility rays: device (the project's BVH kernel on the "
+         "OpenCL device), embree (the host's cores) or auto (the device on a GPU, Embree "
+         "on a CPU device, where it is the faster; `prt devices` says which). A stage "
+         "parameter, bake.device: bakes on each are kept apart by their keys. [default: "
+         "the scene's settings.bake.device, else auto]")
 RENDER_SIZE = click.option(
     "--size", metavar="WxH",
     help="Image size [default: the scene camera's]. A method that traces the camera at "
@@ -107,9 +114,10 @@ def cli() -> None:
                    "processes here. --threads is then per chunk [default: 1 on a "
                    "cluster, the cores / N with local:N]. The artifacts are the same "
                    "bytes as an in-process bake. [default: no cluster]")
+@BAKE_DEVICE
 @QUIET
 def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workdir, stagefile,
-            jobs, threads, scheduler, quiet) -> None:
+            jobs, threads, scheduler, bake_device, quiet) -> None:
     """Bake every stale stage, then bring the scene's frame and edit sequences up to
     date (any missing, changed on disk or stale is rendered again)."""
     from pipeline import job
@@ -124,7 +132,7 @@ def run_cmd(scene, until, force, frames, size, exposure, as_json, dry_run, workd
         parse_scheduler(scheduler)
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
-    sc = job.open_scene(scene, parse_size(size))
+    sc = job.open_scene(scene, parse_size(size), bake_device)
     wd = job.workdir_for(sc, workdir, stagefile)
     until = until or None  # () when not given
     if dry_run:
@@ -482,9 +490,11 @@ def devices_cmd(as_json) -> None:
     GPU, else the first CPU implementation (Intel's CPU runtime, then PoCL) that builds
     and runs a probe kernel right; probe results are cached per machine. Exits with
     status 2 when no device works."""
+    from pipeline.device import bake_tracer
     from pipeline.device.devices import report
 
     info = report()
+    info["bake_rays"] = bake_tracer.why("auto")
     if as_json:
         click.echo(json.dumps(info, indent=1))
     else:
@@ -512,6 +522,7 @@ def devices_text(info: dict) -> list[str]:
     if "device" in chosen:
         lines.append(f"using: {chosen['implementation']} ({chosen['device']}): "
                      f"{chosen['reason']}")
+    lines.append(info["bake_rays"])
     lines.append(f"probe results cached in {info['cache']}")
     return lines
 
@@ -559,10 +570,11 @@ def devices_text(info: dict) -> list[str]:
 @WORKDIR
 @JOBS
 @THREADS
+@BAKE_DEVICE
 @QUIET
 def render_cmd(scene, method, out, sequence, options, size, exposure, edits, moves, camera,
                env_file, env_rotate, env_scale, as_json, workdir, jobs, threads,
-               quiet) -> None:
+               bake_device, quiet) -> None:
     """Render one frame (baking first whatever the method needs), and optionally a
     sequence of edits."""
     from pipeline import job
@@ -577,7 +589,7 @@ def render_cmd(scene, method, out, sequence, options, size, exposure, edits, mov
 
     cores = cores_option(jobs, threads)
     check_exposure(exposure)
-    file_scene = job.open_scene(scene)
+    file_scene = job.open_scene(scene, bake_device=bake_device)
     opened = file_scene.with_image_size(*parse_size(size)) if size else file_scene
     sc = with_run_time_edits(opened, list(edits), list(moves), camera, env_file, env_rotate,
                              env_scale)

@@ -32,9 +32,16 @@ from pipeline.scene.file import default_scene_path, load_scene
 from pipeline.scene.model import Scene
 
 
-def open_scene(path: str | Path | None, size: tuple[int, int] | None = None) -> Scene:
-    """The scene at ``path`` (default: the embedded Cornell box), optionally resized."""
+def open_scene(path: str | Path | None, size: tuple[int, int] | None = None,
+               bake_device: str | None = None) -> Scene:
+    """The scene at ``path`` (default: the embedded Cornell box), optionally resized, and
+    with ``bake_device`` (``--bake-device``: auto, device or embree) as its
+    ``bake.device`` setting if given (pipeline/device/bake_tracer.py)."""
+    from pipeline.device.bake_tracer import PARAM
+
     scene = load_scene(path or default_scene_path())
+    if bake_device is not None:
+        scene = scene.with_settings({PARAM: bake_device})
     return scene.with_image_size(*size) if size else scene
 
 

@@ -25,6 +25,7 @@ Möller–Trumbore test, both sides counted as Embree counts them.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -166,16 +167,41 @@ def closest(bvh: Bvh, origins: np.ndarray, directions: np.ndarray,
 
 
 class DeviceRayTracer:
-    """Closest hits on the device, as pipeline.device.raytrace.RayTracer's ``intersect``
-    gives them on the host (Embree): the hierarchy built once, each call one kernel
-    (:func:`closest`). On a GPU a camera's rays then never wait on the host's cores."""
+    """Rays on the device, as pipeline.device.raytrace.RayTracer traces them on the host
+    (Embree): closest hits (``intersect``, kernel ``closest_rays``) and any-hit
+    occlusion (``occluded``, kernel ``occluded_rays``), the hierarchy built once, each
+    call one kernel. On a GPU a camera's rays then never wait on the host's cores, and a
+    bake's visibility rays run there (pipeline/device/bake_tracer.py). Callers on several
+    threads take turns (a lock: the kernels' arguments are set per call)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self.bvh = Bvh.build(vertices, faces)
         self.kernel_ms = 0.0  # the last call's
+        self._lock = threading.Lock()
+
+    @property
+    def threads(self) -> int:
+        """Threads a caller splits its host work over (this task's share of the cores);
+        the rays themselves run on the device."""
+        from pipeline.device.threads import task_threads
+
+        return task_threads()
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Any:
         """Closest hits of rays (N, 3) float32 (pipeline.device.raytrace.Hits)."""
-        hits, self.kernel_ms = closest(self.bvh, np.asarray(origins, np.float32),
-                                       np.asarray(directions, np.float32))
+        with self._lock:
+            hits, self.kernel_ms = closest(self.bvh, np.asarray(origins, np.float32),
+                                           np.asarray(directions, np.float32))
         return hits
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+                 threads: int | None = None) -> np.ndarray:
+        """True where something lies on the ray before ``distances`` (N,), in units of
+        |d| (a negative distance: no ray, False), as RayTracer.occluded; ``threads`` is
+        RayTracer's argument, unused here."""
+        with self._lock:
+            blocked, self.kernel_ms = occluded(
+                self.bvh, np.asarray(origins, np.float32).reshape(-1, 3),
+                np.asarray(directions, np.float32).reshape(-1, 3),
+                np.asarray(distances, np.float32).reshape(-1))
+        return blocked

@@ -87,7 +87,11 @@ class StagePlan:
 
 
 def stage_params(stagefile: StageFile, scene: Scene) -> dict[str, Any]:
-    """Parameter defaults from stages.yaml overridden by the scene's ``settings``."""
+    """Parameter defaults from stages.yaml overridden by the scene's ``settings``, with
+    ``bake.device: auto`` turned into this machine's choice (pipeline/device/
+    bake_tracer.py), so that keys hold what a bake used."""
+    from pipeline.device.bake_tracer import PARAM, resolve
+
     unknown = sorted(set(scene.settings) - set(stagefile.params))
     if unknown:
         raise PrtError(scene.path, f"settings.{unknown[0]}: unknown parameter (known: "
@@ -105,7 +109,10 @@ def stage_params(stagefile: StageFile, scene: Scene) -> dict[str, Any]:
                 raise PrtError(scene.path, f"settings.{name}: {x!r} is outside "
                                f"{_bounds(low, high)} (the default is "
                                f"{stagefile.params[name]!r})")
-    return {**stagefile.params, **scene.settings}
+    params = {**stagefile.params, **scene.settings}
+    if PARAM in params:
+        params[PARAM] = resolve(params[PARAM], scene.path, f"settings.{PARAM}")
+    return params
 
 
 def _bounds(low: float, high: float) -> str:

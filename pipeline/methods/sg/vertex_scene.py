@@ -51,10 +51,10 @@ def scene_materials(sections: Mapping[str, Any], names: list[str]) -> list[BrdfP
 @dataclass
 class VertexScene:
     """``positions``, unit ``normals`` (V, 3) float64, ``faces`` (F, 3) int64,
-    ``vertex_material`` (V,) int64 indices into ``materials``, the Embree ``tracer`` and
-    the ray ``offset`` (scene units)."""
+    ``vertex_material`` (V,) int64 indices into ``materials``, the ``tracer`` (Embree's,
+    or pipeline/device/bake_tracer.py's choice) and the ray ``offset`` (scene units)."""
 
-    tracer: RayTracer
+    tracer: Any
     positions: np.ndarray
     normals: np.ndarray
     faces: np.ndarray
@@ -64,10 +64,11 @@ class VertexScene:
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, Any], materials: list[BrdfParams],
-                    tracer: RayTracer | None = None) -> VertexScene:
+                    tracer: Any = None) -> VertexScene:
         """From the geometry artifact's arrays (``vertices``, ``normals``, ``faces``,
         ``object_ranges``, ``object_material``) and the BRDFs of its ``material_names``
-        in order; ``tracer``: an Embree scene of the same triangles, if one exists."""
+        in order; ``tracer``: a tracer of the same triangles (default: a new Embree
+        scene)."""
         positions = np.asarray(arrays["vertices"], np.float64)
         normals = np.asarray(arrays["normals"], np.float64)
         normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)

@@ -16,7 +16,9 @@ rays that escape are drawn again, up to ``MAX_RAYS_PER_SAMPLE`` rays per request
 sample: an open scene (a plane under the sky) may get fewer samples than requested, or
 none, and then has less (or no) indirect light to gather; ``count`` says how many. A
 gather sample's normal is the shading normal of the hit turned towards the ray's origin:
-the side of the surface that was seen.
+the side of the surface that was seen. The rays are Embree's or the device's BVH
+kernel's (``bake.device``, pipeline/device/bake_tracer.py: the hits' barycentrics differ
+in float32 rounding, a ray grazing an edge may hit the neighbouring face).
 
 Order. Samples are sorted by object, then by the chart of their normal (its largest
 component's axis and sign), then along a 2D Hilbert curve in that chart's plane
@@ -54,10 +56,13 @@ t_g = ``disk_tangent`` and b_g = n_g × t_g.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.device.raytrace import RAY_EPSILON, Mesh, RayTracer, surface_at
+from pipeline.device.bake_tracer import PARAM, bake_tracer
+from pipeline.device.raytrace import RAY_EPSILON, Mesh, surface_at
 from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math.brdf_sampling import cos_power_direction, frame_to_world
@@ -90,7 +95,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     n_glossy = int(round(count * ratio / (1.0 + ratio))) if len(glossy_pixels) else 0
     vertices = geo["vertices"].astype(np.float64)
     diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
-    tracer = RayTracer(geo["vertices"], geo["faces"])
+    tracer = bake_tracer(ctx.params[PARAM], ctx.inputs["geometry"].record["key"],
+                         geo["vertices"], geo["faces"])
     cam = np.asarray(ctx.scene["camera"]["position"], np.float64)
     shoot = _Shooter(tracer, Mesh.from_arrays(geo), position, normal, cam,
                      RAY_EPSILON * diagonal, ctx.rng)
@@ -174,7 +180,7 @@ class _Seen:
     """Whether surface points are visible from the view samples their gather samples were
     shot from (``origin`` (G, 3), already offset off the surface)."""
 
-    def __init__(self, tracer: RayTracer, origin: np.ndarray, epsilon: float) -> None:
+    def __init__(self, tracer: Any, origin: np.ndarray, epsilon: float) -> None:
         self.tracer, self.origin, self.epsilon = tracer, origin, epsilon
 
     def __call__(self, gather: np.ndarray, point: np.ndarray, normal: np.ndarray

@@ -3,13 +3,13 @@
 computed from; one chunk per pixel tile. Schema ``transfer``.
 
 For each view sample x (a G-buffer pixel) and gather disk g: the visibility V_g(x) of
-g's centre through Embree (only pairs that face each other at the centres are traced),
-then the sub-area estimator of pipeline/methods/d2i/transfer.py on the OpenCL device
-(kernels/d2i/transfer.cl) for D. A glossy pixel's V_g(x) is stored too, a bit per gather
-sample: stage ``d2i.transfer_t`` (pipeline/methods/d2i/stages/transfer_glossy.py) computes T (k + 1
-rows: b0 and the k PCA bases of the pixel's material) from it, one chunk per tile and
-material, so that an edit of one material's γ range re-runs that material's T and
-traces no ray.
+g's centre through Embree or the device's BVH kernel (``bake.device``: only pairs that
+face each other at the centres are traced), then the sub-area estimator of
+pipeline/methods/d2i/transfer.py on the OpenCL device (kernels/d2i/transfer.cl) for D.
+A glossy pixel's V_g(x) is stored too, a bit per gather sample: stage ``d2i.transfer_t``
+(pipeline/methods/d2i/stages/transfer_glossy.py) computes T (k + 1 rows: b0 and the k
+PCA bases of the pixel's material) from it, one chunk per tile and material, so that an
+edit of one material's γ range re-runs that material's T and traces no ray.
 
 Rows are stored per unit area: entry g is divided by |A_g| (the renderer multiplies the
 gather radiance by |A_g| instead: D L = Σ_g (D_g/|A_g|)(|A_g| L_g)). Each entry is
@@ -37,7 +37,8 @@ from typing import Any
 import numpy as np
 
 from pipeline.device import cl
-from pipeline.device.raytrace import RAY_EPSILON, RayTracer
+from pipeline.device.bake_tracer import PARAM, bake_tracer
+from pipeline.device.raytrace import RAY_EPSILON
 from pipeline.device.threads import map_slices
 from pipeline.engine.rows import ROW_CHUNKS, ROW_FIELDS, join_arrays, sort_rows
 from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
@@ -81,16 +82,17 @@ def gather_disks(gather: Any) -> Disks:
                  np.ascontiguousarray(polygon, np.float32))
 
 
-def center_visibility(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
+def center_visibility(tracer: Any, position: np.ndarray, normal: np.ndarray,
                       disks: Disks, epsilon: float) -> np.ndarray:
     """V (P, G) uint8: 1 where receiver p and disk centre g face each other
-    (n_p·ω > 0, n_g·ω < 0) and nothing lies between them. The facing tests are two
+    (n_p·ω > 0, n_g·ω < 0) and nothing lies between them for ``tracer``
+    (pipeline/device/bake_tracer.py). The facing tests are two
     matrix products; rays run from p to g, both offset by ``epsilon`` along their
     normals, with the unnormalised direction (end − start) and t_far = 1 − 1e-4 (Embree's
     t is in units of the direction's length: no square roots). Points that coincide
     fail the strict facing test, so no ray has zero length. Groups of receivers run on
     all cores (NumPy and Embree release the GIL), each building its rays and tracing
-    them."""
+    them (the device's tracer takes one group's rays at a time)."""
     x, n = position.astype(np.float32), normal.astype(np.float32)
     c, ng = disks.center.astype(np.float32), disks.normal.astype(np.float32)
     start_of = x + np.float32(epsilon) * n
@@ -249,7 +251,7 @@ _CACHE: dict[str, tuple[str, Any]] = {}
 
 
 def _cached(kind: str, key: str, build) -> Any:
-    """The object of ``kind`` for input ``key`` (the Embree scene, the uploaded disks, the
+    """The object of ``kind`` for input ``key`` (the ray tracer, the uploaded disks, the
     kernel), built once per process; a new key replaces the old object, so that a process
     baking many variants (`prt evaluate` sweeps) holds one of each."""
     if kind not in _CACHE or _CACHE[kind][0] != key:
@@ -258,19 +260,21 @@ def _cached(kind: str, key: str, build) -> Any:
     return _CACHE[kind][1]
 
 
-def scene_tools(ctx: AssembleContext) -> tuple[RayTracer, Disks, TransferKernel, float]:
-    """The Embree scene, the gather disks, the transfer kernel over them (each built once
-    per process and input key) and the ray offset (scene units)."""
+def scene_tools(ctx: AssembleContext) -> tuple[Any, Disks, TransferKernel, float]:
+    """The tracer of ``bake.device`` (pipeline/device/bake_tracer.py), the gather disks,
+    the transfer kernel over them (each built once per process and input key) and the
+    ray offset (scene units)."""
     geometry = ctx.inputs["geometry"]
-    tracer = _cached("tracer", geometry.record["key"], lambda: RayTracer(
-        geometry.read("vertices"), geometry.read("faces")))
+    tracer = _cached("tracer", f"{geometry.record['key']}:{ctx.params[PARAM]}",
+                     lambda: bake_tracer(ctx.params[PARAM], geometry.record["key"],
+                                         geometry.read("vertices"), geometry.read("faces")))
     disks, kernel = gather_tools(ctx)
     bbox = np.subtract(geometry.attrs["bbox_max"], geometry.attrs["bbox_min"])
     return tracer, disks, kernel, RAY_EPSILON * float(np.linalg.norm(bbox))
 
 
 def gather_tools(ctx: AssembleContext) -> tuple[Disks, TransferKernel]:
-    """The gather disks and the transfer kernel over them, without the Embree scene (a
+    """The gather disks and the transfer kernel over them, without the ray tracer (a
     stage that reads stored visibility traces no ray)."""
     gather = ctx.inputs["d2i.gather"]
     disks = _cached("disks", gather.record["key"], lambda: gather_disks(gather))

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.device.bake_tracer import PARAM, bake_tracer
 from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Output
 from pipeline.errors import PrtError
 from pipeline.math.brdf import BrdfParams
@@ -41,13 +42,16 @@ BATCH = 1024  # vertices per tracing batch: 1024 × samples rays
 
 def vertex_scene(ctx: AssembleContext) -> VertexScene:
     """The geometry as a VertexScene whose materials carry only their albedo kd (as
-    Lambert: all this stage reads of them)."""
+    Lambert: all this stage reads of them), its rays traced as ``bake.device`` says
+    (pipeline/device/bake_tracer.py)."""
     geometry = ctx.inputs["geometry"]
     arrays = {name: geometry.read(name) for name in
               ("vertices", "normals", "faces", "object_ranges", "object_material")}
     materials = [BrdfParams("lambert", tuple(ctx.scene[f"materials.{name}.albedo"]))
                  for name in geometry.attrs["material_names"]]
-    return VertexScene.from_arrays(arrays, materials)
+    tracer = bake_tracer(ctx.params[PARAM], geometry.record["key"], arrays["vertices"],
+                         arrays["faces"])
+    return VertexScene.from_arrays(arrays, materials, tracer)
 
 
 def integer_param(ctx: AssembleContext, name: str, low: int) -> int:

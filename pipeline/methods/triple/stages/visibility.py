@@ -10,7 +10,8 @@ with surface point p, shading normal n, tangent t and its face's geometric norma
   ``triple.leaf_level``, r = ``triple.visibility_refine``: 4^r rays per leaf of level L),
   taken in that frame to the world direction d = x t + y (n × t) + z n;
 * V(ω_i) = 1 when ω_i lies above both horizons, z > 0 (the shading normal's) and
-  d · g > 0 (the face's), and an Embree occlusion ray from p + ε g along d meets nothing
+  d · g > 0 (the face's), and an occlusion ray from p + ε g along d meets nothing
+  (Embree's or the device's BVH kernel's: ``bake.device``, pipeline/device/bake_tracer.py)
   (ε = 1e-4 of the scene's bounding-box diagonal, as the other stages offset rays);
   else 0. No ray is cast below either horizon: below the shading horizon the BRDF table
   ρ̃ (which holds max(cos θ_i, 0)) is zero anyway, and below the geometric one the face
@@ -37,7 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.device.raytrace import RAY_EPSILON, RayTracer
+from pipeline.device.bake_tracer import PARAM, bake_tracer
+from pipeline.device.raytrace import RAY_EPSILON
 from pipeline.device.threads import map_slices
 from pipeline.engine.chunkwrite import segment_name
 from pipeline.engine.rows import ROW_CHUNKS, join_arrays
@@ -66,16 +68,17 @@ def fine_directions(leaf_level: int, refine: int) -> tuple[np.ndarray, np.ndarra
     return fine.centroids, fine.areas
 
 
-def visibility_batches(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
+def visibility_batches(tracer: Any, position: np.ndarray, normal: np.ndarray,
                        tangent: np.ndarray, geometric_normal: np.ndarray, epsilon: float,
                        leaf_level: int, refine: int, then: Callable[[np.ndarray], Any]
                        ) -> tuple[list[Any], int]:
-    """``then`` applied to the leaf means (B, 20·4^L) of V (module docstring) of each
-    batch of TEXEL_BATCH of the T texels (all (T, 3), world, float64), in texel order,
-    and the number of rays cast. The batches run on this task's threads, each tracing
-    on its own thread, so that one batch's NumPy work (and ``then``) overlaps another's
-    rays. Only the fine directions above the shading horizon (z > 0 in the local frame)
-    are taken to the world, in float32."""
+    """``then`` applied to the leaf means (B, 20·4^L) of V (module docstring, ``tracer``
+    one of pipeline/device/bake_tracer.py's) of each batch of TEXEL_BATCH of the T
+    texels (all (T, 3), world, float64), in texel order, and the number of rays cast.
+    The batches run on this task's threads, each tracing on its own thread, so that one
+    batch's NumPy work (and ``then``) overlaps another's rays. Only the fine directions
+    above the shading horizon (z > 0 in the local frame) are taken to the world, in
+    float32."""
     local, areas = fine_directions(leaf_level, refine)
     group = 4 ** refine
     weights = areas.reshape(-1, group)
@@ -103,7 +106,7 @@ def visibility_batches(tracer: RayTracer, position: np.ndarray, normal: np.ndarr
     return [p for p, _ in parts], sum(n for _, n in parts)
 
 
-def visibility_leaf_means(tracer: RayTracer, position: np.ndarray, normal: np.ndarray,
+def visibility_leaf_means(tracer: Any, position: np.ndarray, normal: np.ndarray,
                           tangent: np.ndarray, geometric_normal: np.ndarray,
                           epsilon: float, leaf_level: int, refine: int
                           ) -> tuple[np.ndarray, int]:
@@ -135,7 +138,9 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     refine = int(ctx.params["triple.visibility_refine"])
     geometry, atlas = ctx.inputs["geometry"], ctx.inputs["triple.atlas"]
     traced = traced_geometry(geometry)
-    tracer, face_normal, epsilon = traced.tracer, traced.mesh.face_normal, traced.epsilon
+    face_normal, epsilon = traced.mesh.face_normal, traced.epsilon
+    tracer = bake_tracer(ctx.params[PARAM], geometry.record["key"], traced.mesh.vertices,
+                         traced.mesh.faces, traced.tracer)
     texel = _tile_texels(atlas, obj, region)
     filled = texel["texel_state"] != EMPTY
     first_face = geometry.read("object_ranges")[geometry.attrs["object_names"].index(obj), 2]
