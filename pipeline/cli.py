@@ -494,7 +494,7 @@ def devices_cmd(as_json) -> None:
     from pipeline.device.devices import report
 
     info = report()
-    info["bake_rays"] = bake_tracer.why("auto")
+    info["bake_rays"] = bake_tracer.auto_choice()
     if as_json:
         click.echo(json.dumps(info, indent=1))
     else:

@@ -64,7 +64,10 @@ def test_areas_cover_the_visible_surfaces_of_each_object(cornell):
     counts 2047–2050): floor −1.8 % to +0.1 % of its visible area, the large box −4.2 %
     to −0.6 %, the ceiling −4.7 % to −4.0 % (ceiling points beside the luminaire, 0.5 mm
     below it, are hidden from the source pixels of their nearest gather samples);
-    asserted within 3, 6 and 6 %."""
+    asserted within 3, 6 and 6 %. The luminaire is judged on its lower side, the one the
+    room sees: a photon can slip through the 0.5 mm gap above it and land on its upper
+    side, whose area then joins it (one of the 2048 samples at some seeds: the seed
+    follows the stage's key)."""
     _, gather, geo, _ = cornell
     v = geo.read("vertices").astype(float)
     f = geo.read("faces")
@@ -72,7 +75,9 @@ def test_areas_cover_the_visible_surfaces_of_each_object(cornell):
                                      axis=1)
     names = geo.attrs["object_names"]
     truth = {n: face_area[geo.read("face_object") == i].sum() for i, n in enumerate(names)}
-    got = {n: gather.read("area")[gather.read("object_id") == i].sum()
+    lower = gather.read("normal")[:, 1] < 0
+    got = {n: gather.read("area")[(gather.read("object_id") == i)
+                                  & (lower if n == "luminaire" else True)].sum()
            for i, n in enumerate(names)}
     for wall in ("back", "redwall", "greenwall", "luminaire"):
         assert got[wall] == pytest.approx(truth[wall], rel=0.01)

@@ -181,7 +181,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     atlas = open_artifact(workdir.artifact("triple.atlas"))
     visibility = open_artifact(workdir.artifact("triple.visibility"))
     params = {k: v for k, v in stage_params(job.stages(), scene).items()
-              if k.startswith("triple.")}
+              if k.startswith("triple.") or k == "bake.device"}
     pairs = paired_rates(geometry, atlas, visibility, params, args.object, args.pairs)
     plain = median(plain_embree_rate(geometry, args.plain_rays) for _ in range(3))
 

@@ -52,12 +52,9 @@ def device_is_gpu() -> bool:
         return False
 
 
-def why(choice: str) -> str:
+def auto_choice() -> str:
     """One line: what ``auto`` chooses on this machine and why (``prt devices``)."""
-    used = resolve(choice)
-    if choice != "auto":
-        return f"bake rays: {used} (asked for)"
-    if used == "device":
+    if resolve("auto") == "device":
         return "bake rays: device (auto: the OpenCL device is a GPU)"
     return "bake rays: embree (auto: the OpenCL device is not a GPU; Embree is faster there)"
 
