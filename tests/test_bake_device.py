@@ -296,13 +296,14 @@ def unit_steps() -> np.ndarray:
 
 
 def test_sg_rays_on_the_device_are_embree_s(tmp_path):
-    """The rays of sg.diffuse (its transfer's cosine rays and bounces) and sg.visibility
-    (the maps' rays, the occluders' rays) on the tiny sg scene, through the stages' own
+    """The rays of sg.diffuse (its transfer's cosine rays and bounces), sg.visibility
+    (the maps' rays, the occluders' rays) and sg.fit's transport (its visibility and
+    indirect rays), all closest hits, on the tiny sg scene, through the stages' own
     VertexScene, answered by both."""
     from tiny_scenes import tiny_scene
 
     from pipeline.math.brdf import BrdfParams
-    from pipeline.methods.sg import diffuse, visibility
+    from pipeline.methods.sg import diffuse, transport, visibility
     from pipeline.methods.sg.vertex_scene import VertexScene
 
     scene = tiny_scene(tmp_path, "sg")
@@ -320,22 +321,27 @@ def test_sg_rays_on_the_device_are_embree_s(tmp_path):
     every = np.arange(len(vertex_scene.positions))
     visibility.visibility_maps(vertex_scene, every, 4, 1)
     visibility.occluder_transfer(vertex_scene, every, transfer, 16, rng)
+    glossy = [BrdfParams("blinn_phong", (0.3, 0.3, 0.3), (0.2, 0.2, 0.2), 40.0)] * len(materials)
+    sphere = np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.6, 0.8], [-0.8, 0.0, 0.6]])
+    transport.glossy_transport(VertexScene.from_arrays(arrays, glossy, recorder), every[::4],
+                               sphere, transfer, 4, rng)  # sg.fit's and sg.probe's rays
     assert_same_hits(recorder, vertex_scene.positions, vertex_scene.faces)
 
 
 def test_sg_stages_on_the_device_are_reproducible_and_keyed_apart(tmp_path):
-    """sg.diffuse and sg.visibility baked twice by the device: the same bytes, one key
-    each, not Embree's."""
+    """sg.diffuse, sg.visibility and sg.fit (its transport's rays) baked twice by the
+    device: the same bytes, one key each, not Embree's."""
     from tiny_scenes import tiny_scene
 
+    stages = ("sg.diffuse", "sg.visibility", "sg.fit")
     arrays = {}
     for name, device in (("embree", "embree"), ("device", "device"), ("again", "device")):
         scene = tiny_scene(tmp_path / name, "sg").with_settings({"bake.device": device})
         workdir = Workdir(tmp_path / name / "work")
-        run(scene, STAGEFILE, workdir, until="sg.visibility", progress=False)
-        arrays[name] = {stage: open_artifact(workdir.artifact(stage))
-                        for stage in ("sg.diffuse", "sg.visibility")}
-    for stage, names in (("sg.diffuse", ("transfer",)), ("sg.visibility", ("maps", "occluder"))):
+        run(scene, STAGEFILE, workdir, until=stages, progress=False)
+        arrays[name] = {stage: open_artifact(workdir.artifact(stage)) for stage in stages}
+    for stage, names in (("sg.diffuse", ("transfer",)), ("sg.visibility", ("maps", "occluder")),
+                         ("sg.fit", ("lobes", "count", "error"))):
         embree, device, again = (arrays[k][stage] for k in ("embree", "device", "again"))
         for name in names:
             assert np.array_equal(device.read(name), again.read(name)), (stage, name)

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.device.bake_tracer import PARAM, bake_tracer
 from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.errors import PrtError
 from pipeline.math import sg
@@ -459,15 +460,17 @@ def chunk_transport(ctx: ChunkContext, start: int, directions: np.ndarray
 
 
 def transport_scene(ctx: ChunkContext) -> VertexScene:
-    """The scene at its vertices for the transport (its Embree scene the one
-    ``traced_geometry`` keeps per process). Materials: the glossy BRDFs of the declared
+    """The scene at its vertices for the transport, its rays traced as ``bake.device``
+    says (pipeline/device/bake_tracer.py; Embree's: the scene ``traced_geometry`` keeps
+    per process). Materials: the glossy BRDFs of the declared
     sections (:func:`material_brdf`), black Lambert for the others: the transport reads
     only its own vertices' glossy part (the light a path finds at a hit is the
     sg.diffuse transfer, which holds the hit's albedo)."""
     geometry = ctx.inputs["geometry"]
     arrays = {name: geometry.read(name) for name in
               ("vertices", "normals", "faces", "object_ranges", "object_material")}
-    tracer = traced_geometry(geometry).tracer
+    tracer = bake_tracer(ctx.params[PARAM], geometry.record["key"], arrays["vertices"],
+                         arrays["faces"], traced_geometry(geometry).tracer)
     materials = [material_brdf(ctx, name) or UNSEEN
                  for name in geometry.attrs["material_names"]]
     return VertexScene.from_arrays(arrays, materials, tracer)
