@@ -12,8 +12,8 @@
 # timeline: ≈ 5–6 minutes by estimate from this 2-core machine's one-worker times),
 # scaling (studies/core_scaling_probe.py: core-bound, memory-bound and allocation-bound work in 1–16
 # processes at once, the last with and without dask's malloc setting; ≈ 1 minute),
-# bake (engine.bake_device: the tracing stages of the Cornell box at 400², 16k gathers, and
-# of bunny_grace with bake.device embree on the 16 cores and device on the GPU; issue 44).
+# bake (engine.bake_device --whole: the whole bake of the Cornell box at 400², 16k gathers,
+# and of bunny_grace with bake.device embree on the 16 cores and device on the GPU; issue 44).
 # Results go to OUTDIR.
 # The machine has Python and NumPy but no registry: the project's other wheels travel in
 # .whl/ and the shared data in .devdata/ (PRT_DATA), both made here by
@@ -54,7 +54,7 @@ render_pixels}.py 2>/dev/null) 2>&1 | tail -25 ;;
     scaling) timeout 120 python3 studies/core_scaling_probe.py \
              --out "$out/core_scaling_16.json" ;;
     bake) timeout 560 python3 -m benchmarks run engine.bake_device \
-             --out "$out/bake_device_gpu.json" -- --repeats 1 2>&1 | grep -v "chunk/s" ;;
+             --out "$out/bake_device_gpu.json" -- --repeats 1 --whole 2>&1 | grep -v "chunk/s" ;;
     *) echo "unknown step $step" ;;
     esac
 done
