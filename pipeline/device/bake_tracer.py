@@ -54,6 +54,12 @@ def device_is_gpu() -> bool:
 
 def auto_choice() -> str:
     """One line: what ``auto`` chooses on this machine and why (``prt devices``)."""
+    from pipeline.device import cl
+
+    try:
+        cl.device()
+    except PrtError:
+        return "bake rays: embree (auto: no OpenCL device works)"
     if resolve("auto") == "device":
         return "bake rays: device (auto: the OpenCL device is a GPU)"
     return "bake rays: embree (auto: the OpenCL device is not a GPU; Embree is faster there)"
