@@ -203,8 +203,9 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
     pixel = aligned(np.flatnonzero(hit), np.int32)
     s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel, static)
     material = aligned(np.asarray(mesh.object_material, np.int32)[s["object"]], np.int32)
-    material_b, blend = aligned(material.copy(), np.int32), aligned(np.zeros(len(pixel)),
-                                                                    np.float32)
+    material_b = cl.aligned_empty(len(pixel), np.int32)
+    blend = cl.aligned_empty(len(pixel), np.float32)
+    material_b[...], blend[...] = material, 0.0
     which = np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
     if len(which):  # the host's SceneDetail on the pixels of detailed materials
         at = pixel[which]
