@@ -46,7 +46,8 @@ def test_every_method_declares_checkable_limits():
         for limit in limits:
             assert callable(resolve(limit.check)) and limit.what
     listed = json.loads(prt("methods", "--json").stdout)
-    assert set(listed["sg"]["limits"]) == {"small-sources", "vertex-spacing"}
+    assert set(listed["sg"]["limits"]) == {"small-sources", "vertex-spacing",
+                                           "visibility-folds"}
     assert "  limit texels-per-pixel: " in prt("methods").stdout
     assert all(not m.limits for n, m in registry().items() if n == "direct")
 
@@ -166,6 +167,40 @@ def test_sg_vertex_spacing(tmp_path):
     assert "objects.ball" not in small and "objects.box" not in small
     (large,) = limit_warnings(sg, scene.with_image_size(256, 256), artifacts)
     assert "objects.floor:" in large and "objects.ball:" in large
+
+
+def test_sg_visibility_folds():
+    """Two objects of two triangles each (a quad, 5 edges): on the first, vertex 0's
+    visibility map escapes everywhere and the others' nowhere, so its 3 edges differ by
+    1 and the other 2 by 0: a mean step of 3/5, which warns naming the object and the
+    remedy; the second's maps differ by 2/255 on every texel (1 %), which does not.
+    Without sg.visibility (the lobes' options) nothing is checked."""
+    from pipeline.methods.sg.limits import visibility_folds, visibility_step
+
+    class Artifact:
+        def __init__(self, arrays, attrs=None):
+            self.arrays, self.attrs = arrays, attrs or {}
+
+        def read(self, name):
+            return self.arrays[name]
+
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    faces = np.concatenate([quad, quad + 4])
+    maps = np.zeros((8, 5), np.uint8)  # R = 2: 4 finest texels and the 1 × 1 level
+    maps[0] = 255
+    maps[4:] = [[10] * 5, [12] * 5, [10] * 5, [12] * 5]
+    assert visibility_step(maps, 2, quad) == pytest.approx(3 / 5)
+    assert visibility_step(maps, 2, quad + 4) == pytest.approx(2 / 255 * 4 / 5)
+    geometry = Artifact({"faces": faces, "face_object": np.array([0, 0, 1, 1])},
+                        {"object_names": ["scales", "calm"]})
+    scene = None  # not read
+    text = visibility_folds(scene, {"sg.visibility_resolution": 2},
+                            {"geometry": geometry, "sg.visibility": Artifact({"maps": maps})})
+    assert text.startswith("objects.scales: neighbouring vertices' visibility differs by "
+                           "60.0 %") and "objects.scales.subdivide: 1" in text
+    assert "calm" not in text
+    assert visibility_folds(scene, {"sg.visibility_resolution": 2},
+                            {"geometry": geometry}) is None
 
 
 def test_render_prints_limits_and_puts_them_in_json(tmp_path):

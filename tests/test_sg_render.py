@@ -5,6 +5,8 @@ integral against quadrature, and an environment rotation."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -561,7 +563,9 @@ def contract_artifacts(geometry: dict, tables: render.SgTables) -> dict[str, Fak
                                    {"max_lobes": 3}),
             "sg.diffuse": FakeArtifact({"transfer": tables.transfer}, {"order": 5}),
             "sg.env_prefilter": FakeArtifact({"texels": flat.reshape(-1, 3), "level": info,
-                                              "sigma": lv.sigmas},
+                                              "sigma": lv.sigmas,
+                                              "residual": flat.reshape(-1, 3),
+                                              "sources": np.zeros((0, 7), np.float32)},
                                              {"sigma0": lv.sigma0, "ratio": lv.ratio})}
 
 
@@ -626,3 +630,37 @@ def test_environment_turned_about_x_equals_the_turned_maps_frame(sg_scene, small
     b = frame_of(scene, geometry, turned_tables, turned_map, 0.0).rgb
     assert np.abs(a - b).max() < 1e-4 * np.abs(b).max(), np.abs(a - b).max()
     assert np.abs(a - renderer.frame(scene).rgb).max() > 0.01 * np.abs(b).max()
+
+
+def test_visibility_kernel_with_bright_sources_matches_numpy(small_map):
+    """``normal="visibility"`` with the map's two spots split out as sources (quantile
+    0.9; decision 0048): the kernel's source terms (the BRDF of kernels/brdf.h at each
+    source's world direction, the corners' pyramids filtered over its radius) against
+    the twin's (pipeline.math.brdf's BRDF, visibility.lookup), three materials, the map
+    turned about a tilted axis; 1e-4 of the pixel's largest channel as in
+    test_shade_kernel_matches_numpy (the BRDF in float32 adds ~1e-6 relative). The
+    sources change the pixels by more than 1 % (the test sees them)."""
+    from pipeline.methods.sg.sources import split_sources
+
+    tables = with_visibility(with_lobe_tables(random_tables(50, small_map, seed=3,
+                                                            normals=True)), seed=5)
+    found, residual = split_sources(small_map, 0.9, 0.01)
+    assert len(found) == 2
+    lit = replace(tables, sources=found.astype(np.float32), residual_stack=[
+        level.astype(np.float32) for level in prefilter(residual, tables.levels)])
+    corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
+    corner[:1000] = corner[:1000] % 25
+    corner[1000:2000] = 25 + corner[1000:2000] % 20
+    light = sh.project_latlong(small_map)
+    turn = rotation_about((0.3, 1.0, -0.2), 37.0)
+    expected = render.shade_numpy(lit, corner, bary, view, view_weight, light, turn, 1.7,
+                                  "log", wo, visible=True)
+    device = render.SgDevice(lit, "log", "visibility")
+    assert device.sources is not None
+    out = render.shade_arrays(device, corner, bary, view, view_weight, light, turn, 1.7, wo)
+    rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
+    assert rel.max() < 1e-4, rel.max()
+    nodes_only = render.shade_numpy(tables, corner, bary, view, view_weight, light, turn,
+                                    1.7, "log", wo, visible=True)
+    assert (np.abs(nodes_only - expected).max(axis=1)
+            / np.abs(expected).max(axis=1)).max() > 0.01

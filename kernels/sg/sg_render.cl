@@ -49,6 +49,7 @@
  * first[v] .. first[v + 1] - 1 (first: V + 1 ints); D V x 3 floats. */
 #include "inline.h"
 #include "sg.h"
+#include "brdf.h"
 
 #ifndef LAMBDA_LOG
 #define LAMBDA_LOG 1
@@ -291,11 +292,17 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
  * integral(G_k) O_a], s_k = w_k / sum w, O_a the corner's occluder radiance
  * (vertex_light: per vertex the diffuse radiance D (3) then O (3), per frame on the
  * host). No glossy light where the corners' table rows differ or are -1, or
- * n_p.w_o <= 0. */
+ * n_p.w_o <= 0. Bright sources (decision 0048, sources.py): the stack is then the map's
+ * less its source_count sources (world direction, power P_s, sharpness lam_s; 7 floats
+ * each), and each adds rho_s f(w_s, w_o) max(0, n_p.w_s) K_s P_s sum_a f_a V_a(w_s), f
+ * the material's glossy BRDF (kernels/brdf.h, row m of materials) in the frame
+ * sg_basis(n_p), V_a filtered over 1/sqrt(lam_s), K_s the source's spread through the
+ * lobe (mu, lam) (sources.py spread). */
 #define SG_NODES 7
 #define SG_RING 1.18f
 #define SG_SPLIT 2.0f
 #define SG_FILTER 1.0f
+#define SG_SPREAD_CAP 2.0f  /* sources.py SPREAD_CAP */
 
 /* t, s completing unit n to a right-handed frame (Duff et al. 2017; visibility.py's
  * orthonormal_basis). */
@@ -361,6 +368,8 @@ __kernel void sg_shade_visibility(__global const uchar* maps, const int resoluti
                                   __global const float* stack, __global const int* level_info,
                                   const int levels, const float log_sigma0,
                                   const float inv_log_ratio, __global const float* map_turn,
+                                  __global const float* sources, const int source_count,
+                                  __global const float* materials,
                                   const float scale, const int n, __global float* out)
 {
     int i = get_global_id(0);
@@ -421,6 +430,28 @@ __kernel void sg_shade_visibility(__global const uchar* maps, const int resoluti
             }
             for (int c = 0; c < 3; ++c)
                 radiance += (fb[c] * (1.0f - seen[c])) * whole * vload3(2 * v[c] + 1, vertex_light);
+            float3 t, s;
+            sg_basis(np_unit, &t, &s);
+            float3 lo = (float3)(dot(d, t), dot(d, s), dot(d, np_unit));
+            for (int k = 0; k < source_count; ++k) {
+                __global const float* src = sources + 7 * k;
+                float3 ws = vload3(0, src);
+                float cos_s = dot(np_unit, ws);
+                if (cos_s <= 0.0f) continue;
+                float3 li = (float3)(dot(ws, t), dot(ws, s), cos_s);
+                float f = brdf_glossy(materials + MATERIAL_FLOATS * m, li, lo) * cos_s;
+                float lam_s = src[6];
+                float vis = 0.0f;
+                for (int c = 0; c < 3; ++c)
+                    vis += fb[c] * sg_visibility(maps + (size_t)v[c] * map_texels, resolution,
+                                                 map_levels, ws, rsqrt(lam_s));
+                float3 dd = mu - ws;  /* K_s, the source's spread through the lobe */
+                float r = length(lam * mu + lam_s * ws);
+                float log_k = 0.5f * lam * dot(dd, dd) * (1.0f - 2.0f * lam_s / (r + lam + lam_s))
+                              + log(sg_integral(r) / sg_integral(lam_s));
+                radiance += (f * exp(fmin(log_k, SG_SPREAD_CAP)) * vis) * specular
+                            * vload3(1, src);
+            }
         }
     }
     float3 diffuse = fb[0] * vload3(2 * v[0], vertex_light) + fb[1] * vload3(2 * v[1], vertex_light)

@@ -7,7 +7,7 @@ A scene file holds these top-level keys::
     camera:   {position, look_at, up, fov (vertical, degrees), width, height}
     materials: {NAME: {model, albedo, ...model parameters}}
     objects:   {NAME: {mesh: PATH | primitive: {...}, transform: {...}, material: NAME,
-                        smooth: BOOL}}
+                        smooth: BOOL, subdivide: N}}
     lights:    [{type: point|spot|directional|quad|environment, ...}]
     settings:  {PARAM.KEY: value}   # overrides of stage parameter defaults
     methods:   [NAME, ...]          # optional: the rendering methods the scene is baked for
@@ -616,16 +616,23 @@ class _TransformFile(_Section):
 
 
 IDENTITY = tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
+MAX_SUBDIVIDE = 4  # objects.NAME.subdivide: at most 256 × an object's faces
 
 
 class _ObjectFile(_Section):
     """``objects.NAME``: a mesh file or a primitive, a transform and a material;
     ``smooth: true`` welds a mesh file's vertices that share a position (and uv), so
-    that a file that splits them by per-face normals (hard edges) is shaded smooth."""
+    that a file that splits them by per-face normals (hard edges) is shaded smooth;
+    ``subdivide: N`` (0–MAX_SUBDIVIDE) splits every face at its edges' midpoints N times
+    (4^N faces each; the surface and its shading normals kept,
+    pipeline/scene/meshio.py ``split_edges``): more vertices for the per-vertex light of
+    method sg where the light varies faster than the mesh (decision 0048)."""
 
     material: Annotated[str, PlainValidator(_material_name)]
     mesh: Annotated[Path | None, PlainValidator(_file)] = None
     smooth: bool = False
+    subdivide: Annotated[int, PlainValidator(lambda v: _integer(
+        v, 0, MAX_SUBDIVIDE, " (each step 4× the faces)"))] = 0
     primitive: Annotated[PrimitiveFile | None, _tagged("type", PRIMITIVES)] = None
     transform: _TransformFile | None = None
 
@@ -649,6 +656,8 @@ class _ObjectFile(_Section):
         canonical["material"] = self.material
         if self.smooth:  # left out when false: keys of scenes without it stay as they were
             canonical["smooth"] = True
+        if self.subdivide:  # left out when 0, as smooth
+            canonical["subdivide"] = self.subdivide
         return SceneObject(name, self.mesh, primitive, rows, self.material), canonical
 
 

@@ -179,6 +179,33 @@ def weld(raw: RawMesh) -> RawMesh:
                    None if raw.uv is None else raw.uv[kept], raw.source)
 
 
+def split_edges(vertices: np.ndarray, normals: np.ndarray, uv: np.ndarray,
+                faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh with every face (a, b, c) split at its edges' midpoints into (a, ab, ca),
+    (ab, b, bc), (ca, bc, c) and (ab, bc, ca) (winding kept): ``vertices`` (V, 3),
+    unit ``normals`` (V, 3), ``uv`` (V, 2), ``faces`` (F, 3) -> the V old vertices first,
+    then one per edge (E), faces (4F, 3). A new vertex lies at its edge's midpoint with
+    the mean of its ends' uv and their normals' normalised mean (the first end's where
+    they cancel), so the surface and the normals shading interpolates across it stay
+    the old mesh's: only the vertices that per-vertex light samples are added
+    (``objects.NAME.subdivide``)."""
+    faces = np.asarray(faces, np.int64)
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, edge_of = np.unique(edges, axis=0, return_inverse=True)
+    a, b = unique[:, 0], unique[:, 1]
+    mean = normals[a] + normals[b]
+    length = np.linalg.norm(mean, axis=1, keepdims=True)
+    mean = np.where(length > 1e-12, mean / np.maximum(length, 1e-300), normals[a])
+    mid = len(vertices) + edge_of.reshape(-1, 3)            # ab, bc, ca of each face
+    ab, bc, ca = mid[:, 0], mid[:, 1], mid[:, 2]
+    x, y, z = faces[:, 0], faces[:, 1], faces[:, 2]
+    split = np.stack([np.stack([x, ab, ca], 1), np.stack([ab, y, bc], 1),
+                      np.stack([ca, bc, z], 1), np.stack([ab, bc, ca], 1)], 1).reshape(-1, 3)
+    return (np.concatenate([vertices, 0.5 * (vertices[a] + vertices[b])]),
+            np.concatenate([normals, mean]), np.concatenate([uv, 0.5 * (uv[a] + uv[b])]),
+            split)
+
+
 def primitive_mesh(spec: dict[str, Any]) -> RawMesh:
     """A built-in primitive: ``plane`` (in the xz plane, normal +y, ``size`` [sx, sz],
     with uv, a grid of ``segments`` × ``segments`` squares, default 1), ``sphere``

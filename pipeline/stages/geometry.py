@@ -10,7 +10,9 @@ Per object (one chunk each):
   * degenerate faces (repeated indices or area below 1e-12 of the squared bounding-box
     diagonal) are dropped;
   * vertex normals are area-weighted face normals (mesh files' normals are not kept);
-    a vertex whose normal cancels out takes the normal of one of its faces.
+    a vertex whose normal cancels out takes the normal of one of its faces;
+  * with ``objects.NAME.subdivide: N``, every face split at its edges' midpoints N times
+    (meshio.split_edges: the surface and its shading normals kept, more vertices).
 The assembled artifact concatenates objects in scene order (schema ``geometry``).
 """
 
@@ -24,7 +26,7 @@ from pipeline.device.raytrace import RAY_EPSILON, Mesh, RayTracer
 from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Layout, Output
 from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
-from pipeline.scene.meshio import weld
+from pipeline.scene.meshio import split_edges, weld
 
 DEGENERATE_AREA = 1e-12  # relative to the squared bbox diagonal
 
@@ -113,6 +115,8 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         normals[cancelled] = face_unit[owner[cancelled]]
         length = np.linalg.norm(normals, axis=1)
     normals /= length[:, None]
+    for _ in range(int(ctx.scene.get(f"objects.{name}.subdivide") or 0)):
+        world, normals, uv, faces = split_edges(world, normals, uv, faces)
 
     vertices = world.astype(np.float32)
     ctx.meta.update({

@@ -29,7 +29,10 @@ and dragon_sg, 8x the shading kernel's time; 23.5 -> 17.2 % on a coarse ball), o
 visibility ratio to the unshadowed light (decision 0042; pipeline/methods/sg/brdf_lobe.py),
 or ``visibility`` (the default, decision 0046): no lobes, the BRDF's lobe at the pixel's
 normal split into 7 Gaussians, each's light from the prefiltered map times the corners'
-visibility looked up in their maps, plus the occluders' diffuse light.
+visibility looked up in their maps, plus the occluders' diffuse light; the map's bright
+sources taken apart, each by the exact BRDF at its direction (decision 0048,
+pipeline/methods/sg/sources.py; ``sg.env_prefilter`` stores them and the residual's
+stack).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -95,6 +98,11 @@ METHOD = Method(
               "sources smaller than one cell of the diffuse term's SH (4π/n² sr at "
               "sg.diffuse_order n) casts shadows sg blurs into a dark blob: method triple "
               "keeps them sharp", "pipeline.methods.sg.limits:small_sources"),
+        Limit("visibility-folds", "under normal=visibility, where a surface folds faster "
+              "than its vertices (neighbouring vertices' visibility maps differ by more "
+              "than 5 % on average) its glossy highlights' shadows smear: "
+              "objects.NAME.subdivide adds vertices",
+              "pipeline.methods.sg.limits:visibility_folds"),
         Limit("vertex-spacing", "light is carried per vertex: where a mesh's edges span "
               "more than 6 pixels on screen (median) its shadows and highlights blur "
               "across the triangles: a finer mesh or a smaller image",

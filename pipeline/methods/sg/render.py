@@ -57,11 +57,13 @@ from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math import sg, sh
-from pipeline.math.brdf import BrdfParams, scene_brdfs
+from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
 from pipeline.math.camera import image_rays
 from pipeline.math.geodesic import icosahedron
 from pipeline.methods.sg import visibility
 from pipeline.methods.sg.brdf_lobe import TABLE, brdf_lobe, lobe_table
+from pipeline.methods.sg.sources import FIELDS as SOURCE_FIELDS
+from pipeline.methods.sg.sources import to_world as sources_to_world
 from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
 from pipeline.methods.sg.transport import view_directions
@@ -192,7 +194,10 @@ class SgTables:
     their node weights (visibility.node_table; None: not made); ``visibility`` (V, texels) uint8 the
     vertices' packed octahedral pyramids of ``visibility_resolution``² texels and
     ``occluder`` (V, 3, n²) float32 their occluder transfer (sg.visibility; None: not
-    loaded, decision 0046)."""
+    loaded, decision 0046); ``residual_stack`` the prefiltered map less its bright
+    ``sources`` (K, 7) float32 (pipeline/methods/sg/sources.py; None: the map whole, no
+    sources) and ``glossy_brdfs`` the M glossy materials in ``lobe_table``'s order
+    (decision 0048)."""
 
     lobes: np.ndarray
     first: np.ndarray
@@ -208,6 +213,9 @@ class SgTables:
     visibility: np.ndarray | None = None
     visibility_resolution: int = 0
     occluder: np.ndarray | None = None
+    residual_stack: list[np.ndarray] | None = None
+    sources: np.ndarray | None = None
+    glossy_brdfs: list[BrdfParams] | None = None
 
     @classmethod
     def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
@@ -272,7 +280,10 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
                        "vertex's count")
     if not (np.all(np.isfinite(lobes)) and np.all(lobes[..., 6] > 0)):
         raise PrtError("sg.relax", "lobes: non-finite values or a sharpness λ ≤ 0")
-    stack, levels = read_stack(artifacts["sg.env_prefilter"])
+    prefiltered = artifacts["sg.env_prefilter"]
+    stack, levels = read_stack(prefiltered)
+    residual, _ = read_stack(prefiltered, "residual")
+    sources = np.asarray(prefiltered.read("sources"), np.float32).reshape(-1, SOURCE_FIELDS)
     normals = None
     if "geometry" in artifacts:
         normals = np.ascontiguousarray(artifacts["geometry"].read("normals"), np.float32)
@@ -280,16 +291,16 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
             raise PrtError("geometry", f"normals: shape {normals.shape}, expected "
                            f"{(vertex_count, 3)}")
     return SgTables(lobes, np.append(first, len(lobes)).astype(np.int32), count, transfer,
-                    stack, levels, normals)
+                    stack, levels, normals, residual_stack=residual, sources=sources)
 
 
 def vertex_lobe_tables(brdfs: list[BrdfParams | None], vertex_material: np.ndarray,
-                       nodes: bool = False) -> dict[str, np.ndarray]:
+                       nodes: bool = False) -> dict[str, Any]:
     """``lobe_table`` (M, TABLE, 3) float32 of the glossy materials among ``brdfs`` (None:
     no glossy part), ``lobe_specular`` (M, 3) their ρs and ``vertex_lobe`` (V,) int32,
     each vertex's row in it (−1: none), from ``vertex_material`` (V,) indices into
     ``brdfs`` (decision 0042); with ``nodes`` also ``node_table`` (M, TABLE, 7)
-    (decision 0046)."""
+    (decision 0046) and ``glossy_brdfs`` (decision 0048)."""
     rows, glossy_brdfs = np.full(len(brdfs), -1, np.int32), []
     for m, brdf in enumerate(brdfs):
         if brdf is not None:
@@ -303,6 +314,7 @@ def vertex_lobe_tables(brdfs: list[BrdfParams | None], vertex_material: np.ndarr
     if nodes:
         out["node_table"] = np.asarray([visibility.node_table(b) for b in glossy_brdfs],
                                        np.float32).reshape(-1, TABLE, visibility.NODES)
+        out["glossy_brdfs"] = glossy_brdfs
     return out
 
 
@@ -534,10 +546,26 @@ def visibility_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray,
                                                np.sum(unit[sel] * wo[sel], axis=1))
         specular[sel] = np.asarray(tables.lobe_specular, np.float64)[k]
     occluder = vertex_diffuse(tables.occluder.astype(np.float64), light_sh)
-    stack = [np.asarray(level, np.float64) for level in tables.stack]
+    sources, brdf_cos = light_sources(tables), None
+    stack = [np.asarray(level, np.float64) for level in
+             (tables.stack if sources is None else tables.residual_stack)]
+    if sources is not None:
+        world = sources[:, :3].astype(np.float64) @ np.asarray(turn, np.float64).T
+        brdf_cos = visibility.source_brdf(tables.glossy_brdfs, np.maximum(m[:, 0], 0), unit,
+                                          wo, world)
     return visibility.glossy(tables.visibility, tables.visibility_resolution, occluder,
                              corner, bary, unit, mu, lam, weights, specular, stack,
-                             tables.levels, turn)
+                             tables.levels, turn, sources, brdf_cos)
+
+
+def light_sources(tables: SgTables) -> np.ndarray | None:
+    """The tables' bright sources (K, 7) where ``normal=visibility`` can use them (their
+    residual stack and the glossy BRDFs loaded; decision 0048), else None: the nodes
+    take the whole map."""
+    if tables.sources is None or not len(tables.sources) or tables.residual_stack is None \
+            or tables.glossy_brdfs is None:
+        return None
+    return tables.sources
 
 
 def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
@@ -594,9 +622,13 @@ class SgDevice:
             else np.zeros((1, TABLE, 3), np.float32)  # no glossy material: a dummy row
         vertex_lobe = t.vertex_lobe if lobed else np.full(1, -1, np.int32)
         if self.visible:
+            self.sources = light_sources(t)
+            if self.sources is not None:  # the nodes take the map less its sources
+                flat = sg.pack_stack(t.residual_stack)[0]
             self.buffers = {name: cl.read_only_buffer(np.ascontiguousarray(array)) for
                             name, array in (
                 ("maps", t.visibility), ("stack", flat), ("info", info),
+                ("materials", pack_materials(t.glossy_brdfs or [])),
                 ("normals", normals), ("lobe_table", np.asarray(table, np.float32)),
                 ("node_table", np.asarray(t.node_table, np.float32) if t.node_table.size
                  else np.zeros((1, TABLE, visibility.NODES), np.float32)),
@@ -651,7 +683,11 @@ class SgDevice:
                         b["stack"], b["info"], np.int32(levels.count),
                         np.float32(np.log(levels.sigma0)),
                         np.float32(1.0 / np.log(levels.ratio)), map_turn(to_world),
-                        np.float32(scale), np.int32(n), out=out,
+                        cl.read_only_buffer(sources_to_world(
+                            np.zeros((1, SOURCE_FIELDS)) if self.sources is None
+                            else self.sources, to_world)),
+                        np.int32(0 if self.sources is None else len(self.sources)),
+                        b["materials"], np.float32(scale), np.int32(n), out=out,
                         writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
             return out, ms
         ms = cl.run(self.kernel, n, b["lobes"], b["first"], b["count"], vertex_diffuse,
@@ -697,12 +733,16 @@ def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
     (4 + 12 + 12) B of table rows, normals and diffuse light, 12 B out; per pixel on a
     glossy face (its corners' table row ≥ 0) also 2 lobe-table rows × 12 B, 2 node-table
     rows × 28 B, ρs 12 B, 7 lookups × 2 levels × 4 texels × 12 B, 3 × 7 visibility
-    lookups × 2 levels × 4 texels × 1 B and 3 occluder radiances × 12 B."""
+    lookups × 2 levels × 4 texels × 1 B and 3 occluder radiances × 12 B, and per bright
+    source (decision 0048) its 28 B, the material's 64 B row and 3 visibility lookups ×
+    2 levels × 4 texels × 1 B."""
     if visible:
         corner = np.asarray(corner, np.int64)
         lobed = 0 if tables.vertex_lobe is None else \
             int(np.count_nonzero(tables.vertex_lobe[corner[:, 0]] >= 0))
-        glossy = 2 * 12 + 2 * 28 + 12 + 7 * 2 * 4 * 12 + 21 * 2 * 4 + 3 * 12
+        found = light_sources(tables)
+        glossy = 2 * 12 + 2 * 28 + 12 + 7 * 2 * 4 * 12 + 21 * 2 * 4 + 3 * 12 \
+            + (0 if found is None else len(found) * (28 + 64 + 3 * 2 * 4))
         return int(len(corner) * (36 + 3 * 28 + 12) + lobed * glossy)
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
     per_pixel = 48 + 3 + 3 * 12 + 12

@@ -29,6 +29,14 @@ corner's occluder radiance: the light the lobe meets where the scene blocks it. 
 product of node means V_ak L_k replaces the mean of the product within each node: its
 error is the correlation of light and visibility inside a node (decision 0046).
 
+**Bright sources** (decision 0048, pipeline/methods/sg/sources.py): where the map's
+light is held by a few small regions, the nodes' light comes from the stack of the map
+less those sources, and each source s adds ρs f(ω_s, ωo) max(0, n_p·ω_s) K_s P_s
+Σ_a f_a V_a(ω_s), the exact BRDF at its direction, K_s its spread through the pixel's
+lobe (sources.spread) and each corner's visibility filtered over σ_s = 1/√λ_s; where it
+is blocked, the occluder term above already stands for
+what blocks it (its radiance is sg.diffuse's under the whole map).
+
 Nothing here depends on the material: ρs and γ are read at render time, so editing
 them re-bakes nothing (the stage's key holds the geometry, the albedos and sg.diffuse).
 """
@@ -41,10 +49,11 @@ from functools import cache
 import numpy as np
 
 from pipeline.math import sg
-from pipeline.math.brdf import BrdfParams
+from pipeline.math.brdf import BrdfParams, to_local
 from pipeline.math.brdf import glossy as glossy_brdf
 from pipeline.methods.sg.brdf_lobe import LOWEST, brdf_lobe, lobe_table
 from pipeline.methods.sg.diffuse import cosine_directions
+from pipeline.methods.sg.sources import spread
 from pipeline.methods.sg.vertex_scene import VertexScene
 
 RING, SPLIT = 1.18, 2.0  # the ring's angle × the lobe's σ, and the nodes' sharpness / λ
@@ -236,19 +245,49 @@ def lookup(maps: np.ndarray, resolution: int, vertex: np.ndarray, directions: np
     return out
 
 
+def source_brdf(brdfs: list[BrdfParams], material: np.ndarray, normal: np.ndarray,
+                wo: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """f(ω_s, ωo) max(0, n·ω_s) (P, K) (ρs apart) of pixels with unit normals ``normal``
+    (P, 3) towards ``wo`` (P, 3) for world ``directions`` (K, 3), each pixel's BRDF
+    ``brdfs[material]`` (P,) taken isotropic about n (the frame of
+    :func:`orthonormal_basis`, as the kernel's sg_basis)."""
+    tangent = orthonormal_basis(normal)[0]
+    lo = to_local(wo, normal, tangent)
+    out = np.zeros((len(normal), len(directions)))
+    for m in np.unique(material):
+        sel = np.flatnonzero(material == m)
+        for k, d in enumerate(directions):
+            li = to_local(np.broadcast_to(d, (len(sel), 3)), normal[sel], tangent[sel])
+            f = np.nan_to_num(glossy_brdf(li, lo[sel], brdfs[m]))
+            out[sel, k] = f * np.maximum(li[:, 2], 0.0) * (lo[sel, 2] > 0)
+    return out
+
+
 def glossy(maps: np.ndarray, resolution: int, occluder: np.ndarray, corner: np.ndarray,
            bary: np.ndarray, normal: np.ndarray, mu: np.ndarray, lam: np.ndarray,
            weights: np.ndarray, specular: np.ndarray, stack: list[np.ndarray],
-           levels: sg.PrefilterLevels, turn: np.ndarray) -> np.ndarray:
+           levels: sg.PrefilterLevels, turn: np.ndarray, sources: np.ndarray | None = None,
+           brdf_cos: np.ndarray | None = None) -> np.ndarray:
     """The module docstring's glossy radiance (P, 3), float64 (the kernel's twin): pixels'
     corners (P, 3), barycentrics (P, 3) and unit blended normals n_p (P, 3), their BRDF
     lobes mu (P, 3) unit world and λ (P,), node ``weights`` (P, 7) (:func:`node_weights`;
     0 where the pixel has no glossy part) and ρs ``specular`` (P, 3); ``occluder`` (V, 3)
-    the vertices' occluder radiance Ī, ``turn`` the map's 3×3 map-to-world rotation."""
+    the vertices' occluder radiance Ī, ``turn`` the map's 3×3 map-to-world rotation;
+    ``stack`` the residual's where there are ``sources`` (K, 7) (sources.py, map frame)
+    and ``brdf_cos`` (P, K) their :func:`source_brdf` at the world directions."""
     p = np.flatnonzero(weights.sum(axis=1) > 0)
     out = np.zeros((len(corner), 3))
     if not len(p):
         return out
+    if sources is not None and len(sources):
+        world = np.asarray(sources[:, :3], np.float64) @ np.asarray(turn, np.float64).T
+        for k, source in enumerate(np.asarray(sources, np.float64)):
+            toward = np.broadcast_to(world[k], (len(p), 3))
+            v = sum(bary[p, c] * lookup(maps, resolution, corner[p, c], toward,
+                                        np.full(len(p), 1.0 / math.sqrt(source[6])))
+                    for c in range(3))
+            k_s = spread(mu[p], lam[p], toward, np.full(len(p), source[6]))
+            out[p] += (brdf_cos[p, k] * k_s * v)[:, None] * specular[p] * source[3:6]
     nodes = node_directions(mu[p], lam[p], normal[p])                          # (Q, 7, 3)
     lam_n = np.repeat(SPLIT * lam[p], NODES)
     w = weights[p]
