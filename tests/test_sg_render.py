@@ -664,3 +664,34 @@ def test_visibility_kernel_with_bright_sources_matches_numpy(small_map):
                                     1.7, "log", wo, visible=True)
     assert (np.abs(nodes_only - expected).max(axis=1)
             / np.abs(expected).max(axis=1)).max() > 0.01
+
+
+def test_sources_direct_diffuse_comes_from_the_visibility_maps(small_map):
+    """render.source_diffuse (decision 0048): under a light made of the sources alone
+    (light SH = the sources' SH, the direct transfer the whole transfer) the SH term
+    cancels and each vertex's diffuse radiance is the sources' sharp direct light,
+    (kd/π) Σ_s P_s max(0, n·ω_s) V(ω_s): with every map escaping (V = 1) that exactly
+    (1e-12: the two SH products are the same float64 sums), with every map blocked 0;
+    the map turned about a tilted axis."""
+    from pipeline.methods.sg.sources import split_sources, to_world
+
+    tables = with_visibility(with_lobe_tables(random_tables(50, small_map, seed=3,
+                                                            normals=True)), seed=5)
+    found, residual = split_sources(small_map, 0.9, 0.01)
+    source_sh = sh.project_latlong(small_map - residual)
+    kd = np.random.default_rng(8).uniform(0.1, 0.8, (50, 3))
+    lit = replace(tables, sources=found.astype(np.float32), residual_stack=tables.stack,
+                  direct_transfer=tables.transfer, vertex_albedo=kd, source_sh=source_sh)
+    turn = rotation_about((0.3, 1.0, -0.2), 37.0)
+    light = sh.rotate(source_sh, turn)
+    transfer = tables.transfer.astype(np.float64)
+    world = to_world(found, turn).astype(np.float64)
+    normals = tables.normals.astype(np.float64)
+    sharp = (kd / np.pi) * sum(np.maximum(normals @ s[:3], 0.0)[:, None] * s[3:6]
+                               for s in world)
+    for escape, want in ((255, sharp), (0, 0.0 * sharp)):
+        maps = np.full_like(tables.visibility, escape)
+        extra = render.source_diffuse(replace(lit, visibility=maps), turn, None)
+        got = render.vertex_diffuse(transfer, light, extra)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * sharp.max())
+    assert sharp.max() > 0.1 * np.abs(render.vertex_diffuse(transfer, light)).max()

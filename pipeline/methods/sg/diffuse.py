@@ -102,12 +102,19 @@ def transfer(scene: VertexScene, samples: int, bounces: int, rng: np.random.Gene
              batch: int = 1024, order: int = sh.ORDER) -> np.ndarray:
     """The diffuse transfer t_0 + … + t_bounces (V, 3, order²) of every vertex of the
     scene, traced ``batch`` vertices at a time."""
+    return transfers(scene, samples, bounces, rng, batch, order)[0]
+
+
+def transfers(scene: VertexScene, samples: int, bounces: int, rng: np.random.Generator,
+              batch: int = 1024, order: int = sh.ORDER) -> tuple[np.ndarray, np.ndarray]:
+    """The diffuse transfer t_0 + … + t_bounces and its direct part t_0, each (V, 3,
+    order²), of every vertex of the scene, traced ``batch`` vertices at a time."""
     count = len(scene.positions)
     parts = [direct_and_gather(scene, np.arange(s, min(s + batch, count)), samples, rng,
                                order) for s in range(0, count, batch)]
     direct = np.concatenate([p[0] for p in parts])
     gather = sparse.vstack([p[1] for p in parts], format="csr")
-    return with_bounces(gather, scene.diffuse_albedo(), direct, bounces)
+    return with_bounces(gather, scene.diffuse_albedo(), direct, bounces), direct
 
 
 def with_bounces(gather: sparse.csr_matrix, kd: np.ndarray, direct: np.ndarray,

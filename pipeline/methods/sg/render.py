@@ -63,6 +63,7 @@ from pipeline.math.geodesic import icosahedron
 from pipeline.methods.sg import visibility
 from pipeline.methods.sg.brdf_lobe import TABLE, brdf_lobe, lobe_table
 from pipeline.methods.sg.sources import FIELDS as SOURCE_FIELDS
+from pipeline.methods.sg.sources import split_sources
 from pipeline.methods.sg.sources import to_world as sources_to_world
 from pipeline.methods.sg.stages.env_prefilter import read_stack
 from pipeline.methods.sg.stages.fit import pack_slots, slot_counts
@@ -196,8 +197,11 @@ class SgTables:
     ``occluder`` (V, 3, n²) float32 their occluder transfer (sg.visibility; None: not
     loaded, decision 0046); ``residual_stack`` the prefiltered map less its bright
     ``sources`` (K, 7) float32 (pipeline/methods/sg/sources.py; None: the map whole, no
-    sources) and ``glossy_brdfs`` the M glossy materials in ``lobe_table``'s order
-    (decision 0048)."""
+    sources) and ``glossy_brdfs`` the M glossy materials in ``lobe_table``'s order;
+    ``direct_transfer`` (V, 3, n²) float32 the unbounced part of ``transfer``,
+    ``vertex_albedo`` (V, 3) the vertices' kd and ``source_sh`` (n², 3) the SH of the
+    map's part its sources hold (map frame): the sources' direct diffuse light is then
+    taken from the visibility maps (:func:`source_diffuse`; decision 0048)."""
 
     lobes: np.ndarray
     first: np.ndarray
@@ -216,6 +220,9 @@ class SgTables:
     residual_stack: list[np.ndarray] | None = None
     sources: np.ndarray | None = None
     glossy_brdfs: list[BrdfParams] | None = None
+    direct_transfer: np.ndarray | None = None
+    vertex_albedo: np.ndarray | None = None
+    source_sh: np.ndarray | None = None
 
     @classmethod
     def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
@@ -290,8 +297,13 @@ def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTable
         if normals.shape != (vertex_count, 3):
             raise PrtError("geometry", f"normals: shape {normals.shape}, expected "
                            f"{(vertex_count, 3)}")
+    direct = np.ascontiguousarray(diffuse.read("direct"), np.float32) \
+        if "direct" in diffuse.names else None
+    if direct is not None and direct.shape != transfer.shape:
+        raise PrtError("sg.diffuse", f"direct: shape {direct.shape}, expected {transfer.shape}")
     return SgTables(lobes, np.append(first, len(lobes)).astype(np.int32), count, transfer,
-                    stack, levels, normals, residual_stack=residual, sources=sources)
+                    stack, levels, normals, residual_stack=residual, sources=sources,
+                    direct_transfer=direct)
 
 
 def vertex_lobe_tables(brdfs: list[BrdfParams | None], vertex_material: np.ndarray,
@@ -335,7 +347,7 @@ def load_visibility(artifact: Artifact, vertex_count: int, order: int
 
 
 def scene_lobe_tables(scene: Scene, geometry: Artifact, nodes: bool = False
-                      ) -> dict[str, np.ndarray]:
+                      ) -> dict[str, Any]:
     """:func:`vertex_lobe_tables` of the scene's materials on ``geometry``'s vertices
     (its ``material_names``, ``object_ranges``, ``object_material``)."""
     names = list(geometry.attrs["material_names"])
@@ -348,7 +360,11 @@ def scene_lobe_tables(scene: Scene, geometry: Artifact, nodes: bool = False
                                    np.asarray(geometry.read("object_material")),
                                    strict=True):
         material[start:end] = m
-    return vertex_lobe_tables([*brdfs, None], material, nodes)
+    out = vertex_lobe_tables([*brdfs, None], material, nodes)
+    if nodes:  # the vertices' kd, for the sources' direct diffuse light (decision 0048)
+        albedo = np.array([*(b.albedo for b in scene_brdfs(scene, names)), (0.0, 0.0, 0.0)])
+        out["vertex_albedo"] = albedo[material]
+    return out
 
 
 # ------------------------------------------------------------------------- shading
@@ -413,7 +429,8 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     corner = np.asarray(corner, np.int64)
     if visible:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
-        diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh)[corner]
+        diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh,
+                                 source_diffuse(tables, turn, None))[corner]
         return scale * (visibility_glossy(tables, corner, bary, wo, turn, light_sh)
                         + np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse))
     if ratio:
@@ -568,12 +585,15 @@ def light_sources(tables: SgTables) -> np.ndarray | None:
     return tables.sources
 
 
-def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
+def vertex_diffuse(transfer: np.ndarray, light_sh: np.ndarray,
+                   extra: np.ndarray | None = None) -> np.ndarray:
     """The vertices' diffuse radiance D (V, 3) = max(0, Σ_k transfer[v, c, k]
-    light_sh[k, c]) (without the light's scale). A truncated SH product can ring below
-    zero next to a bright window's shadow (Grace at order 5: whole patches of the bunny
-    and the ground); radiance cannot, so D is clamped, as PRT renderers do."""
-    return np.maximum(np.einsum("vck,kc->vc", transfer, light_sh), 0.0)
+    light_sh[k, c] + extra[v, c]) (without the light's scale; ``extra``: the sources'
+    change, :func:`source_diffuse`). A truncated SH product can ring below zero next to
+    a bright window's shadow (Grace at order 5: whole patches of the bunny and the
+    ground); radiance cannot, so D is clamped, as PRT renderers do."""
+    d = np.einsum("vck,kc->vc", transfer, light_sh)
+    return np.maximum(d if extra is None else d + extra, 0.0)
 
 
 def map_turn(to_world: np.ndarray | None) -> Any:
@@ -649,12 +669,12 @@ class SgDevice:
                                  "PIXEL_NORMAL": int(self.turning),
                                  "BRDF_RATIO": int(self.ratio), "SG_LOBE_TABLE": TABLE})
 
-    def vertex_diffuse(self, light_sh: np.ndarray, occluder_sh: np.ndarray | None = None
-                       ) -> Any:
-        """A device buffer of :func:`vertex_diffuse` (V, 3) float32; with ``visibility``
-        (V, 6): then the occluders' radiance under ``occluder_sh`` (default
-        ``light_sh``)."""
-        d = vertex_diffuse(self.tables.transfer, light_sh.astype(np.float32))
+    def vertex_diffuse(self, light_sh: np.ndarray, occluder_sh: np.ndarray | None = None,
+                       extra: np.ndarray | None = None) -> Any:
+        """A device buffer of :func:`vertex_diffuse` (V, 3) float32 (``extra``: the
+        sources' change); with ``visibility`` (V, 6): then the occluders' radiance under
+        ``occluder_sh`` (default ``light_sh``)."""
+        d = vertex_diffuse(self.tables.transfer, light_sh.astype(np.float32), extra)
         if self.visible:
             sh_o = light_sh if occluder_sh is None else occluder_sh
             d = np.concatenate([d, vertex_diffuse(self.tables.occluder,
@@ -716,8 +736,10 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
               "view": cl.read_only_buffer(np.asarray(view, np.int32)),
               "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32)),
               "wo": cl.read_only_buffer(np.ascontiguousarray(wo, np.float32))}
-    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh), to_world,
-                        scale)[0]
+    extra = source_diffuse(device.tables, np.eye(3) if to_world is None else to_world,
+                           None) if device.visible else None
+    return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh, extra=extra),
+                        to_world, scale)[0]
 
 
 def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
@@ -882,7 +904,9 @@ class SgRenderer:
         if self.device.visible and self.component == "glossy":
             occluder_sh = sh.rotate_y(self.occluder_sh, about_y) if about_y is not None \
                 else sh.rotate(self.occluder_sh, to_world)
-        vertex_diffuse = self.device.vertex_diffuse(light_sh, occluder_sh)
+        extra = source_diffuse(self.tables, to_world, about_y) \
+            if self.device.visible and self.component != "glossy" else None
+        vertex_diffuse = self.device.vertex_diffuse(light_sh, occluder_sh, extra)
         t2 = time.perf_counter()
         # shading, background and their scatter stay on the device (render.DeviceImage)
         image = DeviceImage.of_size(self.images, cam.width * cam.height)
@@ -942,5 +966,48 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
         tables = replace(tables, **load_visibility(artifacts["sg.visibility"], len(vertices),
                                                    int(round(np.sqrt(tables.transfer.shape[2])))))
     env_map = read_environment(scene.environment.file)
+    if normal == "visibility" and light_sources(tables) is not None:
+        attrs = artifacts["sg.env_prefilter"].attrs
+        tables = replace(tables, source_sh=sources_sh(
+            env_map, float(attrs["source_quantile"]), float(attrs["source_min_share"]),
+            int(round(np.sqrt(tables.transfer.shape[2])))))
     return SgRenderer(tables, vertices, faces, env_map, lambda_blend, component,
                      np.asarray(geo.read("face_object")), normal)
+
+
+def sources_sh(env_map: np.ndarray, quantile: float, min_share: float, order: int
+               ) -> np.ndarray:
+    """The SH (order², 3) of the part of ``env_map`` its bright sources hold (map frame;
+    pipeline/methods/sg/sources.py's split, as sg.env_prefilter made it)."""
+    _, residual = split_sources(env_map, quantile, min_share)
+    return sh.project_latlong(np.asarray(env_map, np.float64) - residual, order=order)
+
+
+def source_diffuse(tables: SgTables, turn: np.ndarray, about_y: float | None
+                   ) -> np.ndarray | None:
+    """What the sources change in the vertices' diffuse radiance (V, 3), float64 (None
+    where there is nothing to change: no sources, or tables without the direct transfer,
+    albedos or visibility): their direct light as the SH transfer holds it, blurred to
+    order n, taken out, −Σ_k direct[v, c, k] S_k[c] (S the sources' SH turned with the
+    map: ``about_y`` degrees about +y, or ``turn`` the map-to-world rotation), and put
+    back sharp from the vertices' visibility maps,
+    (kd_v/π) Σ_s P_s max(0, n_v·ω_s) V_v(ω_s; 1/√λ_s) (decision 0048)."""
+    found = light_sources(tables)
+    if found is None or tables.direct_transfer is None or tables.vertex_albedo is None \
+            or tables.source_sh is None or tables.visibility is None or tables.normals is None:
+        return None
+    source_sh = sh.rotate_y(tables.source_sh, about_y) if about_y is not None \
+        else sh.rotate(tables.source_sh, turn)
+    out = -np.einsum("vck,kc->vc", tables.direct_transfer.astype(np.float64), source_sh)
+    normals = np.asarray(tables.normals, np.float64)
+    kd = np.asarray(tables.vertex_albedo, np.float64)
+    lit = np.flatnonzero(kd.max(axis=1) > 0)
+    world = sources_to_world(found, turn).astype(np.float64)
+    for source in world:
+        cosine = normals[lit] @ source[:3]
+        up = lit[cosine > 0]
+        seen = visibility.lookup(tables.visibility, tables.visibility_resolution, up,
+                                 np.broadcast_to(source[:3], (len(up), 3)),
+                                 np.full(len(up), 1.0 / np.sqrt(source[6])))
+        out[up] += (kd[up] / np.pi) * ((cosine[cosine > 0] * seen)[:, None] * source[3:6])
+    return out

@@ -63,12 +63,15 @@ def integer_param(ctx: AssembleContext, name: str, low: int) -> int:
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
-    """``transfer`` (V, 3, order²) float32 of every vertex."""
+    """``transfer`` (V, 3, order²) float32 of every vertex, and its ``direct`` part (the
+    bright sources' direct light is taken from the visibility maps instead, decision
+    0048)."""
     samples = integer_param(ctx, "sg.diffuse_samples", 1)
     bounces = integer_param(ctx, "sg.diffuse_bounces", 0)
     order = integer_param(ctx, "sg.diffuse_order", 1)
-    transfer = sg_diffuse.transfer(vertex_scene(ctx), samples, bounces, ctx.rng, BATCH, order)
-    return {"transfer": transfer.astype(np.float32)}
+    transfer, direct = sg_diffuse.transfers(vertex_scene(ctx), samples, bounces, ctx.rng,
+                                            BATCH, order)
+    return {"transfer": transfer.astype(np.float32), "direct": direct.astype(np.float32)}
 
 
 def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:

@@ -70,7 +70,9 @@ def finalize(ctx: AssembleContext, metas: list[tuple[Chunk, dict]]) -> Output:
                    "ratio": float(ctx.params["sg.prefilter_ratio"]),
                    "sigma_max": float(ctx.params["sg.prefilter_sigma_max"]),
                    "levels": int(meta["levels"]), "map_shape": meta["map_shape"],
-                   "sources": int(meta["sources"])})
+                   "sources": int(meta["sources"]),
+                   "source_quantile": float(ctx.params["sg.source_quantile"]),
+                   "source_min_share": float(ctx.params["sg.source_min_share"])})
 
 
 def read_stack(artifact: Artifact, name: str = "texels"
