@@ -221,8 +221,9 @@ def test_bright_sources_split_the_map_without_losing_light():
 def test_a_sources_spread_through_the_lobe_is_the_lobe_averaged_over_it(lam, lam_s, angle):
     """sources.spread K = ∫ G_b Ĝ_s dω / G_b(ω_s) (Ĝ_s the source's normalised lobe) in
     closed form, against quadrature on a 0.25° lat-long grid (1e-3: the midpoint rule on
-    lobes of σ ≥ 2.3° sampled every 0.25°, measured 2e-4 at λ = 300): about 1 where the lobe is much wider than the source, above
-    1 where a sharp lobe's mean lies off the source's centre."""
+    lobes of σ ≥ 2.3° sampled every 0.25°, measured 2e-4 at λ = 300): about 1 where the
+    lobe is much wider than the source, above 1 where a sharp lobe's mean lies off the
+    source's centre."""
     from pipeline.methods.sg.sources import SPREAD_CAP, spread
 
     d, omega = sg.latlong_directions(721, 1440)
