@@ -5,9 +5,9 @@ source, and the residual map the prefiltered stack holds.
 Under ``normal=visibility`` the glossy light of a pixel is the BRDF × cosine at its
 normal held by 7 Gaussian nodes against the prefiltered map (pipeline/methods/sg/
 visibility.py). A source much smaller than the BRDF's lobe (a studio light, a window)
-then reflects as the nodes' fit *at one direction*, and the fit is 7–8 % off in L2 but
-tens of percent at single directions of the lobe. A source's reflection needs the BRDF at
-its direction only:
+then reflects as the nodes' sum *at one direction*, where a fit chosen for its L2 error
+over the whole lobe (7–8 %) answers for that direction alone. A source's reflection
+needs the BRDF at its direction only:
 
     glossy_s = ρs f(ω_s, ωo) max(0, n·ω_s) K_s P_s V(ω_s),
 
@@ -19,8 +19,8 @@ spread through the BRDF: the ratio (G_b ⊗ Ĝ_s)(ω_s) / G_b(ω_s) of the mater
 one-Gaussian lobe G_b(μ, λ) (brdf_lobe.py) blurred by the normalised source to the lobe
 itself at ω_s (1 where the lobe is much wider than the source), in closed form
 (:func:`spread`), capped at e² where a sharp lobe's tail meets a wide source (the
-Gaussian's tail is not the BRDF's). The studio map's lights: σ_s ≈ 0.08 rad against the
-glossy lobes' σ = 1/√λ ≈ 0.15–0.3 rad.
+Gaussian's tail is not the BRDF's). The studio map's two lights: σ_s = 0.03 and 0.08
+rad, against dragon_sg's glossy lobes' σ = 1/√λ ≈ 0.15–0.3 rad.
 
 **The split.** t is the ``quantile`` of the map's texels' luminance (channel mean); the
 texels above it form connected regions (4-connected in the lat-long grid; a region
