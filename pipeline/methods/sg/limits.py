@@ -22,7 +22,7 @@ faster than its vertices (the dragon's scales), neighbouring vertices see very d
 skies and a highlight's shadowing is smeared. The check takes, per object, the mean over
 its edges of the two ends' visibility maps' difference (escape fractions, mean over the
 finest level's texels) and warns from :data:`MOST_VISIBILITY_STEP`: bunny_sg's bunny
-0.041 (glossy light 11.6 % off at 128²), dragon_sg's dragon 0.056 (21.0 %), the dragon
+0.041 (glossy light 13.9 % off at 128²), dragon_sg's dragon 0.056 (21.0 %), the dragon
 subdivided once 0.031 (12.8 %) (decision 0048); the remedy it names is
 ``objects.NAME.subdivide``.
 """
