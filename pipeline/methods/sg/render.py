@@ -970,7 +970,10 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
         attrs = artifacts["sg.env_prefilter"].attrs
         tables = replace(tables, source_sh=sources_sh(
             env_map, float(attrs["source_quantile"]), float(attrs["source_min_share"]),
-            int(round(np.sqrt(tables.transfer.shape[2])))))
+            int(round(np.sqrt(tables.transfer.shape[2])))),
+            # float64 once here, not a copy of (V, 3, n²) in every frame's source_diffuse
+            direct_transfer=None if tables.direct_transfer is None
+            else np.asarray(tables.direct_transfer, np.float64))
     return SgRenderer(tables, vertices, faces, env_map, lambda_blend, component,
                      np.asarray(geo.read("face_object")), normal)
 
@@ -998,7 +1001,7 @@ def source_diffuse(tables: SgTables, turn: np.ndarray, about_y: float | None
         return None
     source_sh = sh.rotate_y(tables.source_sh, about_y) if about_y is not None \
         else sh.rotate(tables.source_sh, turn)
-    out = -np.einsum("vck,kc->vc", tables.direct_transfer.astype(np.float64), source_sh)
+    out = -np.einsum("vck,kc->vc", np.asarray(tables.direct_transfer, np.float64), source_sh)
     normals = np.asarray(tables.normals, np.float64)
     kd = np.asarray(tables.vertex_albedo, np.float64)
     lit = np.flatnonzero(kd.max(axis=1) > 0)
