@@ -268,7 +268,10 @@ function connect() {
     const s = sent.get(header.id);
     sent.delete(header.id);
     if (header.id < lastPainted || !s) return;       // an older frame: never painted over
-    await paint(header, payload);
+    const image = await decode(header, payload);
+    // frames decode concurrently: one sent later may have been painted meanwhile
+    if (header.id < lastPainted) { if (image.close) image.close(); return; }
+    draw(image);
     const done = performance.now();
     lastPainted = header.id;
     lastHeader = header;
@@ -313,8 +316,8 @@ function srgb8(x) {             // pipeline/images.py srgb_encode, to 8 bits
   return Math.round(v * 255);
 }
 
-async function paint(header, payload) {
-  const ctx = $("frame").getContext("2d");
+// a frame's pixels, ready to draw: ImageData (float16, tone-mapped here) or an ImageBitmap
+async function decode(header, payload) {
   if (header.format === "f16") {      // linear half floats: tone-mapped here
     if (lutExposure !== exposure) {
       lut = new Uint8Array(65536);
@@ -324,20 +327,23 @@ async function paint(header, payload) {
     }
     const half = new Uint16Array(payload.buffer.slice(payload.byteOffset,
                                                       payload.byteOffset + payload.byteLength));
-    const image = ctx.createImageData(header.width, header.height);
+    const image = new ImageData(header.width, header.height);
     const px = image.data;
     for (let i = 0, j = 0; i < half.length; i += 3, j += 4) {
       px[j] = lut[half[i]]; px[j + 1] = lut[half[i + 1]]; px[j + 2] = lut[half[i + 2]];
       px[j + 3] = 255;
     }
-    ctx.putImageData(image, 0, 0);
-    return;
+    return image;
   }
-  const bitmap = await createImageBitmap(new Blob([payload], {type: MIME[header.format]}),
-                                         {colorSpaceConversion: "none",
-                                          premultiplyAlpha: "none"});
-  ctx.drawImage(bitmap, 0, 0);
-  bitmap.close();
+  return createImageBitmap(new Blob([payload], {type: MIME[header.format]}),
+                           {colorSpaceConversion: "none", premultiplyAlpha: "none"});
+}
+
+function draw(image) {
+  const ctx = $("frame").getContext("2d");
+  if (image instanceof ImageData) { ctx.putImageData(image, 0, 0); return; }
+  ctx.drawImage(image, 0, 0);
+  image.close();
 }
 
 async function showSecond() {
