@@ -297,13 +297,13 @@ def unit_steps() -> np.ndarray:
 
 def test_sg_rays_on_the_device_are_embree_s(tmp_path):
     """The rays of sg.diffuse (its transfer's cosine rays and bounces), sg.visibility
-    (the maps' rays, the occluders' rays) and sg.fit's transport (its visibility and
-    indirect rays), all closest hits, on the tiny sg scene, through the stages' own
-    VertexScene, answered by both."""
+    (the maps' rays, the occluders' rays), sg.fit's transport (its visibility and
+    indirect rays) and sg.source_visibility (a source's circle of rays), all closest
+    hits, on the tiny sg scene, through the stages' own VertexScene, answered by both."""
     from tiny_scenes import tiny_scene
 
     from pipeline.math.brdf import BrdfParams
-    from pipeline.methods.sg import diffuse, transport, visibility
+    from pipeline.methods.sg import diffuse, source_rings, transport, visibility
     from pipeline.methods.sg.vertex_scene import VertexScene
 
     scene = tiny_scene(tmp_path, "sg")
@@ -325,6 +325,11 @@ def test_sg_rays_on_the_device_are_embree_s(tmp_path):
     sphere = np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.6, 0.8], [-0.8, 0.0, 0.6]])
     transport.glossy_transport(VertexScene.from_arrays(arrays, glossy, recorder), every[::4],
                                sphere, transfer, 4, rng)  # sg.fit's and sg.probe's rays
+    # a source at an azimuth no turn of its circle sets in the box's vertical faces'
+    # planes (a ray in a face's plane has no well-defined distance)
+    rows, weights, _ = source_rings.ring_rows(np.array([0.5, 0.7, 0.3]) / np.sqrt(0.83),
+                                              1.0 / 0.3 ** 2, 1.0)
+    source_rings.seen_by(vertex_scene, every[::2], rows, weights)  # sg.source_visibility's
     assert_same_hits(recorder, vertex_scene.positions, vertex_scene.faces)
 
 

@@ -666,6 +666,44 @@ def test_visibility_kernel_with_bright_sources_matches_numpy(small_map):
             / np.abs(expected).max(axis=1)).max() > 0.01
 
 
+def test_visibility_kernel_reads_the_sources_table_when_the_map_turns_about_y(small_map):
+    """With sg.source_visibility's table (decision 0049) and the map turned 37° about +y,
+    what the corners see of each source comes from the table (render.source_seen, read
+    between its columns): the kernel against the twin as above (1e-4), and the frame
+    differs from the maps' reading by more than 1 % of a pixel's largest channel (the
+    table is read); turned about another axis the maps are read again (the twin with
+    and without the table agree)."""
+    from pipeline.methods.sg.sources import split_sources
+
+    tables = with_visibility(with_lobe_tables(random_tables(50, small_map, seed=3,
+                                                            normals=True)), seed=5)
+    found, residual = split_sources(small_map, 0.9, 0.01)
+    lit = replace(tables, sources=found.astype(np.float32), residual_stack=[
+        level.astype(np.float32) for level in prefilter(residual, tables.levels)])
+    offsets = np.array([0, 24, 40])
+    table = np.random.default_rng(6).integers(0, 256, (50, 40)).astype(np.uint8)
+    ringed = replace(lit, source_table=table, source_offsets=offsets)
+    corner, bary, view, view_weight, wo = random_pixels(tables, 3000, seed=4)
+    light = sh.project_latlong(small_map)
+    turn = rotation_about((0.0, 1.0, 0.0), 37.0)
+    expected = render.shade_numpy(ringed, corner, bary, view, view_weight, light, turn, 1.7,
+                                  "log", wo, visible=True, about_y=37.0)
+    out = render.shade_arrays(render.SgDevice(ringed, "log", "visibility"), corner, bary,
+                              view, view_weight, light, turn, 1.7, wo, about_y=37.0)
+    rel = np.abs(out - expected).max(axis=1) / np.abs(expected).max(axis=1)
+    assert rel.max() < 1e-4, rel.max()
+    from_maps = render.shade_numpy(lit, corner, bary, view, view_weight, light, turn, 1.7,
+                                   "log", wo, visible=True, about_y=37.0)
+    assert (np.abs(from_maps - expected).max(axis=1)
+            / np.abs(expected).max(axis=1)).max() > 0.01
+    tilted = rotation_about((0.3, 1.0, -0.2), 37.0)
+    np.testing.assert_array_equal(
+        render.shade_numpy(ringed, corner, bary, view, view_weight, light, tilted, 1.7, "log",
+                           wo, visible=True),
+        render.shade_numpy(lit, corner, bary, view, view_weight, light, tilted, 1.7, "log",
+                           wo, visible=True))
+
+
 def test_sources_direct_diffuse_comes_from_the_visibility_maps(small_map):
     """render.source_diffuse (decision 0048): under a light made of the sources alone
     (light SH = the sources' SH, the direct transfer the whole transfer) the SH term

@@ -47,13 +47,11 @@ PRESETS = {"default": [],
 def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
                   tables: Any) -> dict[str, float]:
     """Milliseconds of the kernel path's parts (as ``camera_gbuffer`` runs them)."""
-    from pipeline.math.camera import image_rays
     from pipeline.methods.triple import render
-    from pipeline.methods.triple.gbuffer import surface_attributes
+    from pipeline.methods.triple.gbuffer import gbuffer_rays, surface_attributes
 
     t0 = time.perf_counter()
-    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                     cam.width, cam.height)
+    origins, directions = gbuffer_rays(cam)
     t1 = time.perf_counter()
     hits = tracer.intersect(origins, directions)
     t2 = time.perf_counter()

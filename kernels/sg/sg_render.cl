@@ -294,10 +294,11 @@ __kernel void sg_shade(__global const float* lobes, __global const int* first,
  * host). No glossy light where the corners' table rows differ or are -1, or
  * n_p.w_o <= 0. Bright sources (decision 0048, sources.py): the stack is then the map's
  * less its source_count sources (world direction, power P_s, sharpness lam_s; 7 floats
- * each), and each adds rho_s f(w_s, w_o) max(0, n_p.w_s) K_s P_s sum_a f_a V_a(w_s), f
+ * each), and each adds rho_s f(w_s, w_o) max(0, n_p.w_s) K_s P_s sum_a f_a S_a,s, f
  * the material's glossy BRDF (kernels/brdf.h, row m of materials) in the frame
- * sg_basis(n_p), V_a filtered over 1/sqrt(lam_s), K_s the source's spread through the
- * lobe (mu, lam) (sources.py spread). */
+ * sg_basis(n_p), S_a,s = source_seen[a * source_count + s] what corner a sees of the
+ * source this frame (per vertex on the host: render.source_seen, decision 0049), K_s
+ * the source's spread through the lobe (mu, lam) (sources.py spread). */
 #define SG_NODES 7
 #define SG_RING 1.18f
 #define SG_SPLIT 2.0f
@@ -369,6 +370,7 @@ __kernel void sg_shade_visibility(__global const uchar* maps, const int resoluti
                                   const int levels, const float log_sigma0,
                                   const float inv_log_ratio, __global const float* map_turn,
                                   __global const float* sources, const int source_count,
+                                  __global const float* source_seen,
                                   __global const float* materials,
                                   const float scale, const int n, __global float* out)
 {
@@ -441,10 +443,9 @@ __kernel void sg_shade_visibility(__global const uchar* maps, const int resoluti
                 float3 li = (float3)(dot(ws, t), dot(ws, s), cos_s);
                 float f = brdf_glossy(materials + MATERIAL_FLOATS * m, li, lo) * cos_s;
                 float lam_s = src[6];
-                float vis = 0.0f;
-                for (int c = 0; c < 3; ++c)
-                    vis += fb[c] * sg_visibility(maps + (size_t)v[c] * map_texels, resolution,
-                                                 map_levels, ws, rsqrt(lam_s));
+                float vis = fb[0] * source_seen[v[0] * source_count + k]
+                          + fb[1] * source_seen[v[1] * source_count + k]
+                          + fb[2] * source_seen[v[2] * source_count + k];
                 float3 dd = mu - ws;  /* K_s, the source's spread through the lobe */
                 float r = length(lam * mu + lam_s * ws);
                 float log_k = 0.5f * lam * dot(dd, dd) * (1.0f - 2.0f * lam_s / (r + lam + lam_s))

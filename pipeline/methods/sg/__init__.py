@@ -10,7 +10,9 @@ there, never stored; flips relaxed within its vertex batches), ``sg.relax`` (the
 relaxation over every mesh edge, pipeline/methods/sg/stages/relax.py: the lobes the
 ``normal`` options vertex, pixel and ratio read), ``sg.visibility`` (per vertex, its
 visibility as an octahedral mip pyramid and its occluders' diffuse transfer: what the
-default ``normal=visibility`` reads, pipeline/methods/sg/visibility.py) and
+default ``normal=visibility`` reads, pipeline/methods/sg/visibility.py),
+``sg.source_visibility`` (per vertex, what it sees of each of the map's bright sources
+at each turn of the map about +y, pipeline/methods/sg/source_rings.py) and
 ``sg.diffuse`` (the diffuse transfer in SH with shadows and interreflection,
 pipeline/methods/sg/stages/diffuse.py); shared: ``geometry``. A bake runs the stages the
 frame's options read (``option_reads``): the default fits no lobes. Renderer:
@@ -32,7 +34,9 @@ normal split into 7 Gaussians, each's light from the prefiltered map times the c
 visibility looked up in their maps, plus the occluders' diffuse light; the map's bright
 sources taken apart, each by the exact BRDF at its direction (decision 0048,
 pipeline/methods/sg/sources.py; ``sg.env_prefilter`` stores them and the residual's
-stack).
+stack), their glossy and diffuse light shadowed by what each vertex sees of them
+(decision 0049: ``sg.source_visibility`` where the map turns about +y, the maps about
+any other axis).
 
 Sequences (``--frames``): ``rotate:N`` turns the environment map once around +y,
 ``orbit:N`` moves the camera around its look_at point (as method triple's).
@@ -61,7 +65,7 @@ METHOD = Method(
     # the fitted lobes (sg.fit, minutes to an hour) only where normal uses them; the
     # default reads the vertices' visibility instead (seconds; decision 0046)
     option_reads=(*(("normal", n, ("sg.relax",)) for n in ("vertex", "pixel", "ratio")),
-                  ("normal", "visibility", ("sg.visibility",))),
+                  ("normal", "visibility", ("sg.visibility", "sg.source_visibility"))),
     options=(Option("lambda_blend", str, "log",
                     "log or linear: how a lobe's sharpness is blended between views",
                     choices=("log", "linear")),
@@ -94,10 +98,12 @@ METHOD = Method(
     check_scene="pipeline.methods.sg.hooks:check_scene",
     edits=("environment", "camera"),  # run time; the lobes are fitted for the BRDFs
     limits=(
-        Limit("small-sources", "a map holding three quarters of its light or more in "
-              "sources smaller than one cell of the diffuse term's SH (4π/n² sr at "
-              "sg.diffuse_order n) casts shadows sg blurs into a dark blob: method triple "
-              "keeps them sharp", "pipeline.methods.sg.limits:small_sources"),
+        Limit("small-sources", "a map holding three quarters or more of the light its "
+              "bright sources (sg.source_min_share each) leave in sources smaller than "
+              "one cell of the diffuse term's SH (4π/n² sr at sg.diffuse_order n) casts "
+              "shadows sg blurs into a dark blob: a lower sg.source_min_share takes more "
+              "apart, method triple keeps them sharp",
+              "pipeline.methods.sg.limits:small_sources"),
         Limit("visibility-folds", "under normal=visibility, where a surface folds faster "
               "than its vertices (neighbouring vertices' visibility maps differ by more "
               "than 5 % on average) its glossy highlights' shadows smear: "

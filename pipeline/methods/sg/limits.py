@@ -2,13 +2,16 @@
 
 **Small bright sources.** The diffuse term is a spherical-harmonic transfer of order n
 (``sg.diffuse_order``, n² coefficients per vertex): it resolves the lighting to cells of
-about 4π/n² sr. A map whose light comes mostly from sources smaller than that (a studio's
-soft boxes, a window, the sun) casts shadows the term cannot hold: they come out as one
-blurred, too-dark blob (dragon_sg under the studio map: diffuse part 19.1 % off). The
-check measures the share of the map's power (luminance × solid angle) in its brightest
-texels covering one such cell: 1/n² for a uniform sky, 0.89 for the studio map at n = 8,
-0.55 for Grace Cathedral, 0.12–0.34 for the outdoor maps (decision 0038); it warns
-from :data:`MOST_SOURCE_SHARE`.
+about 4π/n² sr. A map whose light comes mostly from sources smaller than that casts
+shadows the term cannot hold: they come out as one blurred, too-dark blob (dragon_sg
+under the studio map: diffuse part 19.1 % off, decision 0038). Under ``normal=visibility``
+(the default) the map's few bright sources of ``sg.source_min_share`` or more each are
+taken apart and lit by what each vertex sees of them (decisions 0048, 0049), so what the
+term must hold is the rest of the map: the check measures the share of the *residual*
+map's power (luminance × solid angle) in its brightest texels covering one such cell,
+and warns from :data:`MOST_SOURCE_SHARE` — many small sources, none large enough to be
+taken apart. At n = 8: the studio map 0.89 whole, 0.48 less its two lights; Grace
+Cathedral 0.55 (no source of 5 %); 1/n² for a uniform sky; the outdoor maps 0.12–0.34.
 
 **Vertex spacing on screen.** Light is carried per vertex and interpolated across each
 triangle, so nothing sharper than the mesh's edges on screen shows: the 453-vertex bunny
@@ -44,12 +47,14 @@ MOST_VISIBILITY_STEP = 0.05  # mean visibility difference across an edge (module
 
 
 @functools.lru_cache(maxsize=8)
-def source_share(path: str, order: int) -> float:
-    """The share of the latitude-longitude map ``path``'s power (luminance × solid angle)
-    in its brightest texels that together cover 4π/``order``² sr."""
+def source_share(path: str, order: int, quantile: float, min_share: float) -> float:
+    """The share of the power (luminance × solid angle) of the latitude-longitude map
+    ``path`` less its bright sources (sources.py's split at ``quantile`` and
+    ``min_share``) in its brightest texels that together cover 4π/``order``² sr."""
     from pipeline.images import read_environment
+    from pipeline.methods.sg.sources import split_sources
 
-    rgb = read_environment(path)
+    _, rgb = split_sources(read_environment(path), quantile, min_share)
     height, width = rgb.shape[:2]
     rows = (np.arange(height) + 0.5) / height
     solid_angle = np.broadcast_to((2 * np.pi ** 2 / (height * width))
@@ -65,19 +70,22 @@ def source_share(path: str, order: int) -> float:
 
 def small_sources(scene: Scene, params: Mapping[str, Any],
                   artifacts: Mapping[str, Any] | None) -> str | None:
-    """Whether the map's light comes mostly from sources smaller than the diffuse term's
-    SH cells (module docstring)."""
+    """Whether the light the map's bright sources leave comes mostly from sources
+    smaller than the diffuse term's SH cells (module docstring)."""
     env = scene.environment
     if env is None:
         return None
     order = int(params["sg.diffuse_order"])
-    share = source_share(str(env.file), order)
+    share = source_share(str(env.file), order, float(params["sg.source_quantile"]),
+                         float(params["sg.source_min_share"]))
     if share < MOST_SOURCE_SHARE:
         return None
-    return (f"{env.file.name} holds {100 * share:.0f} % of its light in its brightest "
+    return (f"{env.file.name} holds {100 * share:.0f} % of the light its sources of "
+            f"{100 * float(params['sg.source_min_share']):g} % or more leave in its brightest "
             f"{4 * np.pi / order ** 2:.2f} sr ({100 / order ** 2:.1f} % of the sphere, one "
             f"cell of sg.diffuse_order {order}): the shadows of such small sources come out "
-            "blurred and dark; method triple keeps them sharp")
+            "blurred and dark; a lower sg.source_min_share takes more of them apart, "
+            "method triple keeps them all sharp")
 
 
 def edge_pixels(vertices: np.ndarray, faces: np.ndarray, scene: Scene) -> np.ndarray:

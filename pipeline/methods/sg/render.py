@@ -60,7 +60,7 @@ from pipeline.math import sg, sh
 from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
 from pipeline.math.camera import image_rays
 from pipeline.math.geodesic import icosahedron
-from pipeline.methods.sg import visibility
+from pipeline.methods.sg import source_rings, visibility
 from pipeline.methods.sg.brdf_lobe import TABLE, brdf_lobe, lobe_table
 from pipeline.methods.sg.sources import FIELDS as SOURCE_FIELDS
 from pipeline.methods.sg.sources import split_sources
@@ -201,7 +201,10 @@ class SgTables:
     ``direct_transfer`` (V, 3, n²) float32 the unbounced part of ``transfer``,
     ``vertex_albedo`` (V, 3) the vertices' kd and ``source_sh`` (n², 3) the SH of the
     map's part its sources hold (map frame): the sources' direct diffuse light is then
-    taken from the visibility maps (:func:`source_diffuse`; decision 0048)."""
+    taken from what the vertices see of them (:func:`source_diffuse`; decision 0048);
+    ``source_table`` (V, Σ N_s) uint8 and ``source_offsets`` (K + 1,) what each vertex
+    sees of each source per turn of the map about +y (sg.source_visibility; None: read
+    from the visibility maps; decision 0049)."""
 
     lobes: np.ndarray
     first: np.ndarray
@@ -223,6 +226,8 @@ class SgTables:
     direct_transfer: np.ndarray | None = None
     vertex_albedo: np.ndarray | None = None
     source_sh: np.ndarray | None = None
+    source_table: np.ndarray | None = None
+    source_offsets: np.ndarray | None = None
 
     @classmethod
     def from_dense(cls, lobes: np.ndarray, count: np.ndarray, transfer: np.ndarray,
@@ -245,7 +250,7 @@ class SgTables:
             + sum(0 if a is None else a.nbytes
                   for a in (self.normals, self.lobe_table, self.vertex_lobe,
                             self.lobe_specular, self.node_table, self.visibility,
-                            self.occluder))
+                            self.occluder, self.source_table))
 
 
 def load_tables(artifacts: Mapping[str, Artifact], vertex_count: int) -> SgTables:
@@ -346,6 +351,21 @@ def load_visibility(artifact: Artifact, vertex_count: int, order: int
     return {"visibility": maps, "visibility_resolution": resolution, "occluder": occluder}
 
 
+def load_source_visibility(artifact: Artifact, vertex_count: int, sources: int
+                           ) -> dict[str, np.ndarray]:
+    """``source_table`` and ``source_offsets`` of :class:`SgTables` from an
+    sg.source_visibility artifact, checked against the geometry's ``vertex_count`` and
+    the number of ``sources`` sg.env_prefilter holds."""
+    table = np.asarray(artifact.read("table"), np.uint8)
+    offsets = np.asarray(artifact.read("offsets"), np.int64)
+    if len(offsets) != sources + 1 or table.shape != (vertex_count, int(offsets[-1])) \
+            or np.any(np.diff(offsets) <= 0):
+        raise PrtError("sg.source_visibility", f"table {table.shape}, offsets "
+                       f"{offsets.tolist()}: expected {vertex_count} rows and {sources} "
+                       "sources' columns (re-bake sg.source_visibility)")
+    return {"source_table": table, "source_offsets": offsets}
+
+
 def scene_lobe_tables(scene: Scene, geometry: Artifact, nodes: bool = False
                       ) -> dict[str, Any]:
     """:func:`vertex_lobe_tables` of the scene's materials on ``geometry``'s vertices
@@ -410,7 +430,8 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
                 view_weight: np.ndarray, light_sh: np.ndarray,
                 to_world: np.ndarray | None = None, scale: float = 1.0,
                 lambda_blend: str = "log", wo: np.ndarray | None = None,
-                ratio: bool = False, visible: bool = False) -> np.ndarray:
+                ratio: bool = False, visible: bool = False,
+                about_y: float | None = None) -> np.ndarray:
     """Radiance (P, 3) of P pixels (the kernel ``sg_shade``'s twin, float64): the face's
     vertices ``corner`` (P, 3) and barycentrics ``bary`` (P, 3), the view triangle's
     ``view`` (P, 3) and weights ``view_weight`` (P, 3), the lighting's SH ``light_sh``
@@ -425,13 +446,14 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     (:func:`ratio_glossy`, the kernel's BRDF_RATIO = 1). ``visible`` (with ``wo``,
     ``tables.normals``, its lobe tables and visibility): no lobes, the BRDF at the
     pixel's normal against the corners' visibility (:func:`visibility_glossy`, the kernel
-    ``sg_shade_visibility``)."""
+    ``sg_shade_visibility``; ``about_y``: ``to_world``'s turn in degrees where it turns
+    the map about +y, as the sources' visibility is read, :func:`source_seen`)."""
     corner = np.asarray(corner, np.int64)
     if visible:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
         diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh,
-                                 source_diffuse(tables, turn, None))[corner]
-        return scale * (visibility_glossy(tables, corner, bary, wo, turn, light_sh)
+                                 source_diffuse(tables, turn, about_y))[corner]
+        return scale * (visibility_glossy(tables, corner, bary, wo, turn, light_sh, about_y)
                         + np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse))
     if ratio:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
@@ -539,10 +561,12 @@ def ratio_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: n
 
 
 def visibility_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray,
-                      wo: np.ndarray, turn: np.ndarray, light_sh: np.ndarray) -> np.ndarray:
+                      wo: np.ndarray, turn: np.ndarray, light_sh: np.ndarray,
+                      about_y: float | None = None) -> np.ndarray:
     """The glossy radiance (P, 3) of decision 0046 (visibility.glossy) of pixels whose
     corners share one table row ≥ 0 and whose blended normal n_p faces ``wo`` (0
-    elsewhere); the occluders' radiance from ``light_sh`` (n², 3)."""
+    elsewhere); the occluders' radiance from ``light_sh`` (n², 3); the map turned by
+    ``turn``, ``about_y`` degrees about +y where it is such a turn."""
     corner = np.asarray(corner, np.int64)
     bary = np.asarray(bary, np.float64)
     m = tables.vertex_lobe[corner]
@@ -566,13 +590,15 @@ def visibility_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray,
     sources, brdf_cos = light_sources(tables), None
     stack = [np.asarray(level, np.float64) for level in
              (tables.stack if sources is None else tables.residual_stack)]
+    seen = None
     if sources is not None:
         world = sources[:, :3].astype(np.float64) @ np.asarray(turn, np.float64).T
         brdf_cos = visibility.source_brdf(tables.glossy_brdfs, np.maximum(m[:, 0], 0), unit,
                                           wo, world)
+        seen = source_seen(tables, turn, about_y)
     return visibility.glossy(tables.visibility, tables.visibility_resolution, occluder,
                              corner, bary, unit, mu, lam, weights, specular, stack,
-                             tables.levels, turn, sources, brdf_cos)
+                             tables.levels, turn, sources, brdf_cos, seen)
 
 
 def light_sources(tables: SgTables) -> np.ndarray | None:
@@ -682,12 +708,14 @@ class SgDevice:
         return cl.read_only_buffer(np.ascontiguousarray(d, np.float32))
 
     def shade(self, pixels: dict[str, Any], n: int, vertex_diffuse: Any,
-              to_world: np.ndarray | None, scale: float, out_buffer: Any | None = None
-              ) -> tuple[np.ndarray | None, float]:
+              to_world: np.ndarray | None, scale: float, out_buffer: Any | None = None,
+              seen: np.ndarray | None = None) -> tuple[np.ndarray | None, float]:
         """Radiance (n, 3) float32 of the pixels whose per-camera device buffers are
         ``pixels`` (corner, bary, view, view_weight, wo), with the vertices' diffuse
         radiance ``vertex_diffuse`` (:meth:`vertex_diffuse`), the map turned by
-        ``to_world`` (3×3, None: unturned), and the kernel's milliseconds. With
+        ``to_world`` (3×3, None: unturned), what the vertices see of the bright sources
+        ``seen`` (V, K) (:func:`source_seen`; with ``visibility`` where there are
+        sources), and the kernel's milliseconds. With
         ``out_buffer`` (≥ n · 12 bytes on the device) the radiance stays there and None is
         returned in its place."""
         b, levels = self.buffers, self.tables.levels
@@ -707,6 +735,8 @@ class SgDevice:
                             np.zeros((1, SOURCE_FIELDS)) if self.sources is None
                             else self.sources, to_world)),
                         np.int32(0 if self.sources is None else len(self.sources)),
+                        cl.read_only_buffer(np.zeros(1, np.float32) if self.sources is None
+                                            else np.ascontiguousarray(seen, np.float32)),
                         b["materials"], np.float32(scale), np.int32(n), out=out,
                         writes=12 * n, out_buffer=out_buffer, local=WORK_GROUP)
             return out, ms
@@ -724,7 +754,7 @@ class SgDevice:
 def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: np.ndarray,
                  view_weight: np.ndarray, light_sh: np.ndarray,
                  to_world: np.ndarray | None = None, scale: float = 1.0,
-                 wo: np.ndarray | None = None) -> np.ndarray:
+                 wo: np.ndarray | None = None, about_y: float | None = None) -> np.ndarray:
     """The kernel on host arrays (as :func:`shade_numpy`'s arguments; ``wo`` (P, 3) is
     needed where the device turns lobes), float32 (P, 3)."""
     if wo is None:
@@ -736,10 +766,11 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
               "view": cl.read_only_buffer(np.asarray(view, np.int32)),
               "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32)),
               "wo": cl.read_only_buffer(np.ascontiguousarray(wo, np.float32))}
-    extra = source_diffuse(device.tables, np.eye(3) if to_world is None else to_world,
-                           None) if device.visible else None
+    turn = np.eye(3) if to_world is None else to_world
+    extra = source_diffuse(device.tables, turn, about_y) if device.visible else None
+    seen = source_seen(device.tables, turn, about_y) if device.visible else None
     return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh, extra=extra),
-                        to_world, scale)[0]
+                        to_world, scale, seen=seen)[0]
 
 
 def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
@@ -756,15 +787,15 @@ def kernel_bytes(tables: SgTables, corner: np.ndarray, turning: bool = False,
     glossy face (its corners' table row ≥ 0) also 2 lobe-table rows × 12 B, 2 node-table
     rows × 28 B, ρs 12 B, 7 lookups × 2 levels × 4 texels × 12 B, 3 × 7 visibility
     lookups × 2 levels × 4 texels × 1 B and 3 occluder radiances × 12 B, and per bright
-    source (decision 0048) its 28 B, the material's 64 B row and 3 visibility lookups ×
-    2 levels × 4 texels × 1 B."""
+    source (decision 0048) its 28 B, the material's 64 B row and its 3 corners' view of
+    it, 3 × 4 B (decision 0049)."""
     if visible:
         corner = np.asarray(corner, np.int64)
         lobed = 0 if tables.vertex_lobe is None else \
             int(np.count_nonzero(tables.vertex_lobe[corner[:, 0]] >= 0))
         found = light_sources(tables)
         glossy = 2 * 12 + 2 * 28 + 12 + 7 * 2 * 4 * 12 + 21 * 2 * 4 + 3 * 12 \
-            + (0 if found is None else len(found) * (28 + 64 + 3 * 2 * 4))
+            + (0 if found is None else len(found) * (28 + 64 + 3 * 4))
         return int(len(corner) * (36 + 3 * 28 + 12) + lobed * glossy)
     slots = tables.count[np.asarray(corner, np.int64)].max(axis=1).astype(np.int64)
     per_pixel = 48 + 3 + 3 * 12 + 12
@@ -904,7 +935,8 @@ class SgRenderer:
         if self.device.visible and self.component == "glossy":
             occluder_sh = sh.rotate_y(self.occluder_sh, about_y) if about_y is not None \
                 else sh.rotate(self.occluder_sh, to_world)
-        extra = source_diffuse(self.tables, to_world, about_y) \
+        seen = source_seen(self.tables, to_world, about_y) if self.device.visible else None
+        extra = source_diffuse(self.tables, to_world, about_y, seen) \
             if self.device.visible and self.component != "glossy" else None
         vertex_diffuse = self.device.vertex_diffuse(light_sh, occluder_sh, extra)
         t2 = time.perf_counter()
@@ -917,7 +949,7 @@ class SgRenderer:
         if len(gbuffer.pixel):
             shaded = cl.scratch_buffer(image.buffers, "shaded", 12 * len(gbuffer.pixel))
             _, shade_ms = self.device.shade(pixels, len(gbuffer.pixel), vertex_diffuse,
-                                            to_world, scale, out_buffer=shaded)
+                                            to_world, scale, out_buffer=shaded, seen=seen)
             scatter_ms += image.scatter(shaded, pixels["pixel"], len(gbuffer.pixel))
         if background:
             if "map" not in self.static:
@@ -967,6 +999,9 @@ def sg_renderer(scene: Scene, artifacts: Mapping[str, Artifact], lambda_blend: s
                                                    int(round(np.sqrt(tables.transfer.shape[2])))))
     env_map = read_environment(scene.environment.file)
     if normal == "visibility" and light_sources(tables) is not None:
+        if "sg.source_visibility" in artifacts:  # decision 0049
+            tables = replace(tables, **load_source_visibility(
+                artifacts["sg.source_visibility"], len(vertices), len(tables.sources)))
         attrs = artifacts["sg.env_prefilter"].attrs
         tables = replace(tables, source_sh=sources_sh(
             env_map, float(attrs["source_quantile"]), float(attrs["source_min_share"]),
@@ -986,18 +1021,23 @@ def sources_sh(env_map: np.ndarray, quantile: float, min_share: float, order: in
     return sh.project_latlong(np.asarray(env_map, np.float64) - residual, order=order)
 
 
-def source_diffuse(tables: SgTables, turn: np.ndarray, about_y: float | None
-                   ) -> np.ndarray | None:
+def source_diffuse(tables: SgTables, turn: np.ndarray, about_y: float | None,
+                   seen: np.ndarray | None = None) -> np.ndarray | None:
     """What the sources change in the vertices' diffuse radiance (V, 3), float64 (None
     where there is nothing to change: no sources, or tables without the direct transfer,
     albedos or visibility): their direct light as the SH transfer holds it, blurred to
     order n, taken out, −Σ_k direct[v, c, k] S_k[c] (S the sources' SH turned with the
     map: ``about_y`` degrees about +y, or ``turn`` the map-to-world rotation), and put
-    back sharp from the vertices' visibility maps,
-    (kd_v/π) Σ_s P_s max(0, n_v·ω_s) V_v(ω_s; 1/√λ_s) (decision 0048)."""
+    back sharp from what the vertices see of them (``seen``, default
+    :func:`source_seen`),
+    (kd_v/π) Σ_s P_s max(0, n_v·ω_s) S_v,s (decision 0048)."""
     found = light_sources(tables)
     if found is None or tables.direct_transfer is None or tables.vertex_albedo is None \
-            or tables.source_sh is None or tables.visibility is None or tables.normals is None:
+            or tables.source_sh is None or tables.normals is None:
+        return None
+    if seen is None:
+        seen = source_seen(tables, turn, about_y)
+    if seen is None:
         return None
     source_sh = sh.rotate_y(tables.source_sh, about_y) if about_y is not None \
         else sh.rotate(tables.source_sh, turn)
@@ -1006,11 +1046,34 @@ def source_diffuse(tables: SgTables, turn: np.ndarray, about_y: float | None
     kd = np.asarray(tables.vertex_albedo, np.float64)
     lit = np.flatnonzero(kd.max(axis=1) > 0)
     world = sources_to_world(found, turn).astype(np.float64)
-    for source in world:
+    for k, source in enumerate(world):
         cosine = normals[lit] @ source[:3]
         up = lit[cosine > 0]
-        seen = visibility.lookup(tables.visibility, tables.visibility_resolution, up,
-                                 np.broadcast_to(source[:3], (len(up), 3)),
-                                 np.full(len(up), 1.0 / np.sqrt(source[6])))
-        out[up] += (kd[up] / np.pi) * ((cosine[cosine > 0] * seen)[:, None] * source[3:6])
+        out[up] += (kd[up] / np.pi) * ((cosine[cosine > 0] * seen[up, k])[:, None]
+                                       * source[3:6])
     return out
+
+
+def source_seen(tables: SgTables, turn: np.ndarray, about_y: float | None
+                ) -> np.ndarray | None:
+    """What each vertex sees of each bright source this frame, S (V, K) float64 in
+    [0, 1] (None: no sources): its visibility filtered by the source's Gaussian. Read
+    from sg.source_visibility's table where the map turns ``about_y`` degrees about +y
+    (source_rings.py, decision 0049), else from the vertices' visibility maps at the
+    sources' directions under ``turn`` (the map-to-world rotation), filtered over
+    1/√λ_s (decision 0048; None without them)."""
+    found = light_sources(tables)
+    if found is None:
+        return None
+    if about_y is not None and tables.source_table is not None:
+        return source_rings.at_turn(tables.source_table, tables.source_offsets,
+                                    slice(None), about_y)
+    if tables.visibility is None:
+        return None
+    world = sources_to_world(found, turn).astype(np.float64)
+    count = len(tables.visibility)
+    every = np.arange(count)
+    return np.stack([visibility.lookup(tables.visibility, tables.visibility_resolution, every,
+                                       np.broadcast_to(s[:3], (count, 3)),
+                                       np.full(count, 1.0 / np.sqrt(s[6])))
+                     for s in world], axis=1)

@@ -32,8 +32,9 @@ error is the correlation of light and visibility inside a node (decision 0046).
 **Bright sources** (decision 0048, pipeline/methods/sg/sources.py): where the map's
 light is held by a few small regions, the nodes' light comes from the stack of the map
 less those sources, and each source s adds ρs f(ω_s, ωo) max(0, n_p·ω_s) K_s P_s
-Σ_a f_a V_a(ω_s), the exact BRDF at its direction, K_s its spread through the pixel's
-lobe (sources.spread) and each corner's visibility filtered over σ_s = 1/√λ_s; where it
+Σ_a f_a S_a,s, the exact BRDF at its direction, K_s its spread through the pixel's
+lobe (sources.spread) and S_a,s what corner a sees of the source, its visibility
+filtered by the source's Gaussian (render.source_seen, decision 0049); where it
 is blocked, the occluder term above already stands for
 what blocks it (its radiance is sg.diffuse's under the whole map).
 
@@ -267,14 +268,16 @@ def glossy(maps: np.ndarray, resolution: int, occluder: np.ndarray, corner: np.n
            bary: np.ndarray, normal: np.ndarray, mu: np.ndarray, lam: np.ndarray,
            weights: np.ndarray, specular: np.ndarray, stack: list[np.ndarray],
            levels: sg.PrefilterLevels, turn: np.ndarray, sources: np.ndarray | None = None,
-           brdf_cos: np.ndarray | None = None) -> np.ndarray:
+           brdf_cos: np.ndarray | None = None, seen: np.ndarray | None = None
+           ) -> np.ndarray:
     """The module docstring's glossy radiance (P, 3), float64 (the kernel's twin): pixels'
     corners (P, 3), barycentrics (P, 3) and unit blended normals n_p (P, 3), their BRDF
     lobes mu (P, 3) unit world and λ (P,), node ``weights`` (P, 7) (:func:`node_weights`;
     0 where the pixel has no glossy part) and ρs ``specular`` (P, 3); ``occluder`` (V, 3)
     the vertices' occluder radiance Ī, ``turn`` the map's 3×3 map-to-world rotation;
-    ``stack`` the residual's where there are ``sources`` (K, 7) (sources.py, map frame)
-    and ``brdf_cos`` (P, K) their :func:`source_brdf` at the world directions."""
+    ``stack`` the residual's where there are ``sources`` (K, 7) (sources.py, map frame),
+    ``brdf_cos`` (P, K) their :func:`source_brdf` at the world directions and ``seen``
+    (V, K) what each vertex sees of them (render.source_seen)."""
     p = np.flatnonzero(weights.sum(axis=1) > 0)
     out = np.zeros((len(corner), 3))
     if not len(p):
@@ -283,9 +286,7 @@ def glossy(maps: np.ndarray, resolution: int, occluder: np.ndarray, corner: np.n
         world = np.asarray(sources[:, :3], np.float64) @ np.asarray(turn, np.float64).T
         for k, source in enumerate(np.asarray(sources, np.float64)):
             toward = np.broadcast_to(world[k], (len(p), 3))
-            v = sum(bary[p, c] * lookup(maps, resolution, corner[p, c], toward,
-                                        np.full(len(p), 1.0 / math.sqrt(source[6])))
-                    for c in range(3))
+            v = np.einsum("pa,pa->p", bary[p], seen[corner[p], k])
             k_s = spread(mu[p], lam[p], toward, np.full(len(p), source[6]))
             out[p] += (brdf_cos[p, k] * k_s * v)[:, None] * specular[p] * source[3:6]
     nodes = node_directions(mu[p], lam[p], normal[p])                          # (Q, 7, 3)

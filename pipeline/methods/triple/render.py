@@ -53,7 +53,6 @@ from pipeline.engine.store import Artifact
 from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math.brdf import scene_brdfs
-from pipeline.math.camera import image_rays
 from pipeline.math.sphwavelet import (
     depth_first_keys,
     kernel_tables,
@@ -67,6 +66,7 @@ from pipeline.methods.triple.gbuffer import (
     LookupTables,
     aligned,
     device_lookups,
+    gbuffer_rays,
     kernel_arguments,
     surface_attributes,
 )
@@ -193,20 +193,20 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
     (the visibility is the unbumped texel's, paper 004 §4.2). NumPy twin:
     :func:`camera_gbuffer_numpy`. ``static``: the renderer's cache of device buffers
     (the mesh's are uploaded once)."""
-    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                     cam.width, cam.height)
+    origins, directions = gbuffer_rays(cam)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     # page-aligned arrays from here on: a CPU device's kernels read them in place
-    directions = aligned(directions, np.float32)
     hits = Hits(hits.t, *(aligned(a, a.dtype) for a in (hits.prim, hits.u, hits.v)))
     pixel = aligned(np.flatnonzero(hit), np.int32)
     s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel, static)
-    material = aligned(np.asarray(mesh.object_material, np.int32)[s["object"]], np.int32)
+    material = cl.aligned_empty(len(pixel), np.int32)
+    np.take(np.asarray(mesh.object_material, np.int32), s["object"], out=material)
     material_b = cl.aligned_empty(len(pixel), np.int32)
     blend = cl.aligned_empty(len(pixel), np.float32)
     material_b[...], blend[...] = material, 0.0
-    which = np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
+    which = np.zeros(0, np.int64) if detail.empty else \
+        np.flatnonzero(np.isin(material, [*detail.blend, *detail.bump]))
     if len(which):  # the host's SceneDetail on the pixels of detailed materials
         at = pixel[which]
         shading = detail.at(surface_at(mesh, hits.select(at), origins[at], directions[at],
@@ -225,8 +225,7 @@ def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: Sc
     """:func:`camera_gbuffer` on the host: every attribute from
     pipeline.device.raytrace.Surface, ``detail`` and :meth:`Atlas.texel_xy` (the device
     kernel's twin, tests and benchmarks; it uploads nothing, so ``static`` is unused)."""
-    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                     cam.width, cam.height)
+    origins, directions = gbuffer_rays(cam)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     d = directions[hit]  # float32, as the G-buffer keeps it (normals blended in float32)
