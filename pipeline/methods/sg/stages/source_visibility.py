@@ -19,7 +19,7 @@ from pipeline.methods.sg import source_rings
 from pipeline.methods.sg.sources import FIELDS
 from pipeline.methods.sg.vertex_scene import VertexScene
 
-BATCH = 64  # vertices per tracing batch of 64 × R × N rays (studio lights: 5.2k, 2.0k a vertex)
+BATCH = 64  # vertices per tracing batch of 64 × R × N rays (studio lights: 4.3k, 2.0k a vertex)
 
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
