@@ -250,3 +250,42 @@ def test_a_worker_with_other_code_refuses_its_chunks(tmp_path):
     assert not any(workdir.marker("geometry", c).exists() for c in record["chunks"])
     run(scene, load_stagefile(TOY_STAGEFILE), workdir, progress=False)  # same code: runs
     assert read_record(workdir.artifact("geometry"))["complete"] is True
+
+
+class _Task:
+    """A chunk task as the executor sees it: its stage and params (bake.device)."""
+
+    def __init__(self, stage: str, device: str) -> None:
+        self.stage, self.params = stage, {"bake.device": device}
+
+
+def _pid(task: _Task) -> int:
+    return os.getpid()
+
+
+def test_gpu_chunks_run_where_a_gpu_is(tmp_path):
+    """Chunks of a stage that traces on the device (bake.device=device) run in the
+    ``local:N`` client's own process, which holds the machine's GPU; Embree's on the
+    workers. On a running cluster they go to workers that offer the GPU resource, and a
+    cluster with none is refused in one PrtError naming the stage and the remedy, before
+    anything is submitted."""
+    from distributed import LocalCluster
+
+    with DaskExecutor("local:2") as executor:
+        here = list(executor.map_unordered(_pid, [_Task("s", "device")] * 3))
+        there = list(executor.map_unordered(_pid, [_Task("s", "embree")] * 3))
+    assert here == [os.getpid()] * 3
+    assert os.getpid() not in there
+    for resources, expect in (({"GPU": 1}, "ran"), (None, "refused")):
+        with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                          dashboard_address=":0", resources=resources) as cluster, \
+                DaskExecutor(cluster.scheduler_address) as executor:
+            if expect == "ran":
+                pids = list(executor.map_unordered(_pid, [_Task("s", "device")] * 2))
+                worker = next(iter(executor.client().run(os.getpid).values()))
+                assert pids == [worker] * 2
+            else:
+                with pytest.raises(PrtError, match=r"s traces its rays on the GPU .* "
+                                                   r"--resources GPU=1, or bake it with "
+                                                   r"--bake-device embree"):
+                    list(executor.map_unordered(_pid, [_Task("s", "device")]))

@@ -25,6 +25,13 @@ worker ADDRESS --nthreads 1``, the tested setting) each chunk gets ``threads`` t
 (default 1); several dask threads in one worker process run several chunks at once
 there, each with ``threads`` threads.
 
+**Chunks that trace on the GPU** (a stage whose ``bake.device`` resolved to ``device``,
+decision 0047) need a process that owns one: on a running cluster they are submitted
+with the dask resource ``GPU: 1``, so each runs on a worker started with ``--resources
+GPU=1`` (one worker process per GPU), one at a time per GPU, and a cluster without such a
+worker is refused before any chunk is submitted; with ``local:N`` (one machine, its GPU
+held by this process) they run here, one after another.
+
 dask is imported only here, and this module only for ``--scheduler``: ``prt status`` and
 in-process runs never load it.
 """
@@ -51,6 +58,7 @@ from pipeline.engine.executors.local import (
 from pipeline.errors import PrtError
 
 LOCAL_PREFIX = "local:"
+GPU = "GPU"  # the dask worker resource of one GPU (dask worker ... --resources GPU=1)
 CONNECT_TIMEOUT = "20s"  # how long to wait for a scheduler's address to answer
 MALLOC_TRIM = "MALLOC_TRIM_THRESHOLD_"  # glibc's variable, which dask's nannies set
 # A LocalCluster's workers without dask's periodic sampling: the 10 ms stack profiler, the
@@ -211,17 +219,34 @@ class DaskExecutor:
         tasks = list(tasks)
         if not tasks:
             return
-        if len(tasks) == 1 and self.local_workers:
+        on_gpu = [on_device(task) for task in tasks]
+        if self.local_workers and (len(tasks) == 1 or all(on_gpu)):
             yield from InProcessExecutor(self.local_workers * self.threads).map_unordered(
                 fn, tasks)
             return
         client = self.client()
+        if any(on_gpu):
+            offered = [w for w, info in client.scheduler_info().get("workers", {}).items()
+                       if info.get("resources", {}).get(GPU, 0) >= 1]
+            if not offered:
+                stage = getattr(tasks[on_gpu.index(True)], "stage", "a stage")
+                raise PrtError("--scheduler", f"{stage} traces its rays on the GPU "
+                               f"(bake.device=device) but no worker of the dask cluster "
+                               f"at {self.address} offers one: start one worker per GPU "
+                               f"with --resources {GPU}=1, or bake it with --bake-device "
+                               "embree")
         parent = os.getpid() if self.local_workers else None
         search = search_dirs()
         token = uuid.uuid4().hex
-        futures = client.map(run_on_worker, [fn] * len(tasks), tasks, threads=self.threads,
-                             search=search, parent=parent, pure=False,
-                             key=[_key(task, i, token) for i, task in enumerate(tasks)])
+        futures = []
+        for gpu in (False, True):
+            chosen = [i for i, flag in enumerate(on_gpu) if flag == gpu]
+            if chosen:
+                futures += client.map(run_on_worker, [fn] * len(chosen),
+                                      [tasks[i] for i in chosen], threads=self.threads,
+                                      search=search, parent=parent, pure=False,
+                                      key=[_key(tasks[i], i, token) for i in chosen],
+                                      resources={GPU: 1} if gpu else None)
         pending = set(futures)
         try:
             for future in as_completed(futures):
@@ -257,6 +282,12 @@ class DaskExecutor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def on_device(task: Any) -> bool:
+    """Whether a chunk task traces its rays on the OpenCL device (its stage's
+    ``bake.device`` param resolved to ``device``): it needs a process that owns a GPU."""
+    return (getattr(task, "params", None) or {}).get("bake.device") == "device"
 
 
 def _key(task: Any, index: int, token: str) -> tuple[str, str]:
