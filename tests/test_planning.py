@@ -272,7 +272,8 @@ EXPECTED = {
     # what the method resamples it into
     ("d2i", "light"): {},
     ("triple", "map"): {"triple.light_rotations": EVERY},
-    ("sg", "map"): {"sg.env_prefilter": {"all"}},
+    # (sg: the map's prefiltered stack, and what the vertices see of its bright sources)
+    ("sg", "map"): {"sg.env_prefilter": {"all"}, "sg.source_visibility": {"all"}},
     # the camera: the view-dependent stages only
     ("d2i", "camera"): {s: EVERY for s in ("gbuffer", "d2i.gather", "d2i.transfer",
                                            "d2i.transfer_t", "d2i.bounce", "d2i.truncate",
