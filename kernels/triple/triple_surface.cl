@@ -12,11 +12,7 @@
  *   view    = −d;  texel_xy = w·c0 + u·c1 + v·c2 of the face's atlas corners (texels);
  *   object  = the face's object;
  *   back    = 1 where the ray meets the back of its face (d · n_face > 0), else 0
- *             (pipeline/render/__init__.py sees_back).
- * With TRIPLE_SURFACE_ANGLES defined it also writes what kernel triple_angles would from
- * these normal, tangent and view (triple_angles_of): the grid coordinates of the
- * shading frame and of the local view, saving that kernel's launch and its reading
- * them back (a camera without bump or blend materials: render.camera_gbuffer). */
+ *             (pipeline/render/__init__.py sees_back). */
 
 /* Written for PoCL's loop vectorizer (POCL_VECTORIZER_REMARKS=1 reports "vectorized
  * loop (vectorization width: 4)"): no early return, scalar loads, selects instead of
@@ -34,15 +30,6 @@
  * ~10 ulp of 1; the host twin's 1e-8 is for a float64 t of any length). */
 #define TANGENT_MIN_LENGTH 1e-6f
 
-#ifdef TRIPLE_SURFACE_ANGLES
-#include "triple_lookup.h"
-#define SURFACE_ANGLE_ARGS , const int n_phi, const int n_theta, const int n_psi, \
-    const int view_phi, const int view_theta, __global float* frame_coords, \
-    __global float* view_coords
-#else
-#define SURFACE_ANGLE_ARGS
-#endif
-
 __kernel void triple_surface(__global const int* pixel, __global const int* prim,
                              __global const float* hit_u, __global const float* hit_v,
                              __global const float* direction, __global const int* faces,
@@ -52,7 +39,7 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
                              __global const float* face_uv, __global const int* face_object,
                              const int n, __global float* normal, __global float* tangent,
                              __global float* view, __global float* texel_xy,
-                             __global int* object, __global uchar* back SURFACE_ANGLE_ARGS)
+                             __global int* object, __global uchar* back)
 {
     int g = get_global_id(0);
     int i = g < n ? g : n - 1;  /* the padding items redo the last pixel (no early return) */
@@ -90,11 +77,4 @@ __kernel void triple_surface(__global const int* pixel, __global const int* prim
     texel_xy[2 * i + 1] = w * face_uv[6 * f + 1] + u * face_uv[6 * f + 3] + v * face_uv[6 * f + 5];
     object[i] = face_object[f];
     back[i] = (uchar)behind;
-#ifdef TRIPLE_SURFACE_ANGLES
-    triple_grids grids = {n_phi, n_theta, n_psi, view_phi, view_theta, 0.0f};
-    float3 n3 = (float3)(nx, ny, nz), t3 = (float3)(tx, ty, tz), v3 = (float3)(-dx, -dy, -dz);
-    vstore3(triple_frame_coords(n3, t3, &grids), i, frame_coords);
-    vstore2(triple_view_coords((float3)(dot(v3, t3), dot(v3, cross(n3, t3)), dot(v3, n3)),
-                               &grids), i, view_coords);
-#endif
 }

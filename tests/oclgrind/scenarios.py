@@ -77,10 +77,6 @@ def run_all(folder: Path, work: Path) -> None:
             job.render_frame(sg_scene, sg_work, "sg", {"normal": normal})  # BRDF_RATIO = 1
         job.render_frame(sc, wd, "triple", {"budget": 16})
         job.render_frame(sc, wd, "triple", {"budget": 0})  # the stored rows: sparse path
-        # a map turned about x: the G-buffer's frames taken into the map, triple_angles
-        # on them (the camera's own angles come from the surface kernel)
-        lights = [{**sc.document["lights"][0], "rotation": 30.0, "axis": [1.0, 0.0, 0.0]}]
-        job.render_frame(sc.edited("lights", lights), wd, "triple", {"budget": 16})
         code = pytest.main(["-q", "-p", "no:cacheprovider",
                             *(str(TESTS / t) for t in TESTS_OF_TEST_KERNELS)])
         if code != 0:

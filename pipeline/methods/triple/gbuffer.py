@@ -72,14 +72,6 @@ def gbuffer_rays(cam: Any) -> tuple[np.ndarray, np.ndarray]:
     return np.tile(np.asarray(cam.position, np.float32), (len(local), 1)), directions
 
 
-def angle_buffers(n: int) -> list[Any]:
-    """Device buffers of n pixels' frame-grid (n, 3) and view-grid (n, 2) coordinates,
-    float32 (kernel triple_angles' outputs)."""
-    import pyopencl as pcl
-
-    return [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * 4) for k in (3, 2)]
-
-
 def aligned(array: np.ndarray, dtype: Any) -> np.ndarray:
     """``array`` as a C-contiguous array of ``dtype`` starting on a page (cl.PAGE): itself
     when it is one, else a cl.aligned_empty copy. A CPU device reads such memory in place
@@ -136,10 +128,12 @@ class GBuffer:
         """Device buffers of every pixel's frame-grid (P, 3) and view-grid (P, 2)
         coordinates (kernel ``triple_angles``: the lookups' trigonometry, run once per
         camera and grids) and the milliseconds that took (0 once cached)."""
+        import pyopencl as pcl
+
         if (frames, views) in self._angles:
             return self._angles[frames, views], 0.0
         n = max(self.count, 1)
-        out = angle_buffers(n)
+        out = [pcl.Buffer(cl.context(), pcl.mem_flags.READ_WRITE, n * k * 4) for k in (3, 2)]
         inputs = [cl.shared_read_only_buffer(a) for a in (self.normal, self.tangent, self.view)]
         kernel = cl.kernel("triple.cl", "triple_angles", {"SW_LEVELS": 1})
         event = kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,),
@@ -149,11 +143,6 @@ class GBuffer:
                        np.int32(self.count), *out)
         self._angles[frames, views] = out
         return out, cl.event_ms(event)
-
-    def keep_angles(self, frames: FrameGrid, views: ViewGrid, buffers: list[Any]) -> None:
-        """Keep ``buffers`` as :meth:`angles`' answer for these grids (written by the
-        surface kernel with them: surface_attributes' ``grids``)."""
-        self._angles[frames, views] = buffers
 
     @cached_property
     def pixel_device(self) -> tuple[Any, Any]:
@@ -200,9 +189,8 @@ class GBuffer:
 
 
 def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: np.ndarray,
-                       pixel: np.ndarray, static: dict[str, Any] | None = None,
-                       grids: tuple[FrameGrid, ViewGrid] | None = None
-                       ) -> dict[str, Any]:
+                       pixel: np.ndarray, static: dict[str, Any] | None = None
+                       ) -> dict[str, np.ndarray]:
     """Kernel ``triple_surface`` (kernels/triple/triple_surface.cl): the G-buffer's ``normal``,
     ``tangent``, ``view`` (P, 3), ``texel_xy`` (P, 2) float32, ``object`` (P,) int32 and
     ``back`` (P,) uint8 (1: the ray meets the back of its face) at the camera rays
@@ -210,9 +198,7 @@ def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: 
     the mesh's vertex normals (blended in float32), unit face normals and unit uv
     tangents and the atlas's corners ``face_uv`` (F, 3, 2) in texels (uploaded once where
     ``static``, a renderer's cache of device buffers, is given). Its NumPy twin is
-    pipeline.device.raytrace.Surface with Atlas.texel_xy and render.sees_back. With
-    ``grids`` (frames, views) the same launch also writes what :meth:`GBuffer.angles`
-    computes for them, device buffers under ``angles`` (TRIPLE_SURFACE_ANGLES)."""
+    pipeline.device.raytrace.Surface with Atlas.texel_xy and render.sees_back."""
 
     n = len(pixel)
     static = {} if static is None else static
@@ -234,19 +220,12 @@ def surface_attributes(mesh: Mesh, face_uv: np.ndarray, hits: Hits, directions: 
     if not n:
         return out
     buffers = [cl.shared_output_buffer(a) for a in out.values()]
-    extra: list[Any] = []
-    angles = angle_buffers(n) if grids is not None else None
-    if grids is not None:
-        frames, views = grids
-        extra = [*(np.int32(x) for x in (frames.n_phi, frames.n_theta, frames.n_psi,
-                                         views.n_phi, views.n_theta)), *angles]
-    kernel = cl.kernel("triple_surface.cl", "triple_surface",
-                       {"TRIPLE_SURFACE_ANGLES": 1} if grids is not None else None)
+    kernel = cl.kernel("triple_surface.cl", "triple_surface")
     kernel(cl.queue(), (-(-n // WORK_GROUP) * WORK_GROUP,), (WORK_GROUP,), *inputs,
-           np.int32(n), *buffers, *extra)
+           np.int32(n), *buffers)
     for a, buffer in zip(out.values(), buffers, strict=True):
         cl.read_output_buffer(a, buffer)
-    return out if angles is None else {**out, "angles": angles}
+    return out
 
 
 @dataclass

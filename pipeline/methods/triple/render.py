@@ -184,8 +184,7 @@ def shade_numpy(tables: TripleTables, lookups: PixelLookups, pixels: np.ndarray
 
 
 def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
-                   cam: Any, static: dict[str, Any] | None = None,
-                   grids: tuple[FrameGrid, ViewGrid] | None = None) -> GBuffer:
+                   cam: Any, static: dict[str, Any] | None = None) -> GBuffer:
     """The G-buffer of camera ``cam`` (pipeline/methods/triple/gbuffer.py): camera rays
     traced, surface attributes at the hits on the device (``surface_attributes``: the
     interpolated normal, the uv tangent, the texel coordinates); where a material has a
@@ -193,17 +192,14 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
     blends the materials on the host. The texel coordinates stay with the geometric hit
     (the visibility is the unbumped texel's, paper 004 §4.2). NumPy twin:
     :func:`camera_gbuffer_numpy`. ``static``: the renderer's cache of device buffers
-    (the mesh's are uploaded once). ``grids`` (frames, views): where no material has a
-    blend or a bump, the surface kernel also computes :meth:`GBuffer.angles` for them
-    (detail would change the shading frames after it)."""
+    (the mesh's are uploaded once)."""
     origins, directions = gbuffer_rays(cam)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     # page-aligned arrays from here on: a CPU device's kernels read them in place
     hits = Hits(hits.t, *(aligned(a, a.dtype) for a in (hits.prim, hits.u, hits.v)))
     pixel = aligned(np.flatnonzero(hit), np.int32)
-    s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel, static,
-                           grids if detail.empty else None)
+    s = surface_attributes(mesh, atlas.face_uv, hits, directions, pixel, static)
     material = cl.aligned_empty(len(pixel), np.int32)
     np.take(np.asarray(mesh.object_material, np.int32), s["object"], out=material)
     material_b = cl.aligned_empty(len(pixel), np.int32)
@@ -219,12 +215,9 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
         material_b[which], blend[which] = shading.material_b, shading.blend
     miss = aligned(np.flatnonzero(~hit), np.int32)
     miss_direction = aligned(directions[miss], np.float32)
-    gbuffer = GBuffer(cam.width, cam.height, pixel, s["normal"], s["tangent"], s["view"],
-                      s["texel_xy"], s["object"], material, material_b, blend,
-                      miss, miss_direction, s["back"].view(bool))
-    if "angles" in s:
-        gbuffer.keep_angles(*grids, s["angles"])
-    return gbuffer
+    return GBuffer(cam.width, cam.height, pixel, s["normal"], s["tangent"], s["view"],
+                   s["texel_xy"], s["object"], material, material_b, blend,
+                   miss, miss_direction, s["back"].view(bool))
 
 
 def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDetail,
@@ -403,7 +396,7 @@ class TripleRenderer:
         if not was_cached:  # a new camera: trace it (the previous one is dropped)
             self.gbuffers.clear()
             self.gbuffers[key] = camera_gbuffer(self.tracer, self.mesh, atlas, self.detail,
-                                                cam, static, (tables.frames, tables.views))
+                                                cam, static)
         gbuffer = self.gbuffers[key]
         env = scene.environment
         about_y = env.turn_about_y
