@@ -30,7 +30,7 @@ decision 0047) need a process that owns one: on a running cluster they are submi
 with the dask resource ``GPU: 1``, so each runs on a worker started with ``--resources
 GPU=1`` (one worker process per GPU), one at a time per GPU, and a cluster without such a
 worker is refused before any chunk is submitted; with ``local:N`` (one machine, its GPU
-held by this process) they run here, one after another.
+held by this process) they run here, one after another (decision 0050).
 
 dask is imported only here, and this module only for ``--scheduler``: ``prt status`` and
 in-process runs never load it.
