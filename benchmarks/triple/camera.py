@@ -48,10 +48,11 @@ def gbuffer_parts(tracer: Any, mesh: Any, atlas: Any, detail: Any, cam: Any,
                   tables: Any) -> dict[str, float]:
     """Milliseconds of the kernel path's parts (as ``camera_gbuffer`` runs them)."""
     from pipeline.methods.triple import render
-    from pipeline.methods.triple.gbuffer import gbuffer_rays, surface_attributes
+    from pipeline.methods.triple.gbuffer import surface_attributes
+    from pipeline.render.rays import aligned_image_rays
 
     t0 = time.perf_counter()
-    origins, directions = gbuffer_rays(cam)
+    origins, directions = aligned_image_rays(cam)
     t1 = time.perf_counter()
     hits = tracer.intersect(origins, directions)
     t2 = time.perf_counter()

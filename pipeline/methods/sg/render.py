@@ -58,7 +58,6 @@ from pipeline.errors import PrtError
 from pipeline.images import read_environment
 from pipeline.math import sg, sh
 from pipeline.math.brdf import BrdfParams, pack_materials, scene_brdfs
-from pipeline.math.camera import image_rays
 from pipeline.math.geodesic import icosahedron
 from pipeline.methods.sg import source_rings, visibility
 from pipeline.methods.sg.brdf_lobe import TABLE, brdf_lobe, lobe_table
@@ -76,6 +75,7 @@ from pipeline.render import (
     camera_key,
     sees_back,
 )
+from pipeline.render.rays import aligned_image_rays
 from pipeline.scene.model import Scene
 
 SLOTS, FIELDS = 3, 7  # lobe slots per (vertex, view); (w_rgb, μ_xyz, λ) per lobe
@@ -850,8 +850,7 @@ def camera_gbuffer(tracer: RayTracer, vertices: np.ndarray, faces: np.ndarray, c
     """Trace camera ``cam``'s rays; hits' faces and barycentrics, view triangles of
     ω_o = −ray direction (kernel ``sg_view_lookup``)."""
     t0 = time.perf_counter()
-    origins, directions = image_rays(cam.position, cam.look_at, cam.up, cam.fov,
-                                     cam.width, cam.height)
+    origins, directions = aligned_image_rays(cam)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     u, v = hits.u[hit], hits.v[hit]

@@ -29,7 +29,7 @@ sparse path keeps them on the device).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import cached_property, lru_cache
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -37,7 +37,6 @@ import numpy as np
 from pipeline.device import cl
 from pipeline.device.raytrace import Hits, Mesh
 from pipeline.math.brdf import to_local
-from pipeline.math.camera import _local_directions, camera_frame
 from pipeline.methods.triple.frame_grids import FrameGrid, ViewGrid
 from pipeline.methods.triple.tables import (
     BRDF_ROWS,
@@ -50,26 +49,6 @@ from pipeline.methods.triple.tables import (
     texel_lookups,
 )
 from pipeline.render import WORK_GROUP
-
-
-@lru_cache(maxsize=4)
-def _local_directions32(fov: float, width: int, height: int) -> np.ndarray:
-    """pipeline.math.camera's camera-frame pixel directions (H·W, 3), float32."""
-    return np.ascontiguousarray(_local_directions(fov, width, height), np.float32)
-
-
-def gbuffer_rays(cam: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The rays of camera ``cam``'s pixels, row-major from the top row: origins (H·W, 3)
-    float32, contiguous (the tracer takes them as they are), and unit directions
-    (H·W, 3) float32 in page-aligned memory (:func:`aligned`), the camera-frame
-    directions turned by one float32 3×3 product — math.camera.image_rays' rays, which
-    turn them in float64 (7 ms a 1024×768 camera against 1.3 ms here, and 7 ms more to
-    make their broadcast origins contiguous), within a few float32 roundings."""
-    local = _local_directions32(float(cam.fov), int(cam.width), int(cam.height))
-    frame = np.stack(camera_frame(cam.position, cam.look_at, cam.up)).astype(np.float32)
-    directions = cl.aligned_empty(local.shape, np.float32)
-    np.matmul(local, frame, out=directions)
-    return np.tile(np.asarray(cam.position, np.float32), (len(local), 1)), directions
 
 
 def aligned(array: np.ndarray, dtype: Any) -> np.ndarray:

@@ -66,7 +66,6 @@ from pipeline.methods.triple.gbuffer import (
     LookupTables,
     aligned,
     device_lookups,
-    gbuffer_rays,
     kernel_arguments,
     surface_attributes,
 )
@@ -90,6 +89,7 @@ from pipeline.render import (
     camera_key,
     sees_back,
 )
+from pipeline.render.rays import aligned_image_rays
 from pipeline.render.surface_detail import SceneDetail
 from pipeline.scene.model import Scene
 
@@ -193,7 +193,7 @@ def camera_gbuffer(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: SceneDet
     (the visibility is the unbumped texel's, paper 004 §4.2). NumPy twin:
     :func:`camera_gbuffer_numpy`. ``static``: the renderer's cache of device buffers
     (the mesh's are uploaded once)."""
-    origins, directions = gbuffer_rays(cam)
+    origins, directions = aligned_image_rays(cam)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     # page-aligned arrays from here on: a CPU device's kernels read them in place
@@ -225,7 +225,7 @@ def camera_gbuffer_numpy(tracer: RayTracer, mesh: Mesh, atlas: Atlas, detail: Sc
     """:func:`camera_gbuffer` on the host: every attribute from
     pipeline.device.raytrace.Surface, ``detail`` and :meth:`Atlas.texel_xy` (the device
     kernel's twin, tests and benchmarks; it uploads nothing, so ``static`` is unused)."""
-    origins, directions = gbuffer_rays(cam)
+    origins, directions = aligned_image_rays(cam)
     hits = tracer.intersect(origins, directions)
     hit = hits.prim >= 0
     d = directions[hit]  # float32, as the G-buffer keeps it (normals blended in float32)
