@@ -451,9 +451,10 @@ def shade_numpy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: np
     corner = np.asarray(corner, np.int64)
     if visible:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
+        seen = source_seen(tables, turn, about_y)
         diffuse = vertex_diffuse(tables.transfer.astype(np.float64), light_sh,
-                                 source_diffuse(tables, turn, about_y))[corner]
-        return scale * (visibility_glossy(tables, corner, bary, wo, turn, light_sh, about_y)
+                                 source_diffuse(tables, turn, about_y, seen))[corner]
+        return scale * (visibility_glossy(tables, corner, bary, wo, turn, light_sh, seen)
                         + np.einsum("pa,pac->pc", bary.astype(np.float64), diffuse))
     if ratio:
         turn = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)
@@ -562,11 +563,12 @@ def ratio_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray, view: n
 
 def visibility_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray,
                       wo: np.ndarray, turn: np.ndarray, light_sh: np.ndarray,
-                      about_y: float | None = None) -> np.ndarray:
+                      seen: np.ndarray | None = None) -> np.ndarray:
     """The glossy radiance (P, 3) of decision 0046 (visibility.glossy) of pixels whose
     corners share one table row ≥ 0 and whose blended normal n_p faces ``wo`` (0
     elsewhere); the occluders' radiance from ``light_sh`` (n², 3); the map turned by
-    ``turn``, ``about_y`` degrees about +y where it is such a turn."""
+    ``turn``, what the vertices see of its sources ``seen`` (V, K) (:func:`source_seen`;
+    needed where there are sources)."""
     corner = np.asarray(corner, np.int64)
     bary = np.asarray(bary, np.float64)
     m = tables.vertex_lobe[corner]
@@ -590,12 +592,10 @@ def visibility_glossy(tables: SgTables, corner: np.ndarray, bary: np.ndarray,
     sources, brdf_cos = light_sources(tables), None
     stack = [np.asarray(level, np.float64) for level in
              (tables.stack if sources is None else tables.residual_stack)]
-    seen = None
     if sources is not None:
         world = sources[:, :3].astype(np.float64) @ np.asarray(turn, np.float64).T
         brdf_cos = visibility.source_brdf(tables.glossy_brdfs, np.maximum(m[:, 0], 0), unit,
                                           wo, world)
-        seen = source_seen(tables, turn, about_y)
     return visibility.glossy(tables.visibility, tables.visibility_resolution, occluder,
                              corner, bary, unit, mu, lam, weights, specular, stack,
                              tables.levels, turn, sources, brdf_cos, seen)
@@ -767,8 +767,8 @@ def shade_arrays(device: SgDevice, corner: np.ndarray, bary: np.ndarray, view: n
               "view_weight": cl.read_only_buffer(np.asarray(view_weight, np.float32)),
               "wo": cl.read_only_buffer(np.ascontiguousarray(wo, np.float32))}
     turn = np.eye(3) if to_world is None else to_world
-    extra = source_diffuse(device.tables, turn, about_y) if device.visible else None
     seen = source_seen(device.tables, turn, about_y) if device.visible else None
+    extra = source_diffuse(device.tables, turn, about_y, seen) if device.visible else None
     return device.shade(pixels, len(corner), device.vertex_diffuse(light_sh, extra=extra),
                         to_world, scale, seen=seen)[0]
 

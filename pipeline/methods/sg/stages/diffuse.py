@@ -40,15 +40,16 @@ from pipeline.methods.sg.vertex_scene import VertexScene
 BATCH = 1024  # vertices per tracing batch: 1024 × samples rays
 
 
-def vertex_scene(ctx: AssembleContext) -> VertexScene:
+def vertex_scene(ctx: AssembleContext, albedo: bool = True) -> VertexScene:
     """The geometry as a VertexScene whose materials carry only their albedo kd (as
-    Lambert: all this stage reads of them), its rays traced as ``bake.device`` says
+    Lambert: all this stage reads of them; ``albedo`` False: no materials, for a stage
+    that traces visibility alone), its rays traced as ``bake.device`` says
     (pipeline/device/bake_tracer.py)."""
     geometry = ctx.inputs["geometry"]
     arrays = {name: geometry.read(name) for name in
               ("vertices", "normals", "faces", "object_ranges", "object_material")}
     materials = [BrdfParams("lambert", tuple(ctx.scene[f"materials.{name}.albedo"]))
-                 for name in geometry.attrs["material_names"]]
+                 for name in geometry.attrs["material_names"]] if albedo else []
     tracer = bake_tracer(ctx.params[PARAM], geometry.record["key"], arrays["vertices"],
                          arrays["faces"])
     return VertexScene.from_arrays(arrays, materials, tracer)
@@ -64,8 +65,8 @@ def integer_param(ctx: AssembleContext, name: str, low: int) -> int:
 
 def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
     """``transfer`` (V, 3, order²) float32 of every vertex, and its ``direct`` part (the
-    bright sources' direct light is taken from the visibility maps instead, decision
-    0048)."""
+    bright sources' direct light is taken from what each vertex sees of them instead,
+    decisions 0048 and 0049)."""
     samples = integer_param(ctx, "sg.diffuse_samples", 1)
     bounces = integer_param(ctx, "sg.diffuse_bounces", 0)
     order = integer_param(ctx, "sg.diffuse_order", 1)

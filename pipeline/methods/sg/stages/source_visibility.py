@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.device.bake_tracer import PARAM, bake_tracer
 from pipeline.engine.stage import AssembleContext, Chunk, ChunkContext, Output
 from pipeline.errors import PrtError
 from pipeline.methods.sg import source_rings
 from pipeline.methods.sg.sources import FIELDS
-from pipeline.methods.sg.vertex_scene import VertexScene
+from pipeline.methods.sg.stages.diffuse import vertex_scene
 
 BATCH = 64  # vertices per tracing batch of 64 × R × N rays (studio lights: 4.3k, 2.0k a vertex)
 
@@ -29,12 +28,7 @@ def run_chunk(ctx: ChunkContext) -> dict[str, np.ndarray]:
         raise PrtError("sg.source_visibility_step", f"{step}: must be > 0")
     sources = np.asarray(ctx.inputs["sg.env_prefilter"].read("sources"),
                          np.float64).reshape(-1, FIELDS)
-    geometry = ctx.inputs["geometry"]
-    arrays = {name: geometry.read(name) for name in
-              ("vertices", "normals", "faces", "object_ranges", "object_material")}
-    tracer = bake_tracer(ctx.params[PARAM], geometry.record["key"], arrays["vertices"],
-                         arrays["faces"])
-    scene = VertexScene.from_arrays(arrays, [], tracer)
+    scene = vertex_scene(ctx, albedo=False)
     count = len(scene.positions)
     rings = [source_rings.ring_rows(s[:3], float(s[6]), step) for s in sources]
     offsets = np.cumsum([0] + [n for _, _, n in rings]).astype(np.int32)
